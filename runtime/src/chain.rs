@@ -1,0 +1,216 @@
+//! The controller chain of a job: per-axis stages, couplers, and the conversion between the
+//! wire (load units) and the controllers (motor units).
+//!
+//! One call of [`Chain::step`] is one control cycle. It does not allocate, lock or log, and it
+//! never lets a non-finite torque through: a stage that produces NaN/inf yields zero torque
+//! for that cycle and the fault is counted.
+
+use std::path::Path;
+
+use crate::controller::{
+    AxisContext, AxisSignals, Controller, Coupler, CycleContext, PluginRegistry, Stage,
+};
+use crate::job::Job;
+use crate::params::ConfigError;
+use crate::trajectory::RefState;
+use crate::wire::{ActuatorCommand, SensorSample};
+
+/// The stages of one axis.
+pub struct AxisChain {
+    /// Axis context (name, plant, defaults).
+    pub context: AxisContext,
+    /// Units conversion: motor units per load unit.
+    pub motor_per_load: f64,
+    /// One optional controller per stage, indexed by `Stage::index()`.
+    pub stages: [Option<Box<dyn Controller>>; 4],
+}
+
+/// All axes' chains plus couplers.
+pub struct Chain {
+    axes: Vec<AxisChain>,
+    couplers: Vec<Box<dyn Coupler>>,
+    signals: Vec<AxisSignals>,
+    /// Cycles in which some axis produced a non-finite torque (forced to zero).
+    pub nonfinite_faults: u64,
+}
+
+/// Stages filled when a job gives none for an axis.
+pub const DEFAULT_CHAIN: [(Stage, &str); 2] = [
+    (Stage::Position, "position_p"),
+    (Stage::Velocity, "pi_velocity"),
+];
+
+impl Chain {
+    /// Builds the chain of `job` from `registry` (validates every plugin's parameters).
+    pub fn build(job: &Job, registry: &dyn PluginRegistry) -> Result<Self, ConfigError> {
+        let contexts: Vec<AxisContext> = job
+            .axes
+            .iter()
+            .map(|a| AxisContext {
+                name: a.name.clone(),
+                plant: a.model.plant,
+                defaults: a.model.controller,
+                period_s: job.period_s,
+            })
+            .collect();
+        let mut axes = Vec::with_capacity(job.axes.len());
+        for (i, ctx) in contexts.iter().enumerate() {
+            let mut stages: [Option<Box<dyn Controller>>; 4] = [None, None, None, None];
+            let explicit: Vec<_> = job.chain.iter().filter(|c| c.axis == i).collect();
+            for e in &explicit {
+                let c = registry
+                    .create(&e.plugin, &e.params, ctx, &job.path)
+                    .map_err(|err| prefix_key(err, &e.key))?;
+                stages[e.stage.index()] = Some(c);
+            }
+            if explicit.is_empty() {
+                for (stage, id) in DEFAULT_CHAIN {
+                    let c = registry
+                        .create(id, &toml::Table::new(), ctx, &job.path)
+                        .map_err(|err| {
+                            ConfigError::new(
+                                &job.path,
+                                format!("axes.{}", ctx.name),
+                                format!(
+                                    "the default `{id}` stage cannot be built from the model's [controller] ({}): {}",
+                                    err.file.display(),
+                                    err.reason
+                                ),
+                            )
+                        })?;
+                    stages[stage.index()] = Some(c);
+                }
+            }
+            if stages[Stage::Velocity.index()].is_none() {
+                return Err(ConfigError::new(
+                    &job.path,
+                    "chain",
+                    format!(
+                        "axis `{}` has no velocity stage: nothing would produce its torque",
+                        ctx.name
+                    ),
+                ));
+            }
+            axes.push(AxisChain {
+                motor_per_load: ctx.plant.motor_per_load(),
+                context: ctx.clone(),
+                stages,
+            });
+        }
+        let mut couplers = Vec::new();
+        for c in &job.couplers {
+            couplers.push(
+                registry
+                    .create_coupler(&c.plugin, &c.params, &contexts, &c.axes, &job.path)
+                    .map_err(|err| prefix_key(err, &c.key))?,
+            );
+        }
+        let n = axes.len();
+        Ok(Self {
+            axes,
+            couplers,
+            signals: vec![AxisSignals::default(); n],
+            nonfinite_faults: 0,
+        })
+    }
+
+    /// Number of axes.
+    pub fn axis_count(&self) -> usize {
+        self.axes.len()
+    }
+
+    /// The axes' chains.
+    pub fn axes(&self) -> &[AxisChain] {
+        &self.axes
+    }
+
+    /// Signals of the last cycle (motor units).
+    pub fn signals(&self) -> &[AxisSignals] {
+        &self.signals
+    }
+
+    /// Replaces the controller of `axis`/`stage`, initialised from the last cycle's signals;
+    /// returns the previous one.
+    pub fn replace(
+        &mut self,
+        axis: usize,
+        stage: Stage,
+        mut new: Box<dyn Controller>,
+    ) -> Option<Box<dyn Controller>> {
+        new.initialize_from(&self.signals[axis]);
+        self.axes[axis].stages[stage.index()].replace(new)
+    }
+
+    /// One control cycle: `refs` are the references of every axis in load units (job order),
+    /// `sample` the plant's measurement; writes torques and references into `cmd`.
+    pub fn step(
+        &mut self,
+        ctx: &CycleContext,
+        refs: &[RefState],
+        sample: &SensorSample,
+        cmd: &mut ActuatorCommand,
+    ) {
+        for (i, (axis, sig)) in self
+            .axes
+            .iter_mut()
+            .zip(self.signals.iter_mut())
+            .enumerate()
+        {
+            let k = axis.motor_per_load;
+            let s = &sample.axes[i];
+            let r = &refs[i];
+            for (d, v) in sig.reference.iter_mut().zip(r.iter()) {
+                *d = v * k;
+            }
+            sig.load_pos = s.load_pos * k;
+            sig.motor_pos = s.motor_pos;
+            sig.motor_vel = s.motor_vel;
+            sig.vel_cmd = 0.0;
+            sig.torque_ff = 0.0;
+            sig.torque = 0.0;
+            for stage in &mut axis.stages[..Stage::Velocity.index()] {
+                if let Some(c) = stage {
+                    c.step(ctx, sig);
+                }
+            }
+        }
+        for c in &mut self.couplers {
+            c.step(ctx, &mut self.signals);
+        }
+        let mut fault = false;
+        for (i, (axis, sig)) in self
+            .axes
+            .iter_mut()
+            .zip(self.signals.iter_mut())
+            .enumerate()
+        {
+            if let Some(c) = &mut axis.stages[Stage::Velocity.index()] {
+                c.step(ctx, sig);
+            }
+            if !sig.torque.is_finite() {
+                sig.torque = 0.0;
+                fault = true;
+            }
+            cmd.axes[i].torque = sig.torque;
+            cmd.axes[i].reference = refs[i][0];
+        }
+        if fault {
+            self.nonfinite_faults += 1;
+        }
+        cmd.axis_count = self.axes.len() as u32;
+        cmd.seq = sample.seq;
+    }
+}
+
+fn prefix_key(mut e: ConfigError, key: &str) -> ConfigError {
+    if e.file.as_os_str().is_empty() || e.file == Path::new("") {
+        e.key = format!("{key}.params.{}", e.key);
+    } else {
+        e.key = if e.key.is_empty() {
+            key.to_string()
+        } else {
+            format!("{key}.params.{}", e.key)
+        };
+    }
+    e
+}

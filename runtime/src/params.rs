@@ -1,0 +1,369 @@
+//! Typed, validated reading of TOML parameter tables with errors that name file, key and reason.
+//!
+//! Every config surface of feedloop (model files, job files, plugin and effect parameters) goes
+//! through [`Fields`], so unknown keys, wrong types and out-of-range values are all reported the
+//! same way: `FILE: key `a.b`: reason`.
+
+use std::collections::BTreeSet;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A configuration error: which file, which key (dotted path), and what is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    /// File the value came from (empty when it came from elsewhere, e.g. a control request).
+    pub file: PathBuf,
+    /// Dotted key path, e.g. `axes.x.model` or `effects.backlash.gap_m`; empty for file-level errors.
+    pub key: String,
+    /// What is wrong, in words.
+    pub reason: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let file = self.file.display();
+        match (self.file.as_os_str().is_empty(), self.key.is_empty()) {
+            (true, true) => write!(f, "{}", self.reason),
+            (true, false) => write!(f, "key `{}`: {}", self.key, self.reason),
+            (false, true) => write!(f, "{file}: {}", self.reason),
+            (false, false) => write!(f, "{file}: key `{}`: {}", self.key, self.reason),
+        }
+    }
+}
+
+impl ConfigError {
+    /// Builds an error.
+    pub fn new(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self {
+            file: file.to_path_buf(),
+            key: key.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// Reads a TOML file into a table; a syntax error names the file and the line.
+pub fn read_toml_file(path: &Path) -> Result<toml::Table, ConfigError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ConfigError::new(path, "", format!("cannot read file: {e}")))?;
+    parse_toml(path, &text)
+}
+
+/// Parses TOML text that came from `path` (used in messages only).
+pub fn parse_toml(path: &Path, text: &str) -> Result<toml::Table, ConfigError> {
+    text.parse::<toml::Table>().map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+        let msg = e.message().to_string();
+        match line {
+            Some(l) => ConfigError::new(path, "", format!("line {l}: invalid TOML: {msg}")),
+            None => ConfigError::new(path, "", format!("invalid TOML: {msg}")),
+        }
+    })
+}
+
+/// Range check applied to a number.
+#[derive(Debug, Clone, Copy)]
+pub enum Range {
+    /// Any finite value.
+    Finite,
+    /// Finite and > 0.
+    Positive,
+    /// Finite and >= 0.
+    NonNegative,
+    /// Finite and within [lo, hi].
+    Within(f64, f64),
+}
+
+impl Range {
+    fn check(self, v: f64) -> Result<(), String> {
+        if !v.is_finite() {
+            return Err(format!("must be a finite number, got {v}"));
+        }
+        match self {
+            Range::Finite => Ok(()),
+            Range::Positive if v > 0.0 => Ok(()),
+            Range::Positive => Err(format!("must be > 0, got {v}")),
+            Range::NonNegative if v >= 0.0 => Ok(()),
+            Range::NonNegative => Err(format!("must be >= 0, got {v}")),
+            Range::Within(lo, hi) if (lo..=hi).contains(&v) => Ok(()),
+            Range::Within(lo, hi) => Err(format!("must be within [{lo}, {hi}], got {v}")),
+        }
+    }
+}
+
+/// A view of one TOML table that remembers which keys were read, so unknown keys can be refused.
+pub struct Fields<'a> {
+    table: &'a toml::Table,
+    file: &'a Path,
+    prefix: String,
+    used: BTreeSet<String>,
+}
+
+impl<'a> Fields<'a> {
+    /// Wraps `table`, found in `file` under the dotted `prefix` ("" for the top level).
+    pub fn new(table: &'a toml::Table, file: &'a Path, prefix: &str) -> Self {
+        Self {
+            table,
+            file,
+            prefix: prefix.to_string(),
+            used: BTreeSet::new(),
+        }
+    }
+
+    /// The file this table came from.
+    pub fn file(&self) -> &'a Path {
+        self.file
+    }
+
+    /// Dotted path of `key` inside this table.
+    pub fn path(&self, key: &str) -> String {
+        if self.prefix.is_empty() {
+            key.to_string()
+        } else {
+            format!("{}.{key}", self.prefix)
+        }
+    }
+
+    /// An error about `key` of this table.
+    pub fn error(&self, key: &str, reason: impl Into<String>) -> ConfigError {
+        ConfigError::new(self.file, self.path(key), reason)
+    }
+
+    /// The raw value of `key`, marking it used.
+    pub fn raw(&mut self, key: &str) -> Option<&'a toml::Value> {
+        let v = self.table.get(key);
+        if v.is_some() {
+            self.used.insert(key.to_string());
+        }
+        v
+    }
+
+    /// Whether `key` is present (does not mark it used).
+    pub fn has(&self, key: &str) -> bool {
+        self.table.contains_key(key)
+    }
+
+    /// An optional number (integers are accepted as numbers) checked against `range`.
+    pub fn opt_f64(&mut self, key: &str, range: Range) -> Result<Option<f64>, ConfigError> {
+        let Some(v) = self.raw(key) else {
+            return Ok(None);
+        };
+        let x = match v {
+            toml::Value::Float(f) => *f,
+            toml::Value::Integer(i) => *i as f64,
+            other => {
+                return Err(self.error(key, format!("must be a number, got {}", other.type_str())))
+            }
+        };
+        range.check(x).map_err(|r| self.error(key, r))?;
+        Ok(Some(x))
+    }
+
+    /// A required number.
+    pub fn f64(&mut self, key: &str, range: Range) -> Result<f64, ConfigError> {
+        self.opt_f64(key, range)?
+            .ok_or_else(|| self.error(key, "is required but missing"))
+    }
+
+    /// A number with a default.
+    pub fn f64_or(&mut self, key: &str, range: Range, default: f64) -> Result<f64, ConfigError> {
+        Ok(self.opt_f64(key, range)?.unwrap_or(default))
+    }
+
+    /// An optional integer within [lo, hi].
+    pub fn opt_i64(&mut self, key: &str, lo: i64, hi: i64) -> Result<Option<i64>, ConfigError> {
+        let Some(v) = self.raw(key) else {
+            return Ok(None);
+        };
+        let x = match v {
+            toml::Value::Integer(i) => *i,
+            toml::Value::Float(f) if f.fract() == 0.0 && f.is_finite() => *f as i64,
+            other => {
+                return Err(self.error(
+                    key,
+                    format!("must be a whole number, got {}", describe(other)),
+                ))
+            }
+        };
+        if x < lo || x > hi {
+            return Err(self.error(key, format!("must be within [{lo}, {hi}], got {x}")));
+        }
+        Ok(Some(x))
+    }
+
+    /// An optional string.
+    pub fn opt_str(&mut self, key: &str) -> Result<Option<&'a str>, ConfigError> {
+        match self.raw(key) {
+            None => Ok(None),
+            Some(toml::Value::String(s)) => Ok(Some(s.as_str())),
+            Some(other) => {
+                Err(self.error(key, format!("must be a string, got {}", other.type_str())))
+            }
+        }
+    }
+
+    /// A required string.
+    pub fn str(&mut self, key: &str) -> Result<&'a str, ConfigError> {
+        self.opt_str(key)?
+            .ok_or_else(|| self.error(key, "is required but missing"))
+    }
+
+    /// An optional boolean.
+    pub fn opt_bool(&mut self, key: &str) -> Result<Option<bool>, ConfigError> {
+        match self.raw(key) {
+            None => Ok(None),
+            Some(toml::Value::Boolean(b)) => Ok(Some(*b)),
+            Some(other) => Err(self.error(
+                key,
+                format!("must be true or false, got {}", other.type_str()),
+            )),
+        }
+    }
+
+    /// An optional sub-table.
+    pub fn opt_table(&mut self, key: &str) -> Result<Option<&'a toml::Table>, ConfigError> {
+        match self.raw(key) {
+            None => Ok(None),
+            Some(toml::Value::Table(t)) => Ok(Some(t)),
+            Some(other) => {
+                Err(self.error(key, format!("must be a table, got {}", other.type_str())))
+            }
+        }
+    }
+
+    /// An optional array of numbers.
+    pub fn opt_f64_array(&mut self, key: &str) -> Result<Option<Vec<f64>>, ConfigError> {
+        let Some(v) = self.raw(key) else {
+            return Ok(None);
+        };
+        let arr = v.as_array().ok_or_else(|| {
+            self.error(
+                key,
+                format!("must be an array of numbers, got {}", v.type_str()),
+            )
+        })?;
+        let mut out = Vec::with_capacity(arr.len());
+        for (i, x) in arr.iter().enumerate() {
+            let f = match x {
+                toml::Value::Float(f) => *f,
+                toml::Value::Integer(n) => *n as f64,
+                other => {
+                    return Err(self.error(
+                        key,
+                        format!("element {i} must be a number, got {}", other.type_str()),
+                    ))
+                }
+            };
+            if !f.is_finite() {
+                return Err(self.error(key, format!("element {i} must be finite, got {f}")));
+            }
+            out.push(f);
+        }
+        Ok(Some(out))
+    }
+
+    /// An optional array of strings.
+    pub fn opt_str_array(&mut self, key: &str) -> Result<Option<Vec<String>>, ConfigError> {
+        let Some(v) = self.raw(key) else {
+            return Ok(None);
+        };
+        let arr = v.as_array().ok_or_else(|| {
+            self.error(
+                key,
+                format!("must be an array of strings, got {}", v.type_str()),
+            )
+        })?;
+        arr.iter()
+            .enumerate()
+            .map(|(i, x)| {
+                x.as_str().map(str::to_string).ok_or_else(|| {
+                    self.error(
+                        key,
+                        format!("element {i} must be a string, got {}", x.type_str()),
+                    )
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map(Some)
+    }
+
+    /// Marks `key` as known without reading it (it is read elsewhere).
+    pub fn allow(&mut self, key: &str) {
+        self.used.insert(key.to_string());
+    }
+
+    /// Refuses any key that was not read: the error lists the known keys when given.
+    pub fn finish(self) -> Result<(), ConfigError> {
+        for key in self.table.keys() {
+            if !self.used.contains(key) {
+                let known: Vec<&str> = self.used.iter().map(String::as_str).collect();
+                let hint = if known.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (keys read here: {})", known.join(", "))
+                };
+                return Err(self.error(key, format!("unknown key{hint}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn describe(v: &toml::Value) -> String {
+    match v {
+        toml::Value::Float(f) => format!("{f}"),
+        other => other.type_str().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(s: &str) -> toml::Table {
+        s.parse().unwrap()
+    }
+
+    #[test]
+    fn unknown_key_is_named_with_file_and_prefix() {
+        let t = table("a = 1.0\nbogus = 2");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "plant");
+        f.f64("a", Range::Positive).unwrap();
+        let e = f.finish().unwrap_err();
+        assert_eq!(e.key, "plant.bogus");
+        assert!(e
+            .to_string()
+            .starts_with("m.toml: key `plant.bogus`: unknown key"));
+    }
+
+    #[test]
+    fn negative_value_is_refused_with_the_value() {
+        let t = table("jl_kgm2 = -1.0");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        let e = f.f64("jl_kgm2", Range::NonNegative).unwrap_err();
+        assert!(e.reason.contains("-1"), "{e}");
+    }
+
+    #[test]
+    fn nan_is_refused() {
+        let t = table("x = nan");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        assert!(f.f64("x", Range::Finite).is_err());
+    }
+
+    #[test]
+    fn wrong_type_is_named() {
+        let t = table("x = \"fast\"");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        let e = f.f64("x", Range::Finite).unwrap_err();
+        assert!(e.reason.contains("string"), "{e}");
+    }
+
+    #[test]
+    fn toml_syntax_error_names_the_line() {
+        let e = parse_toml(Path::new("j.toml"), "a = 1\nb = = 2\n").unwrap_err();
+        assert!(e.reason.contains("line 2"), "{e}");
+    }
+}

@@ -1,0 +1,154 @@
+//! The only types that cross the process boundary between the plant and the scheduler.
+//!
+//! Both are `#[repr(C)]`, fixed-size and travel zero-copy through iceoryx2 publish-subscribe.
+//! Each carries an iceoryx2 `type_name` with a layout version: a process built with another
+//! layout cannot open the service (`IncompatibleTypes`) instead of misreading bytes.
+//! Units are SI; positions and velocities are in the axis' own units (see field docs).
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Largest number of axes one instance can drive. Wire types are sized for it.
+pub const MAX_AXES: usize = 8;
+
+/// Protocol version checked in the start-up handshake (bump with any layout or meaning change).
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// `SensorSample::flags`: this sample is a handshake probe, not a cycle.
+pub const FLAG_HELLO: u32 = 1;
+/// `SensorSample::flags` / `ActuatorCommand::flags`: the sender is ending the run after this message.
+pub const FLAG_END: u32 = 2;
+
+/// What the plant measured on one axis at the start of a cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+pub struct AxisSensor {
+    /// Motor position: rad for a rotary motor, m for a linear motor.
+    pub motor_pos: f64,
+    /// Motor velocity: rad/s or m/s.
+    pub motor_vel: f64,
+    /// Load position (linear scale / table encoder): m for a linear axis, rad for a rotary axis.
+    pub load_pos: f64,
+    /// Torque (N m) or force (N) the plant applied during the previous period.
+    pub applied_torque: f64,
+}
+
+/// One cycle's sensor sample, published by the plant.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("FeedloopSensorSampleV1")]
+pub struct SensorSample {
+    /// Cycle number, 0-based; the command for this sample must echo it.
+    pub seq: u64,
+    /// Plant time at the sample, s (= seq * period).
+    pub plant_time_s: f64,
+    /// `PROTOCOL_VERSION` of the sender.
+    pub protocol: u32,
+    /// `FLAG_*` bits.
+    pub flags: u32,
+    /// Hash of the instance name (handshake check; see `instance_tag`).
+    pub instance_tag: u64,
+    /// Number of valid entries in `axes`.
+    pub axis_count: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Per-axis measurements, in job axis order.
+    pub axes: [AxisSensor; MAX_AXES],
+}
+
+/// What the scheduler asks of one axis for the coming period.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[repr(C)]
+pub struct AxisCommand {
+    /// Torque (N m, rotary motor) or force (N, linear motor) to apply for one period (zero-order hold).
+    pub torque: f64,
+    /// Commanded load position at this cycle (m or rad); logged by the plant, not used by physics.
+    pub reference: f64,
+}
+
+/// One cycle's actuator command, published by the scheduler.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("FeedloopActuatorCommandV1")]
+pub struct ActuatorCommand {
+    /// Echo of the `SensorSample::seq` this command answers.
+    pub seq: u64,
+    /// `PROTOCOL_VERSION` of the sender.
+    pub protocol: u32,
+    /// `FLAG_*` bits.
+    pub flags: u32,
+    /// Hash of the instance name.
+    pub instance_tag: u64,
+    /// Number of valid entries in `axes`.
+    pub axis_count: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Per-axis commands, in job axis order.
+    pub axes: [AxisCommand; MAX_AXES],
+}
+
+impl SensorSample {
+    /// An all-zero sample for `axis_count` axes.
+    pub const fn empty(axis_count: u32, instance_tag: u64) -> Self {
+        Self {
+            seq: 0,
+            plant_time_s: 0.0,
+            protocol: PROTOCOL_VERSION,
+            flags: 0,
+            instance_tag,
+            axis_count,
+            reserved: 0,
+            axes: [AxisSensor {
+                motor_pos: 0.0,
+                motor_vel: 0.0,
+                load_pos: 0.0,
+                applied_torque: 0.0,
+            }; MAX_AXES],
+        }
+    }
+}
+
+impl ActuatorCommand {
+    /// A zero-torque command for `axis_count` axes.
+    pub const fn empty(axis_count: u32, instance_tag: u64) -> Self {
+        Self {
+            seq: 0,
+            protocol: PROTOCOL_VERSION,
+            flags: 0,
+            instance_tag,
+            axis_count,
+            reserved: 0,
+            axes: [AxisCommand {
+                torque: 0.0,
+                reference: 0.0,
+            }; MAX_AXES],
+        }
+    }
+}
+
+/// A stable 64-bit tag of an instance name (FNV-1a), used to refuse cross-instance messages.
+pub fn instance_tag(instance: &str) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in instance.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_types_have_fixed_layout_without_padding_surprises() {
+        assert_eq!(core::mem::size_of::<AxisSensor>(), 32);
+        assert_eq!(core::mem::size_of::<SensorSample>(), 40 + 32 * MAX_AXES);
+        assert_eq!(core::mem::size_of::<ActuatorCommand>(), 32 + 16 * MAX_AXES);
+    }
+
+    #[test]
+    fn instance_tags_differ_for_different_names() {
+        assert_ne!(instance_tag("a"), instance_tag("b"));
+        assert_eq!(instance_tag("cell-1"), instance_tag("cell-1"));
+    }
+}
