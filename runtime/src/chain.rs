@@ -168,10 +168,8 @@ impl Chain {
             sig.vel_cmd = 0.0;
             sig.torque_ff = 0.0;
             sig.torque = 0.0;
-            for stage in &mut axis.stages[..Stage::Velocity.index()] {
-                if let Some(c) = stage {
-                    c.step(ctx, sig);
-                }
+            for c in axis.stages[..Stage::Velocity.index()].iter_mut().flatten() {
+                c.step(ctx, sig);
             }
         }
         for c in &mut self.couplers {

@@ -8,10 +8,17 @@
 #![warn(missing_docs)]
 
 pub mod chain;
+pub mod clock;
 pub mod controller;
+pub mod cycle;
+pub mod ipc;
 pub mod job;
 pub mod model;
 pub mod params;
+pub mod plant_loop;
+pub mod record;
+pub mod scheduler;
+pub mod summary;
 pub mod trace;
 pub mod trajectory;
 pub mod wire;

@@ -1,0 +1,310 @@
+//! iceoryx2 services of one feedloop instance, and the waits both processes use.
+//!
+//! Services (all named per instance, so two instances on one PC never cross):
+//! - `feedloop/<instance>/sensors`: [`SensorSample`], plant -> scheduler, one publisher.
+//! - `feedloop/<instance>/commands`: [`ActuatorCommand`], scheduler -> plant, one publisher.
+//! - `feedloop/<instance>/sensors_ready`, `.../commands_ready`: events that wake a blocked peer.
+//!
+//! The iceoryx2 configuration is built in code ([`iceoryx_config`]): it never depends on the
+//! working directory or on config files lying around, so processes started from different
+//! folders always meet.
+
+use std::time::Duration;
+
+use crate::clock::now_ns;
+
+use iceoryx2::config::Config;
+use iceoryx2::node::{Node, NodeBuilder};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+
+use crate::job::WaitKind;
+use crate::wire::{ActuatorCommand, SensorSample};
+
+/// Errors setting up or using the services.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    /// An instance name that cannot name a service.
+    #[error(
+        "invalid instance name `{0}`: use lowercase letters, digits, `_` and `-` (at most 64)"
+    )]
+    InvalidInstance(String),
+    /// iceoryx2 refused to create a node, service or port.
+    #[error("iceoryx2: cannot {what}: {detail}")]
+    Setup {
+        /// What was being created.
+        what: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+    /// Sending failed.
+    #[error("iceoryx2: send failed: {0}")]
+    Send(String),
+    /// Receiving failed.
+    #[error("iceoryx2: receive failed: {0}")]
+    Receive(String),
+    /// The peer did not appear in time.
+    #[error("the {peer} process of instance `{instance}` did not connect within {seconds:.1} s")]
+    PeerTimeout {
+        /// Which peer.
+        peer: &'static str,
+        /// Instance name.
+        instance: String,
+        /// How long we waited.
+        seconds: f64,
+    },
+    /// The peer speaks another protocol or belongs to another instance.
+    #[error("handshake refused: {0}")]
+    Handshake(String),
+}
+
+fn setup_err(what: impl Into<String>, e: impl std::fmt::Debug) -> IpcError {
+    IpcError::Setup {
+        what: what.into(),
+        detail: format!("{e:?}"),
+    }
+}
+
+/// The iceoryx2 configuration used by every feedloop process (independent of the working
+/// directory): default values with a feedloop-specific file prefix.
+pub fn iceoryx_config() -> Config {
+    let mut c = Config::default();
+    if let Ok(prefix) = FileName::new(b"feedloop_") {
+        c.global.prefix = prefix;
+    }
+    c
+}
+
+/// Creates a node (cleaning up resources of dead nodes on the way).
+pub fn create_node(instance: &str, role: &str) -> Result<Node<ipc::Service>, IpcError> {
+    if !crate::job::valid_name(instance, true) {
+        return Err(IpcError::InvalidInstance(instance.to_string()));
+    }
+    set_log_level(LogLevel::Error);
+    let name = NodeName::new(&format!("feedloop-{instance}-{role}"))
+        .map_err(|e| setup_err("name the node", e))?;
+    NodeBuilder::new()
+        .name(&name)
+        .config(&iceoryx_config())
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| setup_err("create a node", e))
+}
+
+fn service_name(instance: &str, leaf: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(&format!("feedloop/{instance}/{leaf}"))
+        .map_err(|e| setup_err(format!("name service {leaf}"), e))
+}
+
+type PsFactory<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+type EvFactory = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+
+fn pubsub<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<ipc::Service>,
+    instance: &str,
+    leaf: &str,
+) -> Result<PsFactory<T>, IpcError> {
+    node.service_builder(&service_name(instance, leaf)?)
+        .publish_subscribe::<T>()
+        .max_publishers(1)
+        .max_subscribers(4)
+        .subscriber_max_buffer_size(4)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(|e| setup_err(format!("open service feedloop/{instance}/{leaf}"), e))
+}
+
+fn event(node: &Node<ipc::Service>, instance: &str, leaf: &str) -> Result<EvFactory, IpcError> {
+    node.service_builder(&service_name(instance, leaf)?)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(4)
+        .open_or_create()
+        .map_err(|e| setup_err(format!("open event feedloop/{instance}/{leaf}"), e))
+}
+
+/// A message endpoint: publish `Out`, receive `In`, with events to wake a blocked peer.
+pub struct Endpoint<
+    Out: std::fmt::Debug + ZeroCopySend + 'static,
+    In: std::fmt::Debug + ZeroCopySend + 'static,
+> {
+    publisher: Publisher<ipc::Service, Out, ()>,
+    subscriber: Subscriber<ipc::Service, In, ()>,
+    notifier: Notifier<ipc::Service>,
+    listener: Listener<ipc::Service>,
+    out_service: PsFactory<Out>,
+    in_service: PsFactory<In>,
+    wait: WaitKind,
+    spin_ns: u64,
+    // keep the node alive as long as the ports
+    _node: Node<ipc::Service>,
+}
+
+/// The plant's endpoint.
+pub type PlantEndpoint = Endpoint<SensorSample, ActuatorCommand>;
+/// The scheduler's endpoint.
+pub type SchedulerEndpoint = Endpoint<ActuatorCommand, SensorSample>;
+
+/// Opens the plant's side of `instance`.
+pub fn plant_endpoint(
+    instance: &str,
+    wait: WaitKind,
+    spin: Duration,
+) -> Result<PlantEndpoint, IpcError> {
+    let node = create_node(instance, "plant")?;
+    Endpoint::open(
+        node,
+        instance,
+        ("sensors", "sensors_ready"),
+        ("commands", "commands_ready"),
+        wait,
+        spin,
+    )
+}
+
+/// Opens the scheduler's side of `instance`.
+pub fn scheduler_endpoint(
+    instance: &str,
+    wait: WaitKind,
+    spin: Duration,
+) -> Result<SchedulerEndpoint, IpcError> {
+    let node = create_node(instance, "scheduler")?;
+    Endpoint::open(
+        node,
+        instance,
+        ("commands", "commands_ready"),
+        ("sensors", "sensors_ready"),
+        wait,
+        spin,
+    )
+}
+
+/// Outcome of a bounded wait.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WaitOutcome<T> {
+    /// A message arrived.
+    Got(T),
+    /// The deadline passed first.
+    TimedOut,
+}
+
+impl<Out, In> Endpoint<Out, In>
+where
+    Out: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+    In: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+{
+    fn open(
+        node: Node<ipc::Service>,
+        instance: &str,
+        out: (&str, &str),
+        inp: (&str, &str),
+        wait: WaitKind,
+        spin: Duration,
+    ) -> Result<Self, IpcError> {
+        let spin_ns = spin.as_nanos().min(u64::MAX as u128) as u64;
+        let out_service = pubsub::<Out>(&node, instance, out.0)?;
+        let in_service = pubsub::<In>(&node, instance, inp.0)?;
+        let publisher = out_service
+            .publisher_builder()
+            .create()
+            .map_err(|e| setup_err(format!("create the publisher of {} (is another process of instance `{instance}` running?)", out.0), e))?;
+        let subscriber = in_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| setup_err(format!("create the subscriber of {}", inp.0), e))?;
+        let notifier = event(&node, instance, out.1)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| setup_err(format!("create the notifier of {}", out.1), e))?;
+        let listener = event(&node, instance, inp.1)?
+            .listener_builder()
+            .create()
+            .map_err(|e| setup_err(format!("create the listener of {}", inp.1), e))?;
+        Ok(Self {
+            publisher,
+            subscriber,
+            notifier,
+            listener,
+            out_service,
+            in_service,
+            wait,
+            spin_ns,
+            _node: node,
+        })
+    }
+
+    /// Whether the peer's ports are connected (its subscriber on our output, its publisher on our input).
+    pub fn peer_connected(&self) -> bool {
+        self.out_service.dynamic_config().number_of_subscribers() >= 1
+            && self.in_service.dynamic_config().number_of_publishers() >= 1
+    }
+
+    /// Publishes `msg` (zero-copy loan) and, for blocking/hybrid peers, notifies the event.
+    pub fn send(&self, msg: Out) -> Result<(), IpcError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+        sample
+            .write_payload(msg)
+            .send()
+            .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+        if self.wait != WaitKind::Busy {
+            self.notifier
+                .notify()
+                .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+        }
+        Ok(())
+    }
+
+    /// Takes the next message if one is there (no waiting).
+    #[inline]
+    pub fn try_receive(&self) -> Result<Option<In>, IpcError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(*s.payload())),
+            Ok(None) => Ok(None),
+            Err(e) => Err(IpcError::Receive(format!("{e:?}"))),
+        }
+    }
+
+    /// Waits for the next message until the monotonic time `deadline_ns` (see
+    /// [`crate::clock::now_ns`]), with this endpoint's wait strategy.
+    pub fn receive_until(&self, deadline_ns: u64) -> Result<WaitOutcome<In>, IpcError> {
+        let start = now_ns();
+        let spin_until = match self.wait {
+            WaitKind::Busy => deadline_ns,
+            WaitKind::Block => start,
+            WaitKind::Hybrid => start.saturating_add(self.spin_ns).min(deadline_ns),
+        };
+        loop {
+            if let Some(m) = self.try_receive()? {
+                return Ok(WaitOutcome::Got(m));
+            }
+            let now = now_ns();
+            if now >= deadline_ns {
+                return Ok(WaitOutcome::TimedOut);
+            }
+            if now < spin_until {
+                std::hint::spin_loop();
+                continue;
+            }
+            // Block on the peer's event; a stale notification only costs one extra turn.
+            let left = Duration::from_nanos(deadline_ns - now).min(Duration::from_millis(100));
+            self.listener
+                .timed_wait(|_| {}, left)
+                .map_err(|e| IpcError::Receive(format!("{e:?}")))?;
+        }
+    }
+
+    /// Drops any queued messages and event notifications.
+    pub fn drain(&self) -> Result<(), IpcError> {
+        while self.try_receive()?.is_some() {}
+        let _ = self.listener.try_wait(|_| {});
+        Ok(())
+    }
+}

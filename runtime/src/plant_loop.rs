@@ -1,0 +1,292 @@
+//! The plant process's loop: publish a sample, wait for its command, apply it for one period.
+//!
+//! - `realtime`: cycle k starts at the absolute deadline t0 + k T. The plant publishes sample k,
+//!   waits for command k until deadline k+1 (or one period after publishing, when the plant
+//!   itself was late), then steps the physics with it. A command that has not arrived by then,
+//!   while the plant woke on time, is a deadline miss: the last command is held. Waking more
+//!   than half a period late is a plant overrun; more than 1 ms, a stall (the machine stopped).
+//! - `lockstep`: the plant steps as soon as the command for the cycle arrives.
+//!
+//! Every cycle is logged (what was measured and applied, how late) through a [`Recorder`].
+
+use std::path::Path;
+use std::time::Duration;
+
+use crate::clock::{now_ns, wait_until_ns};
+use crate::ipc::{IpcError, PlantEndpoint, WaitOutcome};
+use crate::job::{Mode, WaitKind};
+use crate::record::{
+    AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_MISSED, REC_OVERRUN, REC_STALL,
+};
+use crate::wire::{ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO, PROTOCOL_VERSION};
+
+/// What the loop needs of the physics (implemented by the plant simulator, later by a drive bridge).
+pub trait PlantDevice {
+    /// Number of axes.
+    fn axis_count(&self) -> usize;
+    /// Writes the current measurement into `out.axes[..n]`.
+    fn sense(&mut self, out: &mut SensorSample);
+    /// Applies `cmd` for one period.
+    fn step(&mut self, cmd: &ActuatorCommand);
+}
+
+/// Settings of one plant run.
+#[derive(Debug, Clone)]
+pub struct PlantLoopConfig {
+    /// Instance name (for the handshake).
+    pub instance: String,
+    /// Pacing.
+    pub mode: Mode,
+    /// Wait strategy for commands and (realtime) for the next deadline.
+    pub wait: WaitKind,
+    /// Hybrid: spin time before blocking.
+    pub spin: Duration,
+    /// Period, s.
+    pub period_s: f64,
+    /// Cycles to run.
+    pub cycles: u64,
+    /// Realtime: consecutive on-time cycles without a command that mean the scheduler is lost.
+    pub watchdog_cycles: u64,
+    /// Lockstep and handshake: how long to wait for the scheduler, s.
+    pub peer_timeout_s: f64,
+}
+
+/// Why a plant run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlantEnd {
+    /// All cycles ran.
+    Completed,
+    /// The scheduler stopped answering.
+    SchedulerLost {
+        /// Cycle at which it was declared lost.
+        cycle: u64,
+        /// Cycles without a command before the declaration.
+        detected_after_cycles: u64,
+    },
+    /// A stop was requested (signal).
+    OperatorStop {
+        /// Cycle at which the stop was taken.
+        cycle: u64,
+    },
+}
+
+/// Summary counters of a plant run (the per-cycle detail is in the log).
+#[derive(Debug, Clone, Copy)]
+pub struct PlantOutcome {
+    /// Why it ended.
+    pub end: PlantEnd,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Records the recorder could not keep (ring full).
+    pub dropped_records: u64,
+}
+
+/// Errors of a plant run.
+#[derive(Debug, thiserror::Error)]
+pub enum PlantLoopError {
+    /// IPC failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// Log file failure.
+    #[error("plant log {path}: {source}")]
+    Log {
+        /// Log path.
+        path: String,
+        /// I/O error.
+        source: std::io::Error,
+    },
+}
+
+const STALL_NS: u64 = 1_000_000;
+
+/// Runs the plant side until all cycles ran, the scheduler is lost, or `stop` is set.
+pub fn run_plant<P: PlantDevice>(
+    cfg: &PlantLoopConfig,
+    plant: &mut P,
+    ep: &PlantEndpoint,
+    log_path: &Path,
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<PlantOutcome, PlantLoopError> {
+    let tag = crate::wire::instance_tag(&cfg.instance);
+    let n = plant.axis_count();
+    let period_ns = (cfg.period_s * 1e9).round() as u64;
+    let timeout_ns = (cfg.peer_timeout_s * 1e9) as u64;
+    let spin_ns = match cfg.wait {
+        WaitKind::Busy => u64::MAX,
+        WaitKind::Block => 0,
+        WaitKind::Hybrid => cfg.spin.as_nanos() as u64,
+    };
+    let mut rec =
+        Recorder::<PlantRecord>::start(log_path, 1 << 16).map_err(|e| PlantLoopError::Log {
+            path: log_path.display().to_string(),
+            source: e,
+        })?;
+
+    handshake(ep, tag, n as u32, timeout_ns, &cfg.instance)?;
+
+    let mut sample = SensorSample::empty(n as u32, tag);
+    let mut applied = ActuatorCommand::empty(n as u32, tag);
+    let mut end = PlantEnd::Completed;
+    let mut silent_cycles = 0u64;
+    let t0 = now_ns() + 5_000_000;
+    let mut k = 0u64;
+    while k < cfg.cycles {
+        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            end = PlantEnd::OperatorStop { cycle: k };
+            break;
+        }
+        let mut flags = 0u8;
+        let mut wake_late_ns = 0u64;
+        let cmd_deadline;
+        if cfg.mode == Mode::Realtime {
+            let deadline = t0 + k * period_ns;
+            wait_until_ns(deadline, spin_ns);
+            wake_late_ns = now_ns().saturating_sub(deadline);
+            if wake_late_ns > period_ns / 2 {
+                flags |= REC_OVERRUN;
+            }
+            if wake_late_ns > STALL_NS {
+                flags |= REC_STALL;
+            }
+            cmd_deadline = (deadline + period_ns).max(now_ns() + period_ns);
+        } else {
+            cmd_deadline = now_ns() + timeout_ns;
+        }
+
+        let c0 = now_ns();
+        sample.seq = k;
+        sample.plant_time_s = k as f64 * cfg.period_s;
+        sample.flags = if k + 1 == cfg.cycles { FLAG_END } else { 0 };
+        plant.sense(&mut sample);
+        let sense_ns = now_ns() - c0;
+        let published = now_ns();
+        ep.send(sample)?;
+
+        let mut latency_ns = u64::MAX;
+        while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
+            if c.flags & FLAG_HELLO != 0 {
+                continue;
+            }
+            if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
+                flags |= REC_BAD_SEQ;
+                continue;
+            }
+            latency_ns = now_ns() - published;
+            applied = c;
+            break;
+        }
+        if latency_ns == u64::MAX {
+            flags |= REC_MISSED;
+            let on_time = flags & REC_OVERRUN == 0;
+            if cfg.mode == Mode::Lockstep {
+                end = PlantEnd::SchedulerLost {
+                    cycle: k,
+                    detected_after_cycles: 1,
+                };
+            } else if on_time {
+                silent_cycles += 1;
+                if silent_cycles >= cfg.watchdog_cycles {
+                    end = PlantEnd::SchedulerLost {
+                        cycle: k,
+                        detected_after_cycles: silent_cycles,
+                    };
+                }
+            }
+        } else {
+            silent_cycles = 0;
+        }
+
+        let c1 = now_ns();
+        plant.step(&applied);
+        let compute_ns = (now_ns() - c1 + sense_ns).min(u32::MAX as u64) as u32;
+
+        let mut r = PlantRecord {
+            seq: k,
+            wake_late_ns,
+            latency_ns,
+            compute_ns,
+            flags,
+            ..Default::default()
+        };
+        for i in 0..n {
+            let s = &sample.axes[i];
+            r.axes[i] = AxisRecord {
+                cmd: applied.axes[i].reference,
+                load: s.load_pos,
+                motor: s.motor_pos,
+                motor_vel: s.motor_vel,
+                torque: applied.axes[i].torque,
+            };
+        }
+        rec.push(r);
+        k += 1;
+        if !matches!(end, PlantEnd::Completed) {
+            break;
+        }
+    }
+    // Safe state: no torque. Tell the scheduler we are done.
+    let off = ActuatorCommand::empty(n as u32, tag);
+    plant.step(&off);
+    sample.flags = FLAG_END;
+    sample.seq = k;
+    let _ = ep.send(sample);
+    let dropped = rec.dropped();
+    rec.finish().map_err(|e| PlantLoopError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    })?;
+    Ok(PlantOutcome {
+        end,
+        cycles: k,
+        dropped_records: dropped,
+    })
+}
+
+fn handshake(
+    ep: &PlantEndpoint,
+    tag: u64,
+    n: u32,
+    timeout_ns: u64,
+    instance: &str,
+) -> Result<(), IpcError> {
+    let start = now_ns();
+    let mut hello = SensorSample::empty(n, tag);
+    hello.flags = FLAG_HELLO;
+    loop {
+        if now_ns() - start > timeout_ns {
+            return Err(IpcError::PeerTimeout {
+                peer: "scheduler",
+                instance: instance.to_string(),
+                seconds: timeout_ns as f64 * 1e-9,
+            });
+        }
+        if ep.peer_connected() {
+            ep.send(hello)?;
+        }
+        if let WaitOutcome::Got(c) = ep.receive_until(now_ns() + 2_000_000)? {
+            if c.flags & FLAG_HELLO != 0 {
+                if c.protocol != PROTOCOL_VERSION {
+                    return Err(IpcError::Handshake(format!(
+                        "scheduler speaks protocol {}, this plant {}",
+                        c.protocol, PROTOCOL_VERSION
+                    )));
+                }
+                if c.instance_tag != tag {
+                    return Err(IpcError::Handshake(
+                        "scheduler belongs to another instance".into(),
+                    ));
+                }
+                if c.axis_count != n {
+                    return Err(IpcError::Handshake(format!(
+                        "scheduler drives {} axes, this plant has {n}: are both running the same job?",
+                        c.axis_count
+                    )));
+                }
+                // Let stale hello replies arrive, then discard them.
+                std::thread::sleep(Duration::from_millis(2));
+                ep.drain()?;
+                return Ok(());
+            }
+        }
+    }
+}

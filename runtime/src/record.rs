@@ -1,0 +1,287 @@
+//! Per-cycle records and the compact binary log both processes stream to disk.
+//!
+//! The control cycle pushes a fixed-size record into a wait-free ring ([`Recorder`]); a writer
+//! thread drains it, encodes blocks of records with bincode and appends them to a log file.
+//! Each block is `magic u32 | payload length u32 | crc32 u32 | payload`; a reader stops at the
+//! first torn or corrupt block (e.g. after a crash) instead of half-parsing it.
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::wire::MAX_AXES;
+
+/// One axis' row of a trace: exactly the trace-format columns (SI, load units for positions
+/// of the load, motor units for the motor).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct AxisRecord {
+    /// Commanded load position (m or rad).
+    pub cmd: f64,
+    /// Measured load position (m or rad).
+    pub load: f64,
+    /// Measured motor position (rad or m).
+    pub motor: f64,
+    /// Measured motor velocity (rad/s or m/s).
+    pub motor_vel: f64,
+    /// Torque (N m) / force (N) applied for this cycle.
+    pub torque: f64,
+}
+
+/// `PlantRecord::flags`: the command for this cycle did not arrive in time (held the last one).
+pub const REC_MISSED: u8 = 1;
+/// `PlantRecord::flags`: the plant itself woke late (more than half a period).
+pub const REC_OVERRUN: u8 = 2;
+/// `PlantRecord::flags`: the plant woke more than 1 ms late (machine-wide stall).
+pub const REC_STALL: u8 = 4;
+/// `PlantRecord::flags`: a command with an unexpected sequence number was seen and dropped.
+pub const REC_BAD_SEQ: u8 = 8;
+
+/// What the plant logs each cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PlantRecord {
+    /// Cycle number.
+    pub seq: u64,
+    /// How late the plant woke for this cycle, ns (0 in lockstep).
+    pub wake_late_ns: u64,
+    /// Sample published -> command received, ns; `u64::MAX` when no command arrived.
+    pub latency_ns: u64,
+    /// CPU time of the physics step (and sensing), ns.
+    pub compute_ns: u32,
+    /// `REC_*` flags.
+    pub flags: u8,
+    /// Per-axis rows.
+    pub axes: [AxisRecord; MAX_AXES],
+}
+
+/// What the scheduler logs each cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct SchedRecord {
+    /// Cycle number answered.
+    pub seq: u64,
+    /// CPU time of the trajectory and controller chain, ns.
+    pub compute_ns: u32,
+    /// Samples skipped because a newer one was already there (realtime catch-up).
+    pub skipped: u32,
+    /// Per-axis torque commanded and reference, (N m or N, m or rad).
+    pub axes: [(f64, f64); MAX_AXES],
+}
+
+const MAGIC: u32 = 0xFEED_100F;
+
+fn bincode_config() -> impl bincode::config::Config {
+    bincode::config::standard().with_fixed_int_encoding()
+}
+
+/// Appends blocks of records to a log file.
+pub struct LogWriter {
+    out: BufWriter<File>,
+    buf: Vec<u8>,
+}
+
+impl LogWriter {
+    /// Creates (truncates) `path`.
+    pub fn create(path: &Path) -> std::io::Result<Self> {
+        Ok(Self {
+            out: BufWriter::with_capacity(1 << 20, File::create(path)?),
+            buf: Vec::with_capacity(1 << 20),
+        })
+    }
+
+    /// Writes one block holding `records`, and flushes it to the OS.
+    pub fn write_block<T: Serialize>(&mut self, records: &[T]) -> std::io::Result<()> {
+        if records.is_empty() {
+            return Ok(());
+        }
+        self.buf.clear();
+        bincode::serde::encode_into_std_write(records, &mut self.buf, bincode_config())
+            .map_err(std::io::Error::other)?;
+        let crc = crc32fast::hash(&self.buf);
+        self.out.write_all(&MAGIC.to_le_bytes())?;
+        self.out.write_all(&(self.buf.len() as u32).to_le_bytes())?;
+        self.out.write_all(&crc.to_le_bytes())?;
+        self.out.write_all(&self.buf)?;
+        self.out.flush()
+    }
+}
+
+/// Result of reading a log: the records of all intact blocks, and whether a torn tail was dropped.
+#[derive(Debug, Clone)]
+pub struct LogContents<T> {
+    /// Records of the intact blocks, in order.
+    pub records: Vec<T>,
+    /// Bytes at the end that did not form an intact block (a crash mid-write), dropped.
+    pub torn_bytes: usize,
+}
+
+/// Reads every intact block of a log file.
+pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents<T>> {
+    let mut bytes = Vec::new();
+    File::open(path)?.read_to_end(&mut bytes)?;
+    let mut records = Vec::new();
+    let mut pos = 0usize;
+    while bytes.len() - pos >= 12 {
+        let word = |o: usize| u32::from_le_bytes(bytes[pos + o..pos + o + 4].try_into().unwrap());
+        if word(0) != MAGIC {
+            break;
+        }
+        let len = word(4) as usize;
+        let crc = word(8);
+        let start = pos + 12;
+        if bytes.len() - start < len {
+            break;
+        }
+        let payload = &bytes[start..start + len];
+        if crc32fast::hash(payload) != crc {
+            break;
+        }
+        let (mut block, _): (Vec<T>, usize) =
+            match bincode::serde::decode_from_slice(payload, bincode_config()) {
+                Ok(v) => v,
+                Err(_) => break,
+            };
+        records.append(&mut block);
+        pos = start + len;
+    }
+    Ok(LogContents {
+        records,
+        torn_bytes: bytes.len() - pos,
+    })
+}
+
+/// The cycle's side of a recorder: a wait-free push that never blocks or allocates.
+pub struct Recorder<T: Copy + Send + 'static> {
+    producer: rtrb::Producer<T>,
+    dropped: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<std::io::Result<u64>>>,
+    path: PathBuf,
+}
+
+impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
+    /// Starts a writer thread that appends blocks to `path`; `capacity` records are buffered.
+    pub fn start(path: &Path, capacity: usize) -> std::io::Result<Self> {
+        let (producer, mut consumer) = rtrb::RingBuffer::<T>::new(capacity);
+        let mut writer = LogWriter::create(path)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let dropped = Arc::new(AtomicU64::new(0));
+        let stop2 = stop.clone();
+        let thread = std::thread::Builder::new()
+            .name("feedloop-recorder".into())
+            .spawn(move || -> std::io::Result<u64> {
+                let mut block: Vec<T> = Vec::with_capacity(4096);
+                let mut written = 0u64;
+                loop {
+                    let finishing = stop2.load(Ordering::Acquire);
+                    while let Ok(r) = consumer.pop() {
+                        block.push(r);
+                        if block.len() == block.capacity() {
+                            writer.write_block(&block)?;
+                            written += block.len() as u64;
+                            block.clear();
+                        }
+                    }
+                    if !block.is_empty() {
+                        writer.write_block(&block)?;
+                        written += block.len() as u64;
+                        block.clear();
+                    }
+                    if finishing {
+                        return Ok(written);
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            })?;
+        Ok(Self {
+            producer,
+            dropped,
+            stop,
+            thread: Some(thread),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Hands one record to the writer (wait-free). A full ring counts a dropped record.
+    #[inline]
+    pub fn push(&mut self, r: T) {
+        if self.producer.push(r).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Records dropped because the ring was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Flushes everything and stops the writer thread; returns the number of records written.
+    pub fn finish(mut self) -> std::io::Result<u64> {
+        self.stop.store(true, Ordering::Release);
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| {
+                std::io::Error::other(format!(
+                    "recorder thread for {} panicked",
+                    self.path.display()
+                ))
+            })?,
+            None => Ok(0),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("feedloop-rec-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn recorder_writes_every_record_in_order() {
+        let p = tmp("order.log");
+        let mut r = Recorder::<PlantRecord>::start(&p, 1024).unwrap();
+        for i in 0..10_000u64 {
+            r.push(PlantRecord {
+                seq: i,
+                ..Default::default()
+            });
+            if i % 500 == 0 {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        let dropped = r.dropped();
+        let n = r.finish().unwrap();
+        let log = read_log::<PlantRecord>(&p).unwrap();
+        assert_eq!(n + dropped, 10_000);
+        assert_eq!(log.records.len() as u64, n);
+        assert!(log.records.windows(2).all(|w| w[1].seq > w[0].seq));
+        assert_eq!(log.torn_bytes, 0);
+    }
+
+    #[test]
+    fn a_torn_final_block_is_dropped_not_half_parsed() {
+        let p = tmp("torn.log");
+        let mut w = LogWriter::create(&p).unwrap();
+        let recs: Vec<SchedRecord> = (0..100)
+            .map(|i| SchedRecord {
+                seq: i,
+                ..Default::default()
+            })
+            .collect();
+        w.write_block(&recs[..60]).unwrap();
+        w.write_block(&recs[60..]).unwrap();
+        drop(w);
+        let full = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &full[..full.len() - 7]).unwrap();
+        let log = read_log::<SchedRecord>(&p).unwrap();
+        assert_eq!(log.records.len(), 60);
+        assert!(log.torn_bytes > 0);
+    }
+}

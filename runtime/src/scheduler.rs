@@ -1,0 +1,209 @@
+//! The scheduler process's loop: wait for a sample, run the control cycle, publish the command,
+//! hand the cycle's record to the recorder.
+
+use std::path::Path;
+
+use crate::clock::now_ns;
+use crate::cycle::ControlCycle;
+use crate::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
+use crate::job::Mode;
+use crate::record::{Recorder, SchedRecord};
+use crate::wire::{ActuatorCommand, FLAG_END, FLAG_HELLO, PROTOCOL_VERSION};
+
+/// Settings of one scheduler run.
+#[derive(Debug, Clone)]
+pub struct SchedulerConfig {
+    /// Instance name.
+    pub instance: String,
+    /// Pacing (the plant paces; this only sets how long silence is tolerated).
+    pub mode: Mode,
+    /// How long to wait for the plant at start-up, and in lockstep between samples, s.
+    pub peer_timeout_s: f64,
+    /// Realtime: silence longer than this means the plant is lost, s.
+    pub stale_after_s: f64,
+}
+
+/// Why a scheduler run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SchedulerEnd {
+    /// The plant announced the last cycle and it was answered.
+    Completed,
+    /// The plant stopped sending samples.
+    PlantLost {
+        /// Last cycle answered.
+        cycle: u64,
+    },
+    /// The plant ended the run early (its own stop).
+    PlantEnded {
+        /// Cycle of the plant's end message.
+        cycle: u64,
+    },
+    /// A stop was requested.
+    OperatorStop {
+        /// Last cycle answered.
+        cycle: u64,
+    },
+}
+
+/// Counters of a scheduler run.
+#[derive(Debug, Clone, Copy)]
+pub struct SchedulerOutcome {
+    /// Why it ended.
+    pub end: SchedulerEnd,
+    /// Commands sent.
+    pub commands: u64,
+    /// Samples whose sequence number went backwards or repeated.
+    pub out_of_order: u64,
+    /// Samples skipped because a newer one was queued.
+    pub skipped: u64,
+    /// Records the recorder could not keep.
+    pub dropped_records: u64,
+}
+
+/// Errors of a scheduler run.
+#[derive(Debug, thiserror::Error)]
+pub enum SchedulerError {
+    /// IPC failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// Log failure.
+    #[error("scheduler log {path}: {source}")]
+    Log {
+        /// Log path.
+        path: String,
+        /// I/O error.
+        source: std::io::Error,
+    },
+}
+
+/// Runs the scheduler side until the plant's last cycle is answered, the plant is lost, or `stop`.
+pub fn run_scheduler(
+    cfg: &SchedulerConfig,
+    cycle: &mut ControlCycle,
+    axis_count: usize,
+    ep: &SchedulerEndpoint,
+    log_path: &Path,
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<SchedulerOutcome, SchedulerError> {
+    let tag = crate::wire::instance_tag(&cfg.instance);
+    let log_err = |e: std::io::Error| SchedulerError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    };
+    let mut rec = Recorder::<SchedRecord>::start(log_path, 1 << 16).map_err(log_err)?;
+    let mut cmd = ActuatorCommand::empty(axis_count as u32, tag);
+    let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
+    hello.flags = FLAG_HELLO;
+    let start_timeout = (cfg.peer_timeout_s * 1e9) as u64;
+    let silence_ns = match cfg.mode {
+        Mode::Lockstep => start_timeout,
+        Mode::Realtime => (cfg.stale_after_s * 1e9) as u64,
+    };
+    let mut started = false;
+    let mut next_seq = 0u64;
+    let mut out = SchedulerOutcome {
+        end: SchedulerEnd::Completed,
+        commands: 0,
+        out_of_order: 0,
+        skipped: 0,
+        dropped_records: 0,
+    };
+    let t_start = now_ns();
+    loop {
+        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            out.end = SchedulerEnd::OperatorStop {
+                cycle: next_seq.saturating_sub(1),
+            };
+            break;
+        }
+        let wait = if started { silence_ns } else { start_timeout };
+        let got = ep.receive_until(now_ns() + wait.max(1))?;
+        let mut s = match got {
+            WaitOutcome::Got(s) => s,
+            WaitOutcome::TimedOut => {
+                if !started {
+                    return Err(IpcError::PeerTimeout {
+                        peer: "plant",
+                        instance: cfg.instance.clone(),
+                        seconds: (now_ns() - t_start) as f64 * 1e-9,
+                    }
+                    .into());
+                }
+                out.end = SchedulerEnd::PlantLost {
+                    cycle: next_seq.saturating_sub(1),
+                };
+                break;
+            }
+        };
+        // Realtime catch-up: answer the newest sample.
+        let mut skipped = 0u32;
+        if started {
+            while let Some(newer) = ep.try_receive()? {
+                if newer.flags & FLAG_HELLO == 0 {
+                    s = newer;
+                    skipped += 1;
+                }
+            }
+        }
+        if s.flags & FLAG_HELLO != 0 {
+            if s.protocol != PROTOCOL_VERSION {
+                return Err(IpcError::Handshake(format!(
+                    "plant speaks protocol {}, this scheduler {}",
+                    s.protocol, PROTOCOL_VERSION
+                ))
+                .into());
+            }
+            if s.instance_tag != tag {
+                return Err(IpcError::Handshake("plant belongs to another instance".into()).into());
+            }
+            if s.axis_count as usize != axis_count {
+                return Err(IpcError::Handshake(format!(
+                    "plant has {} axes, this scheduler drives {axis_count}: are both running the same job?",
+                    s.axis_count
+                ))
+                .into());
+            }
+            ep.send(hello)?;
+            started = true;
+            continue;
+        }
+        if !started {
+            // A plant that is already cycling (we restarted?): refuse rather than guess.
+            continue;
+        }
+        if s.seq < next_seq {
+            out.out_of_order += 1;
+            continue;
+        }
+        if s.flags & FLAG_END != 0 && s.seq >= cycle.cycles() {
+            out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
+            break;
+        }
+        let c0 = now_ns();
+        cycle.step(&s, &mut cmd);
+        let compute_ns = (now_ns() - c0).min(u32::MAX as u64) as u32;
+        ep.send(cmd)?;
+        out.commands += 1;
+        out.skipped += u64::from(skipped);
+        next_seq = s.seq + 1;
+        let mut r = SchedRecord {
+            seq: s.seq,
+            compute_ns,
+            skipped,
+            ..Default::default()
+        };
+        for i in 0..axis_count {
+            r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
+        }
+        rec.push(r);
+        if s.flags & FLAG_END != 0 {
+            if s.seq + 1 < cycle.cycles() {
+                out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
+            }
+            break;
+        }
+    }
+    out.dropped_records = rec.dropped();
+    rec.finish().map_err(log_err)?;
+    Ok(out)
+}

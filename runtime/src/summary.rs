@@ -1,0 +1,298 @@
+//! `summary.json` of a run: timing figures from the plant's log and tracking figures from the
+//! trace rows. The same code serves `feedloop run` (both processes) and `feedloop sim`.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::record::{AxisRecord, PlantRecord, REC_MISSED, REC_OVERRUN, REC_STALL};
+
+/// Latency percentiles, microseconds.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct Percentiles {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// 99.9th percentile.
+    pub p999: f64,
+    /// Maximum.
+    pub max: f64,
+}
+
+/// Percentiles (us) of nanosecond values; `None` when empty. Sorts `values` in place.
+pub fn percentiles_us(values: &mut [u64]) -> Option<Percentiles> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_unstable();
+    let at = |q: f64| {
+        let i = ((values.len() as f64 * q).ceil() as usize).clamp(1, values.len()) - 1;
+        values[i] as f64 / 1000.0
+    };
+    Some(Percentiles {
+        p50: at(0.5),
+        p99: at(0.99),
+        p999: at(0.999),
+        max: values[values.len() - 1] as f64 / 1000.0,
+    })
+}
+
+/// Stall episodes: runs of consecutive cycles in which the plant woke more than 1 ms late.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Default)]
+pub struct Stalls {
+    /// Number of episodes.
+    pub count: u64,
+    /// Longest lateness seen in any episode, ms.
+    pub max_ms: f64,
+}
+
+/// Timing figures of a run.
+#[derive(Debug, Clone, Serialize, PartialEq, Default)]
+pub struct Timing {
+    /// Commands that missed their deadline while the plant itself was on time.
+    pub deadline_misses: u64,
+    /// Cycles in which the plant woke more than half a period late.
+    pub plant_overruns: u64,
+    /// Stall episodes.
+    pub stalls: Stalls,
+    /// Sample published -> command received, us.
+    pub latency_us: Option<Percentiles>,
+    /// Commands with an unexpected sequence number the plant dropped.
+    pub bad_sequence: u64,
+}
+
+/// Computes timing figures from the plant's records.
+pub fn timing(records: &[PlantRecord]) -> Timing {
+    let mut t = Timing::default();
+    let mut lat: Vec<u64> = Vec::with_capacity(records.len());
+    let mut in_stall = false;
+    for r in records {
+        if r.flags & REC_MISSED != 0 && r.flags & REC_OVERRUN == 0 {
+            t.deadline_misses += 1;
+        }
+        if r.flags & REC_OVERRUN != 0 {
+            t.plant_overruns += 1;
+        }
+        if r.flags & crate::record::REC_BAD_SEQ != 0 {
+            t.bad_sequence += 1;
+        }
+        if r.flags & REC_STALL != 0 {
+            if !in_stall {
+                t.stalls.count += 1;
+            }
+            in_stall = true;
+            t.stalls.max_ms = t.stalls.max_ms.max(r.wake_late_ns as f64 * 1e-6);
+        } else {
+            in_stall = false;
+        }
+        if r.latency_ns != u64::MAX {
+            lat.push(r.latency_ns);
+        }
+    }
+    t.latency_us = percentiles_us(&mut lat);
+    t
+}
+
+/// Following-error figures of one axis (load units: m or rad).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Default)]
+pub struct AxisFigures {
+    /// max |cmd - load|.
+    pub max_following_error: f64,
+    /// RMS of cmd - load.
+    pub rms_following_error: f64,
+}
+
+/// Contour-error figures (distance of the measured point from the commanded path).
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Default)]
+pub struct ContourFigures {
+    /// Largest distance, m.
+    pub max_error: f64,
+    /// RMS distance, m.
+    pub rms_error: f64,
+}
+
+/// Streams trace rows and accumulates the tracking figures.
+#[derive(Debug, Clone)]
+pub struct Tracking {
+    names: Vec<String>,
+    sum_sq: Vec<f64>,
+    max_abs: Vec<f64>,
+    rows: u64,
+    contour_axes: Option<(usize, usize)>,
+    path: Vec<[f64; 4]>,
+}
+
+impl Tracking {
+    /// For axes `names` (job order); `contour_axes` picks the two axes whose contour is judged.
+    pub fn new(names: &[String], contour_axes: Option<(usize, usize)>) -> Self {
+        Self {
+            names: names.to_vec(),
+            sum_sq: vec![0.0; names.len()],
+            max_abs: vec![0.0; names.len()],
+            rows: 0,
+            contour_axes,
+            path: Vec::new(),
+        }
+    }
+
+    /// Adds one cycle's rows.
+    pub fn push(&mut self, axes: &[AxisRecord]) {
+        for (i, a) in axes.iter().enumerate().take(self.names.len()) {
+            let e = a.cmd - a.load;
+            self.sum_sq[i] += e * e;
+            self.max_abs[i] = self.max_abs[i].max(e.abs());
+        }
+        if let Some((x, y)) = self.contour_axes {
+            self.path
+                .push([axes[x].cmd, axes[y].cmd, axes[x].load, axes[y].load]);
+        }
+        self.rows += 1;
+    }
+
+    /// Per-axis figures.
+    pub fn axes(&self) -> BTreeMap<String, AxisFigures> {
+        let n = self.rows.max(1) as f64;
+        self.names
+            .iter()
+            .enumerate()
+            .map(|(i, name)| {
+                (
+                    name.clone(),
+                    AxisFigures {
+                        max_following_error: self.max_abs[i],
+                        rms_following_error: (self.sum_sq[i] / n).sqrt(),
+                    },
+                )
+            })
+            .collect()
+    }
+
+    /// Contour figures, when two axes were named.
+    pub fn contour(&self) -> Option<ContourFigures> {
+        self.contour_axes?;
+        let d = contour_distances(&self.path);
+        if d.is_empty() {
+            return None;
+        }
+        let max = d.iter().fold(0.0f64, |m, v| m.max(*v));
+        let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+        Some(ContourFigures {
+            max_error: max,
+            rms_error: rms,
+        })
+    }
+}
+
+/// Distance of each measured point `[_, _, x, y]` from the commanded polyline `[x, y, _, _]`.
+///
+/// The nearest segment is tracked forward in time (the measured point lags the command), with a
+/// local search window, so the cost is linear in the number of samples.
+pub fn contour_distances(path: &[[f64; 4]]) -> Vec<f64> {
+    let n = path.len();
+    let mut out = Vec::with_capacity(n);
+    if n < 2 {
+        return out;
+    }
+    let seg_dist = |j: usize, px: f64, py: f64| -> f64 {
+        let (ax, ay) = (path[j][0], path[j][1]);
+        let (bx, by) = (path[j + 1][0], path[j + 1][1]);
+        let (dx, dy) = (bx - ax, by - ay);
+        let l2 = dx * dx + dy * dy;
+        let t = if l2 > 0.0 {
+            (((px - ax) * dx + (py - ay) * dy) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (cx, cy) = (ax + t * dx - px, ay + t * dy - py);
+        (cx * cx + cy * cy).sqrt()
+    };
+    let mut j = 0usize;
+    const WINDOW: usize = 64;
+    for (k, p) in path.iter().enumerate() {
+        let (px, py) = (p[2], p[3]);
+        // Let the nearest index run ahead while it improves, but never beyond the present sample.
+        let hi = k.min(n - 2);
+        let lo = j.saturating_sub(WINDOW);
+        let mut best = f64::INFINITY;
+        let mut best_j = j.min(hi);
+        let mut i = lo;
+        loop {
+            if i > hi {
+                break;
+            }
+            let d = seg_dist(i, px, py);
+            if d < best {
+                best = d;
+                best_j = i;
+            } else if i > j + WINDOW {
+                break;
+            }
+            i += 1;
+        }
+        j = best_j;
+        out.push(best);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_pick_the_right_ranks() {
+        let mut v: Vec<u64> = (1..=1000).map(|i| i * 1000).collect();
+        let p = percentiles_us(&mut v).unwrap();
+        assert_eq!(p.p50, 500.0);
+        assert_eq!(p.p99, 990.0);
+        assert_eq!(p.p999, 999.0);
+        assert_eq!(p.max, 1000.0);
+    }
+
+    #[test]
+    fn stall_episodes_count_runs_not_cycles() {
+        let mk = |flags, late| PlantRecord {
+            flags,
+            wake_late_ns: late,
+            latency_ns: 1000,
+            ..Default::default()
+        };
+        let recs = [
+            mk(0, 0),
+            mk(REC_STALL | REC_OVERRUN, 5_000_000),
+            mk(REC_STALL | REC_OVERRUN, 4_000_000),
+            mk(0, 0),
+            mk(REC_MISSED, 0),
+            mk(REC_STALL | REC_OVERRUN | REC_MISSED, 2_000_000),
+        ];
+        let t = timing(&recs);
+        assert_eq!(t.stalls.count, 2);
+        assert_eq!(t.stalls.max_ms, 5.0);
+        assert_eq!(t.deadline_misses, 1);
+        assert_eq!(t.plant_overruns, 3);
+    }
+
+    #[test]
+    fn contour_error_of_a_lagging_point_on_a_circle_is_its_radial_error() {
+        // commanded circle r = 10 mm; the measured point lags 200 samples and sits 5 um inside
+        let n = 20_000;
+        let r = 0.01;
+        let path: Vec<[f64; 4]> = (0..n)
+            .map(|k| {
+                let a = k as f64 * 2e-4;
+                let b = (k as f64 - 200.0).max(0.0) * 2e-4;
+                [
+                    r * a.cos(),
+                    r * a.sin(),
+                    (r - 5e-6) * b.cos(),
+                    (r - 5e-6) * b.sin(),
+                ]
+            })
+            .collect();
+        let d = contour_distances(&path);
+        for v in &d[300..] {
+            assert!((v - 5e-6).abs() < 2e-9, "{v}");
+        }
+    }
+}
