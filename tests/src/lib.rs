@@ -1,1 +1,122 @@
-//! Helpers for end-to-end tests.
+//! Helpers for the end-to-end tests: find (or build) the `feedloop` binary, make scratch
+//! folders, run commands, and serialise the tests that spawn processes.
+//!
+//! The binary is looked up in this order: `$FEEDLOOP_BIN`; `$CARGO_TARGET_DIR/<profile>/feedloop`;
+//! the target folder this test executable was built into (`<target>/<profile>/deps/..`). If it
+//! is not there, it is built with `cargo build -p feedloop-cli` for the same profile.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::{Mutex, MutexGuard, OnceLock};
+
+/// Root of the repository.
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ lives in the repository root")
+        .to_path_buf()
+}
+
+/// A file of the repository, e.g. `examples/jobs/xy-circle.toml`.
+pub fn repo_file(rel: &str) -> PathBuf {
+    repo_root().join(rel)
+}
+
+fn profile_and_target() -> (String, PathBuf) {
+    let exe = std::env::current_exe().expect("current_exe");
+    // <target>/<profile>/deps/<test-binary>
+    let profile_dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("test binary lives in <target>/<profile>/deps");
+    let profile = profile_dir
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "debug".into());
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(t) => PathBuf::from(t),
+        None => profile_dir.parent().expect("target dir").to_path_buf(),
+    };
+    (profile, target)
+}
+
+/// Path of the `feedloop` binary, building it if needed.
+pub fn feedloop_bin() -> PathBuf {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        if let Some(p) = std::env::var_os("FEEDLOOP_BIN") {
+            return PathBuf::from(p);
+        }
+        let (profile, target) = profile_and_target();
+        let bin = target.join(&profile).join("feedloop");
+        if !bin.exists() {
+            let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+            let mut cmd = Command::new(cargo);
+            cmd.current_dir(repo_root())
+                .args([
+                    "build",
+                    "-p",
+                    "feedloop-cli",
+                    "--bin",
+                    "feedloop",
+                    "--target-dir",
+                ])
+                .arg(&target);
+            if profile == "release" {
+                cmd.arg("--release");
+            } else if profile != "debug" {
+                cmd.args(["--profile", &profile]);
+            }
+            let st = cmd
+                .status()
+                .expect("running cargo build for the feedloop binary");
+            assert!(st.success(), "building the feedloop binary failed");
+        }
+        assert!(
+            bin.exists(),
+            "feedloop binary not found at {}",
+            bin.display()
+        );
+        bin
+    })
+    .clone()
+}
+
+/// Runs `feedloop` with `args` and returns its output.
+pub fn feedloop(args: &[&str]) -> Output {
+    Command::new(feedloop_bin())
+        .args(args)
+        .output()
+        .expect("running feedloop")
+}
+
+/// A fresh scratch folder unique to this process and `name`.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("feedloop-e2e-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("creating a scratch folder");
+    d
+}
+
+/// Serialises tests that spawn plant/scheduler processes (2 cores: one at a time).
+pub fn process_lock() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Parses a JSON file.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("parsing {}: {e}", path.display()))
+}
+
+/// Output as text, for assertion messages.
+pub fn describe(o: &Output) -> String {
+    format!(
+        "status {}\n--- stdout\n{}\n--- stderr\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}

@@ -1,0 +1,188 @@
+//! `feedloop sim`: the plant and the controller chain of a job in one process, no IPC.
+//!
+//! Per cycle k it does exactly what the two processes do in lockstep: the plant senses sample k,
+//! the control cycle answers it, the plant applies the command for one period. The rows go
+//! through the same export functions, so a lockstep run and a simulation of the same job give
+//! byte-identical traces.
+
+use std::io::Write;
+use std::path::Path;
+
+use feedloop_plant::Plant;
+use feedloop_runtime::controller::PluginRegistry;
+use feedloop_runtime::cycle::ControlCycle;
+use feedloop_runtime::export::{row_values, trace_columns};
+use feedloop_runtime::job::Job;
+use feedloop_runtime::params::ConfigError;
+use feedloop_runtime::record::AxisRecord;
+use feedloop_runtime::summary::Tracking;
+use feedloop_runtime::trace::TraceWriter;
+use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+
+/// Errors of a simulation.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// Invalid job, model or plugin parameters.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// Writing the trace failed.
+    #[error("writing {path}: {source}")]
+    Io {
+        /// File.
+        path: String,
+        /// Error.
+        source: std::io::Error,
+    },
+}
+
+/// A job's plant and control cycle, stepped in one process.
+pub struct Simulation {
+    /// The control cycle (trajectory + chain).
+    pub cycle: ControlCycle,
+    /// The plant.
+    pub plant: Plant,
+    sample: SensorSample,
+    cmd: ActuatorCommand,
+    k: u64,
+    n: usize,
+}
+
+impl Simulation {
+    /// Builds the plant and the chain of `job`, with the plant at rest at the trajectory's start.
+    pub fn new(job: &Job, registry: &dyn PluginRegistry) -> Result<Self, SimError> {
+        let cycle = ControlCycle::new(job, registry)?;
+        let mut plant = Plant::new(job)?;
+        plant.set_initial_positions(&cycle.initial_positions());
+        let n = job.axes.len();
+        Ok(Self {
+            cycle,
+            plant,
+            sample: SensorSample::empty(n as u32, 0),
+            cmd: ActuatorCommand::empty(n as u32, 0),
+            k: 0,
+            n,
+        })
+    }
+
+    /// Cycles of the whole run.
+    pub fn cycles(&self) -> u64 {
+        self.cycle.cycles()
+    }
+
+    /// Cycle number of the next step.
+    pub fn position(&self) -> u64 {
+        self.k
+    }
+
+    /// Runs one cycle and writes its trace row of each axis into `rows[..n]`.
+    #[inline]
+    pub fn step(&mut self, rows: &mut [AxisRecord]) {
+        let k = self.k;
+        self.sample.seq = k;
+        self.sample.plant_time_s = self.cycle.time_of(k);
+        self.plant.sense(&mut self.sample);
+        self.cycle.step(&self.sample, &mut self.cmd);
+        self.plant.step(&self.cmd);
+        for i in 0..self.n {
+            let s = &self.sample.axes[i];
+            rows[i] = AxisRecord {
+                cmd: self.cmd.axes[i].reference,
+                load: s.load_pos,
+                motor: s.motor_pos,
+                motor_vel: s.motor_vel,
+                torque: self.cmd.axes[i].torque,
+            };
+        }
+        self.k += 1;
+    }
+}
+
+/// Result of [`simulate`].
+#[derive(Debug, Clone)]
+pub struct SimReport {
+    /// Cycles run.
+    pub cycles: u64,
+    /// Wall time spent in physics and control (trace I/O excluded), s.
+    pub compute_s: f64,
+    /// Wall time spent formatting and writing the trace, s.
+    pub trace_s: f64,
+    /// Tracking figures.
+    pub tracking: Tracking,
+}
+
+/// The two axes whose contour is judged: the first two axes the trajectory drives.
+pub fn contour_axes(job: &Job, cycle: &ControlCycle) -> Option<(usize, usize)> {
+    let names = job.axis_names();
+    let driven: Vec<usize> = cycle
+        .trajectory()
+        .axes()
+        .iter()
+        .filter_map(|a| names.iter().position(|n| n == a))
+        .collect();
+    (driven.len() >= 2).then(|| (driven[0], driven[1]))
+}
+
+/// Runs a whole job; writes `trace` (trace format v1) when given. `progress` is called now and
+/// then with (cycles done, cycles total).
+pub fn simulate(
+    job: &Job,
+    registry: &dyn PluginRegistry,
+    trace: Option<&Path>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<SimReport, SimError> {
+    let mut sim = Simulation::new(job, registry)?;
+    let names = job.axis_names();
+    let n = names.len();
+    let total = sim.cycles();
+    let mut tracking = Tracking::new(&names, contour_axes(job, &sim.cycle));
+    let io_err = |p: &Path, e: std::io::Error| SimError::Io {
+        path: p.display().to_string(),
+        source: e,
+    };
+    let mut writer = match trace {
+        Some(p) => {
+            let f = std::fs::File::create(p).map_err(|e| io_err(p, e))?;
+            Some((
+                p,
+                TraceWriter::new(std::io::BufWriter::with_capacity(1 << 20, f), &trace_columns(&names))
+                    .map_err(|e| io_err(p, e))?,
+            ))
+        }
+        None => None,
+    };
+    const BATCH: usize = 4096;
+    let mut batch = vec![[AxisRecord::default(); MAX_AXES]; BATCH];
+    let mut row = Vec::with_capacity(1 + 5 * n);
+    let mut compute = std::time::Duration::ZERO;
+    let mut trace_t = std::time::Duration::ZERO;
+    let period = job.period_s;
+    while sim.position() < total {
+        let first = sim.position();
+        let m = ((total - first) as usize).min(BATCH);
+        let t0 = std::time::Instant::now();
+        for rows in batch.iter_mut().take(m) {
+            sim.step(&mut rows[..n]);
+        }
+        compute += t0.elapsed();
+        let t1 = std::time::Instant::now();
+        for (j, rows) in batch.iter().take(m).enumerate() {
+            tracking.push(&rows[..n]);
+            if let Some((_, w)) = writer.as_mut() {
+                row_values(first + j as u64, period, &rows[..n], &mut row);
+                w.write_row(&row).map_err(|e| io_err(trace.unwrap(), e))?;
+            }
+        }
+        trace_t += t1.elapsed();
+        progress(sim.position(), total);
+    }
+    if let Some((p, w)) = writer {
+        let mut inner = w.finish().map_err(|e| io_err(p, e))?;
+        inner.flush().map_err(|e| io_err(p, e))?;
+    }
+    Ok(SimReport {
+        cycles: total,
+        compute_s: compute.as_secs_f64(),
+        trace_s: trace_t.as_secs_f64(),
+        tracking,
+    })
+}

@@ -1,0 +1,474 @@
+//! The run-level commands: spawning the two processes, the processes themselves, the
+//! in-process simulation, and merging logs into `trace.csv` + `summary.json`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode};
+use std::time::Duration;
+
+use anyhow::{anyhow, bail, Context, Result};
+use serde_json::{json, Value};
+
+use feedloop_analysis::sim::{contour_axes, simulate};
+use feedloop_plant::Plant;
+use feedloop_plugins::Builtins;
+use feedloop_runtime::cycle::ControlCycle;
+use feedloop_runtime::export::{
+    human_summary, row_values, summary_json, trace_columns, EndInfo, SummaryInput,
+};
+use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
+use feedloop_runtime::job::{Job, Mode, WaitKind};
+use feedloop_runtime::plant_loop::{run_plant, PlantDevice, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
+use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
+use feedloop_runtime::summary::{timing, Tracking};
+use feedloop_runtime::trace::TraceWriter;
+use feedloop_runtime::wire::{ActuatorCommand, SensorSample};
+
+use crate::signals;
+
+/// The simulated plant seen through the loop's device trait.
+struct SimDevice(Plant);
+
+impl PlantDevice for SimDevice {
+    fn axis_count(&self) -> usize {
+        self.0.axis_count()
+    }
+    fn sense(&mut self, out: &mut SensorSample) {
+        self.0.sense(out)
+    }
+    fn step(&mut self, cmd: &ActuatorCommand) {
+        self.0.step(cmd)
+    }
+}
+
+/// A job with everything built from it validated.
+struct Loaded {
+    job: Job,
+    cycle: ControlCycle,
+    plant: Plant,
+}
+
+fn load(job_path: &Path) -> Result<Loaded> {
+    let job = Job::load(job_path)?;
+    let cycle = ControlCycle::new(&job, &Builtins)?;
+    let mut plant = Plant::new(&job)?;
+    plant.set_initial_positions(&cycle.initial_positions());
+    Ok(Loaded { job, cycle, plant })
+}
+
+fn mode_of(job: &Job, mode: Option<String>) -> Result<Mode> {
+    match mode {
+        None => Ok(job.run.mode),
+        Some(m) => {
+            Mode::parse(&m).ok_or_else(|| anyhow!("--mode `{m}`: expected realtime or lockstep"))
+        }
+    }
+}
+
+fn wait_of(job: &Job, wait: Option<String>) -> Result<WaitKind> {
+    match wait {
+        None => Ok(job.run.wait),
+        Some(w) => WaitKind::parse(&w)
+            .ok_or_else(|| anyhow!("--wait `{w}`: expected busy, block or hybrid")),
+    }
+}
+
+fn write_json(path: &Path, v: &Value) -> Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+fn create_dir(out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("creating output folder {}", out.display()))
+}
+
+/// `feedloop sim`.
+pub fn sim(job_path: &Path, out: &Path, json_only: bool, quiet: bool) -> Result<ExitCode> {
+    let job = Job::load(job_path)?;
+    // Validate everything before touching the output folder.
+    ControlCycle::new(&job, &Builtins)?;
+    Plant::new(&job)?;
+    create_dir(out)?;
+    let bar = if quiet || json_only {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let b = indicatif::ProgressBar::new(0);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("sim {bar:40} {pos}/{len} cycles ({eta})")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    };
+    let trace = out.join("trace.csv");
+    let report = simulate(&job, &Builtins, Some(&trace), &mut |done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    let end = EndInfo::new("completed", report.cycles);
+    let mut extra = BTreeMap::new();
+    extra.insert("trace_export_s".to_string(), json!(report.trace_s));
+    let v = summary_json(&SummaryInput {
+        job: &job.name,
+        mode: "sim",
+        period_s: job.period_s,
+        cycles: report.cycles,
+        timing: None,
+        pids: None,
+        compute_s: report.compute_s,
+        tracking: &report.tracking,
+        end: &end,
+        extra,
+    });
+    write_json(&out.join("summary.json"), &v)?;
+    if json_only {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print!("{}", human_summary(&v));
+        println!(
+            "  wrote {} and {}",
+            trace.display(),
+            out.join("summary.json").display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `feedloop plant`.
+pub fn plant(
+    instance: &str,
+    job_path: &Path,
+    out: &Path,
+    mode: Option<String>,
+    wait: Option<String>,
+    export: bool,
+) -> Result<ExitCode> {
+    signals::install();
+    let Loaded { job, cycle, plant } = load(job_path)?;
+    let mode = mode_of(&job, mode)?;
+    let wait = wait_of(&job, wait)?;
+    create_dir(out)?;
+    let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
+    let ep = plant_endpoint(instance, wait, spin)?;
+    let cfg = PlantLoopConfig {
+        instance: instance.to_string(),
+        mode,
+        wait,
+        spin,
+        period_s: job.period_s,
+        cycles: cycle.cycles(),
+        watchdog_cycles: job.run.watchdog_cycles,
+        peer_timeout_s: job.run.peer_timeout_s,
+    };
+    let mut dev = SimDevice(plant);
+    let outcome = run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP)?;
+    drop(ep);
+    let end = match outcome.end {
+        PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
+        PlantEnd::SchedulerLost {
+            cycle,
+            detected_after_cycles,
+        } => json!({"reason": "scheduler_lost", "cycle": cycle,
+                    "detected_after_cycles": detected_after_cycles, "safe_stop": "torque_off"}),
+        PlantEnd::OperatorStop { cycle } => json!({"reason": "operator_stop", "cycle": cycle}),
+    };
+    write_json(
+        &out.join("plant.json"),
+        &json!({"pid": std::process::id(), "mode": mode.id(), "wait": wait.id(),
+                "cycles": outcome.cycles, "dropped_records": outcome.dropped_records, "end": end}),
+    )?;
+    if export {
+        // Started by hand: give the scheduler a moment to write its own file, then export.
+        for _ in 0..40 {
+            if out.join("scheduler.json").exists() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let (v, code) = merge(out, &job)?;
+        print!("{}", human_summary(&v));
+        return Ok(code);
+    }
+    Ok(if outcome.end == PlantEnd::Completed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+/// `feedloop scheduler`.
+pub fn scheduler(
+    instance: &str,
+    job_path: &Path,
+    out: &Path,
+    mode: Option<String>,
+    wait: Option<String>,
+) -> Result<ExitCode> {
+    signals::install();
+    let Loaded { job, mut cycle, .. } = load(job_path)?;
+    let mode = mode_of(&job, mode)?;
+    let wait = wait_of(&job, wait)?;
+    create_dir(out)?;
+    let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
+    let ep = scheduler_endpoint(instance, wait, spin)?;
+    let cfg = SchedulerConfig {
+        instance: instance.to_string(),
+        mode,
+        peer_timeout_s: job.run.peer_timeout_s,
+        stale_after_s: 0.5f64.max(job.period_s * 1000.0),
+    };
+    let n = job.axes.len();
+    let outcome = run_scheduler(
+        &cfg,
+        &mut cycle,
+        n,
+        &ep,
+        &out.join("scheduler.log"),
+        &signals::STOP,
+    )?;
+    drop(ep);
+    let end = match outcome.end {
+        SchedulerEnd::Completed => json!({"reason": "completed"}),
+        SchedulerEnd::PlantLost { cycle } => json!({"reason": "plant_lost", "cycle": cycle}),
+        SchedulerEnd::PlantEnded { cycle } => json!({"reason": "plant_ended", "cycle": cycle}),
+        SchedulerEnd::OperatorStop { cycle } => json!({"reason": "operator_stop", "cycle": cycle}),
+    };
+    write_json(
+        &out.join("scheduler.json"),
+        &json!({"pid": std::process::id(), "commands": outcome.commands,
+                "out_of_order": outcome.out_of_order, "skipped": outcome.skipped,
+                "nonfinite_faults": cycle.chain().nonfinite_faults,
+                "dropped_records": outcome.dropped_records, "end": end}),
+    )?;
+    Ok(if outcome.end == SchedulerEnd::Completed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn default_instance() -> String {
+    format!("run{}", std::process::id())
+}
+
+fn spawn(
+    role: &str,
+    instance: &str,
+    job: &Path,
+    out: &Path,
+    mode: Mode,
+    wait: WaitKind,
+) -> Result<Child> {
+    let exe = std::env::current_exe().context("locating the feedloop binary")?;
+    let mut cmd = Command::new(exe);
+    cmd.arg(role)
+        .args(["--instance", instance])
+        .arg("--job")
+        .arg(job)
+        .arg("--out")
+        .arg(out)
+        .args(["--mode", mode.id(), "--wait", wait.id()]);
+    if role == "plant" {
+        cmd.arg("--no-export");
+    }
+    cmd.spawn()
+        .with_context(|| format!("starting the {role} process"))
+}
+
+/// `feedloop run`.
+pub fn run(
+    job_path: &Path,
+    out: &Path,
+    mode: Option<String>,
+    wait: Option<String>,
+    instance: Option<String>,
+    json_only: bool,
+) -> Result<ExitCode> {
+    signals::install();
+    // Validate everything before any process starts.
+    let Loaded { job, .. } = load(job_path)?;
+    let mode = mode_of(&job, mode)?;
+    let wait = wait_of(&job, wait)?;
+    let instance = instance.unwrap_or_else(default_instance);
+    if !feedloop_runtime::job::valid_name(&instance, true) {
+        bail!("--instance `{instance}`: use lowercase letters, digits, `_` and `-` (at most 64)");
+    }
+    create_dir(out)?;
+    for f in [
+        "plant.log",
+        "plant.json",
+        "scheduler.log",
+        "scheduler.json",
+        "trace.csv",
+        "summary.json",
+    ] {
+        let _ = std::fs::remove_file(out.join(f));
+    }
+    let mut plant = spawn("plant", &instance, job_path, out, mode, wait)?;
+    let mut sched = match spawn("scheduler", &instance, job_path, out, mode, wait) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = plant.kill();
+            let _ = plant.wait();
+            return Err(e);
+        }
+    };
+    let plant_status = plant.wait().context("waiting for the plant process")?;
+    // The scheduler ends on the plant's last sample or notices silence; bound the wait.
+    let deadline =
+        std::time::Instant::now() + Duration::from_secs_f64(job.run.peer_timeout_s + 2.0);
+    let sched_status = loop {
+        if let Some(s) = sched.try_wait()? {
+            break Some(s);
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = sched.kill();
+            let _ = sched.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    if !plant_status.success() && !out.join("plant.json").exists() {
+        eprintln!("feedloop: the plant process failed ({plant_status})");
+    }
+    if let Some(s) = sched_status {
+        if !s.success() && !out.join("scheduler.json").exists() {
+            eprintln!("feedloop: the scheduler process failed ({s})");
+        }
+    }
+    let (mut v, code) = merge(out, &job)?;
+    v["processes"] = json!({"plant_pid": plant.id(), "scheduler_pid": sched.id()});
+    write_json(&out.join("summary.json"), &v)?;
+    if json_only {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print!("{}", human_summary(&v));
+        println!(
+            "  wrote {} and {}",
+            out.join("trace.csv").display(),
+            out.join("summary.json").display()
+        );
+    }
+    Ok(code)
+}
+
+fn read_json(path: &Path) -> Option<Value> {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+}
+
+/// `feedloop merge`.
+pub fn merge_cmd(dir: &Path, job_path: &Path, json_only: bool) -> Result<ExitCode> {
+    let job = Job::load(job_path)?;
+    let (v, code) = merge(dir, &job)?;
+    if json_only {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print!("{}", human_summary(&v));
+    }
+    Ok(code)
+}
+
+/// Builds trace.csv and summary.json in `dir` from the processes' logs.
+fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
+    let plant_log: PathBuf = dir.join("plant.log");
+    let plant_recs = read_log::<PlantRecord>(&plant_log)
+        .with_context(|| format!("reading {}", plant_log.display()))?;
+    let sched_recs = read_log::<SchedRecord>(&dir.join("scheduler.log")).ok();
+    let plant_info = read_json(&dir.join("plant.json"));
+    let sched_info = read_json(&dir.join("scheduler.json"));
+    let names = job.axis_names();
+    let n = names.len();
+    let cycle = ControlCycle::new(job, &Builtins)?;
+    let mut tracking = Tracking::new(&names, contour_axes(job, &cycle));
+
+    let trace_path = dir.join("trace.csv");
+    let f = std::fs::File::create(&trace_path)
+        .with_context(|| format!("creating {}", trace_path.display()))?;
+    let mut w = TraceWriter::new(
+        std::io::BufWriter::with_capacity(1 << 20, f),
+        &trace_columns(&names),
+    )?;
+    let mut row = Vec::with_capacity(1 + 5 * n);
+    let mut plant_compute_ns = 0u64;
+    for r in &plant_recs.records {
+        row_values(r.seq, job.period_s, &r.axes[..n], &mut row);
+        w.write_row(&row)?;
+        tracking.push(&r.axes[..n]);
+        plant_compute_ns += u64::from(r.compute_ns);
+    }
+    w.finish()?;
+    let sched_compute_ns: u64 = sched_recs
+        .as_ref()
+        .map(|s| s.records.iter().map(|r| u64::from(r.compute_ns)).sum())
+        .unwrap_or(0);
+    let t = timing(&plant_recs.records);
+    let mode = plant_info
+        .as_ref()
+        .and_then(|p| p["mode"].as_str().map(str::to_string))
+        .unwrap_or_else(|| "unknown".into());
+    let pids = match (&plant_info, &sched_info) {
+        (Some(p), Some(s)) => Some((
+            p["pid"].as_u64().unwrap_or(0) as u32,
+            s["pid"].as_u64().unwrap_or(0) as u32,
+        )),
+        _ => None,
+    };
+    let cycles = plant_recs.records.len() as u64;
+    let mut end = match &plant_info {
+        None => EndInfo::new("plant_lost", cycles),
+        Some(p) => {
+            let e = &p["end"];
+            let mut info = EndInfo::new(
+                e["reason"].as_str().unwrap_or("unknown"),
+                e["cycle"].as_u64().unwrap_or(cycles),
+            );
+            if let Some(obj) = e.as_object() {
+                for (k, v) in obj {
+                    if k != "reason" && k != "cycle" {
+                        info.extra.insert(k.clone(), v.clone());
+                    }
+                }
+            }
+            info
+        }
+    };
+    if end.reason == "completed" && cycles != cycle.cycles() {
+        end = EndInfo::new("incomplete_log", cycles);
+    }
+    let mut extra = BTreeMap::new();
+    extra.insert(
+        "wait".into(),
+        plant_info
+            .as_ref()
+            .map(|p| p["wait"].clone())
+            .unwrap_or(Value::Null),
+    );
+    extra.insert("bad_sequence".into(), json!(t.bad_sequence));
+    extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
+    if let Some(s) = &sched_info {
+        extra.insert("scheduler".into(), s.clone());
+    }
+    let v = summary_json(&SummaryInput {
+        job: &job.name,
+        mode: &mode,
+        period_s: job.period_s,
+        cycles,
+        timing: Some(&t),
+        pids,
+        compute_s: (plant_compute_ns + sched_compute_ns) as f64 * 1e-9,
+        tracking: &tracking,
+        end: &end,
+        extra,
+    });
+    write_json(&dir.join("summary.json"), &v)?;
+    let code = if end.reason == "completed" {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    };
+    Ok((v, code))
+}

@@ -1,0 +1,274 @@
+//! The two-process loop end to end: `feedloop run` spawns plant and scheduler, they talk over
+//! iceoryx2, and the result is checked against `feedloop sim` of the same job.
+
+use std::path::Path;
+
+use feedloop_tests::{describe, feedloop, process_lock, read_json, repo_file, scratch};
+
+fn run_ok(args: &[&str]) -> std::process::Output {
+    let o = feedloop(args);
+    assert!(
+        o.status.success(),
+        "feedloop {args:?} failed:\n{}",
+        describe(&o)
+    );
+    o
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn lockstep_run_and_simulation_of_xy_circle_give_identical_traces() {
+    let _g = process_lock();
+    let dir = scratch("circle");
+    let job = repo_file("examples/jobs/xy-circle.toml");
+    let (a, b) = (dir.join("run"), dir.join("sim"));
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&a),
+        "--mode",
+        "lockstep",
+        "--wait",
+        "hybrid",
+        "--instance",
+        "e2e-circle",
+    ]);
+    run_ok(&["sim", s(&job), "--out", s(&b), "--quiet"]);
+    let ta = std::fs::read(a.join("trace.csv")).unwrap();
+    let tb = std::fs::read(b.join("trace.csv")).unwrap();
+    assert!(ta.len() > 1000);
+    assert!(ta == tb, "lockstep and sim traces differ");
+
+    let sum = read_json(&a.join("summary.json"));
+    let plant_pid = sum["processes"]["plant_pid"].as_u64().unwrap();
+    let sched_pid = sum["processes"]["scheduler_pid"].as_u64().unwrap();
+    assert!(
+        plant_pid != 0 && sched_pid != 0 && plant_pid != sched_pid,
+        "{sum}"
+    );
+    assert_eq!(sum["mode"], "lockstep");
+    assert_eq!(sum["end"]["reason"], "completed");
+
+    // cycles == round(duration / period), duration from the trace's own time column
+    let text = String::from_utf8(ta).unwrap();
+    let rows: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .collect();
+    assert_eq!(sum["cycles"].as_u64().unwrap() as usize, rows.len());
+    let period = sum["period_s"].as_f64().unwrap();
+    let job_text = std::fs::read_to_string(&job).unwrap();
+    let job_toml: toml::Table = job_text.parse().unwrap();
+    assert_eq!(job_toml["period_s"].as_float().unwrap(), period);
+
+    // following error of a P position loop at constant feed: v / Kp (within 20 %)
+    let traj = job_toml["trajectory"].as_table().unwrap();
+    let feed = traj["feed_m_per_s"].as_float().unwrap();
+    let model_rel = job_toml["axes"]["x"]["model"].as_str().unwrap();
+    let model: toml::Table = std::fs::read_to_string(job.parent().unwrap().join(model_rel))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let kp = model["controller"]["kp_per_s"].as_float().unwrap();
+    for axis in ["x", "y"] {
+        let e = sum["axes"][axis]["max_following_error"].as_f64().unwrap();
+        let expect = feed / kp;
+        assert!(
+            (e - expect).abs() <= 0.2 * expect,
+            "axis {axis}: max following error {e} vs v/Kp {expect}"
+        );
+    }
+    assert!(sum["contour"]["max_error"].as_f64().unwrap() > 0.0);
+    assert!(sum["latency_us"]["p50"].as_f64().unwrap() > 0.0);
+}
+
+fn write_short_job(dir: &Path, name: &str) -> std::path::PathBuf {
+    let models = repo_file("examples/models");
+    let job = format!(
+        r#"name = "{name}"
+period_s = 0.0005
+[run]
+wait = "block"
+[axes.x]
+model = "{m}/xy-x.toml"
+[axes.y]
+model = "{m}/xy-y.toml"
+[trajectory]
+kind = "circle"
+axes = ["x", "y"]
+center_m = [0.0, 0.0]
+radius_m = 0.002
+feed_m_per_s = 0.02
+turns = 1.0
+ramp_s = 0.05
+"#,
+        m = models.display()
+    );
+    let p = dir.join(format!("{name}.toml"));
+    std::fs::write(&p, job).unwrap();
+    p
+}
+
+#[test]
+fn two_instances_run_at_the_same_time_without_interfering() {
+    let _g = process_lock();
+    let dir = scratch("twins");
+    let job = write_short_job(&dir, "twin");
+    let spawn = |inst: &str, out: &Path| {
+        std::process::Command::new(feedloop_tests::feedloop_bin())
+            .args([
+                "run",
+                s(&job),
+                "--out",
+                s(out),
+                "--mode",
+                "lockstep",
+                "--wait",
+                "block",
+                "--instance",
+                inst,
+            ])
+            .output()
+            .unwrap()
+    };
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    let (oa, ob) = std::thread::scope(|sc| {
+        let ha = sc.spawn(|| spawn("twin-a", &a));
+        let hb = sc.spawn(|| spawn("twin-b", &b));
+        (ha.join().unwrap(), hb.join().unwrap())
+    });
+    assert!(oa.status.success(), "{}", describe(&oa));
+    assert!(ob.status.success(), "{}", describe(&ob));
+    let sim = dir.join("sim");
+    run_ok(&["sim", s(&job), "--out", s(&sim), "--quiet"]);
+    let reference = std::fs::read(sim.join("trace.csv")).unwrap();
+    assert!(std::fs::read(a.join("trace.csv")).unwrap() == reference);
+    assert!(std::fs::read(b.join("trace.csv")).unwrap() == reference);
+    let (sa, sb) = (
+        read_json(&a.join("summary.json")),
+        read_json(&b.join("summary.json")),
+    );
+    assert_ne!(sa["processes"]["plant_pid"], sb["processes"]["plant_pid"]);
+}
+
+#[test]
+fn a_second_run_on_the_same_instance_starts_cleanly_even_after_killed_processes() {
+    let _g = process_lock();
+    let dir = scratch("reuse");
+    let job = write_short_job(&dir, "reuse");
+    // 1. a clean run, then another on the same instance
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&dir.join("1")),
+        "--mode",
+        "lockstep",
+        "--instance",
+        "e2e-reuse",
+    ]);
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&dir.join("2")),
+        "--mode",
+        "lockstep",
+        "--instance",
+        "e2e-reuse",
+    ]);
+    // 2. processes killed mid-run leave stale resources behind; the next run must still work
+    let bin = feedloop_tests::feedloop_bin();
+    let out3 = dir.join("3");
+    let mut plant = std::process::Command::new(&bin)
+        .args([
+            "plant",
+            "--instance",
+            "e2e-reuse",
+            "--job",
+            s(&job),
+            "--out",
+            s(&out3),
+            "--mode",
+            "realtime",
+            "--wait",
+            "block",
+            "--no-export",
+        ])
+        .spawn()
+        .unwrap();
+    let mut sched = std::process::Command::new(&bin)
+        .args([
+            "scheduler",
+            "--instance",
+            "e2e-reuse",
+            "--job",
+            s(&job),
+            "--out",
+            s(&out3),
+            "--mode",
+            "realtime",
+            "--wait",
+            "block",
+        ])
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let _ = sched.kill();
+    let _ = plant.kill();
+    let _ = sched.wait();
+    let _ = plant.wait();
+    let out4 = dir.join("4");
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&out4),
+        "--mode",
+        "lockstep",
+        "--instance",
+        "e2e-reuse",
+    ]);
+    let sum = read_json(&out4.join("summary.json"));
+    assert_eq!(sum["end"]["reason"], "completed");
+}
+
+#[test]
+fn realtime_run_reports_timing_figures() {
+    let _g = process_lock();
+    let dir = scratch("rt");
+    let job = write_short_job(&dir, "rt");
+    let out = dir.join("out");
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&out),
+        "--mode",
+        "realtime",
+        "--wait",
+        "block",
+    ]);
+    let sum = read_json(&out.join("summary.json"));
+    assert_eq!(sum["mode"], "realtime");
+    for key in ["deadline_misses", "plant_overruns"] {
+        assert!(sum[key].is_u64(), "{key} missing: {sum}");
+    }
+    assert!(sum["stalls"]["count"].is_u64());
+    let lat = &sum["latency_us"];
+    let (p50, p99, max) = (
+        lat["p50"].as_f64().unwrap(),
+        lat["p99"].as_f64().unwrap(),
+        lat["max"].as_f64().unwrap(),
+    );
+    assert!(p50 > 0.0 && p50 <= p99 && p99 <= max, "{lat}");
+    // A realtime run's trace still has one row per cycle.
+    let text = std::fs::read_to_string(out.join("trace.csv")).unwrap();
+    let rows = text.lines().filter(|l| !l.starts_with('#')).count() - 1;
+    assert_eq!(rows as u64, sum["cycles"].as_u64().unwrap());
+}
