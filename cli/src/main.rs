@@ -4,6 +4,8 @@
 //! `plant` and `scheduler` (the two processes, also startable by hand), `merge` (export the
 //! logs of hand-started processes).
 
+mod bench;
+mod control;
 mod processes;
 mod signals;
 mod workbench_cmd;
@@ -59,43 +61,53 @@ enum Command {
     },
     /// The plant process: owns the physics, publishes a sample each cycle.
     Plant {
-        /// Instance name.
-        #[arg(long)]
-        instance: String,
-        /// Job file.
-        #[arg(long)]
-        job: PathBuf,
-        /// Output folder for the plant's log.
-        #[arg(long, default_value = ".")]
-        out: PathBuf,
-        /// realtime | lockstep.
-        #[arg(long)]
-        mode: Option<String>,
-        /// busy | block | hybrid.
-        #[arg(long)]
-        wait: Option<String>,
+        #[command(flatten)]
+        args: processes::ProcArgs,
         /// Do not export trace.csv/summary.json at the end (used by `feedloop run`, which merges).
         #[arg(long)]
         no_export: bool,
     },
     /// The scheduler process: runs the controller chain for each sample.
     Scheduler {
-        /// Instance name.
+        #[command(flatten)]
+        args: processes::ProcArgs,
+    },
+    /// Swap (or retune) a controller of a running loop.
+    Swap {
+        /// Instance of the running loop.
         #[arg(long)]
         instance: String,
-        /// Job file.
+        /// Axis name.
         #[arg(long)]
-        job: PathBuf,
-        /// Output folder for the scheduler's log.
-        #[arg(long, default_value = ".")]
-        out: PathBuf,
-        /// realtime | lockstep.
+        axis: String,
+        /// position | feedforward | compensator | velocity.
         #[arg(long)]
-        mode: Option<String>,
-        /// busy | block | hybrid.
+        stage: String,
+        /// Plugin id (the same id with --params is a retune).
         #[arg(long)]
-        wait: Option<String>,
+        plugin: String,
+        /// TOML file with the plugin's own parameter keys (omitted keys keep their values).
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Shared-library plugin to load.
+        #[arg(long)]
+        lib: Option<PathBuf>,
+        /// Seconds to wait for the answer.
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
     },
+    /// Status of a running loop (cycle, plugins per axis and stage, swaps).
+    Status {
+        /// Instance of the running loop.
+        #[arg(long)]
+        instance: String,
+        /// Seconds to wait for the answer.
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+    },
+    /// Benchmarks of the running loop.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
     /// Model workbench: trace import, model init, compare, diagnose, fit.
     #[command(flatten)]
     Workbench(workbench_cmd::WorkbenchCmd),
@@ -129,21 +141,30 @@ fn main() -> ExitCode {
             json,
             quiet,
         } => processes::sim(&job, &out, json, quiet),
-        Command::Plant {
+        Command::Plant { args, no_export } => processes::plant(&args, !no_export),
+        Command::Scheduler { args } => processes::scheduler(&args),
+        Command::Bench(cmd) => bench::run(cmd),
+        Command::Swap {
             instance,
-            job,
-            out,
-            mode,
-            wait,
-            no_export,
-        } => processes::plant(&instance, &job, &out, mode, wait, !no_export),
-        Command::Scheduler {
+            axis,
+            stage,
+            plugin,
+            params,
+            lib,
+            timeout_s,
+        } => control::swap(
+            &instance,
+            &axis,
+            &stage,
+            &plugin,
+            params.as_deref(),
+            lib.as_deref(),
+            timeout_s,
+        ),
+        Command::Status {
             instance,
-            job,
-            out,
-            mode,
-            wait,
-        } => processes::scheduler(&instance, &job, &out, mode, wait),
+            timeout_s,
+        } => control::status(&instance, timeout_s),
         Command::Merge { dir, job, json } => processes::merge_cmd(&dir, &job, json),
         Command::Workbench(cmd) => workbench_cmd::run(cmd),
     };

@@ -18,7 +18,7 @@ use feedloop_runtime::export::{
 };
 use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
 use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{run_plant, PlantDevice, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::plant_loop::{run_plant, PlantDevice, PlantEnd, PlantLoopConfig, StopCause};
 use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
 use feedloop_runtime::summary::{timing, Tracking};
@@ -74,7 +74,8 @@ fn wait_of(job: &Job, wait: Option<String>) -> Result<WaitKind> {
     }
 }
 
-fn write_json(path: &Path, v: &Value) -> Result<()> {
+/// Writes pretty JSON.
+pub fn write_json(path: &Path, v: &Value) -> Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(v)? + "\n")
         .with_context(|| format!("writing {}", path.display()))
 }
@@ -136,20 +137,63 @@ pub fn sim(job_path: &Path, out: &Path, json_only: bool, quiet: bool) -> Result<
     Ok(ExitCode::SUCCESS)
 }
 
+/// Options shared by the `plant` and `scheduler` processes.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ProcArgs {
+    /// Instance name (both processes of one loop use the same).
+    #[arg(long)]
+    pub instance: String,
+    /// Job file.
+    #[arg(long)]
+    pub job: PathBuf,
+    /// Output folder for this process' log and report.
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+    /// realtime | lockstep (default: the job's).
+    #[arg(long)]
+    pub mode: Option<String>,
+    /// busy | block | hybrid (default: the job's).
+    #[arg(long)]
+    pub wait: Option<String>,
+    /// Run this many cycles instead of the job's duration.
+    #[arg(long)]
+    pub cycles: Option<u64>,
+    /// Pin this process to a CPU.
+    #[arg(long)]
+    pub cpu: Option<usize>,
+    /// SCHED_FIFO priority (1..99); refused with the busy wait (real-time throttling).
+    #[arg(long)]
+    pub fifo: Option<i32>,
+    /// Do not lock memory (mlockall).
+    #[arg(long)]
+    pub no_mlock: bool,
+}
+
+fn apply_rt(a: &ProcArgs, wait: WaitKind) -> Value {
+    let mut req = feedloop_runtime::rt::RtRequest {
+        mlockall: !a.no_mlock,
+        fifo_priority: a.fifo,
+        cpu: a.cpu,
+    };
+    let mut note = None;
+    if wait == WaitKind::Busy && a.fifo.is_some() {
+        req.fifo_priority = None;
+        note = Some("SCHED_FIFO refused with the busy wait: an unbounded spin at real-time priority is throttled by the kernel".to_string());
+    }
+    let mut applied = feedloop_runtime::rt::apply(&req);
+    applied.notes.extend(note);
+    serde_json::to_value(&applied).unwrap_or(Value::Null)
+}
+
 /// `feedloop plant`.
-pub fn plant(
-    instance: &str,
-    job_path: &Path,
-    out: &Path,
-    mode: Option<String>,
-    wait: Option<String>,
-    export: bool,
-) -> Result<ExitCode> {
+pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
     signals::install();
+    let (instance, job_path, out) = (a.instance.as_str(), a.job.as_path(), a.out.as_path());
     let Loaded { job, cycle, plant } = load(job_path)?;
-    let mode = mode_of(&job, mode)?;
-    let wait = wait_of(&job, wait)?;
+    let mode = mode_of(&job, a.mode.clone())?;
+    let wait = wait_of(&job, a.wait.clone())?;
     create_dir(out)?;
+    let rt = apply_rt(a, wait);
     let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
     let ep = plant_endpoint(instance, wait, spin)?;
     let cfg = PlantLoopConfig {
@@ -158,26 +202,55 @@ pub fn plant(
         wait,
         spin,
         period_s: job.period_s,
-        cycles: cycle.cycles(),
+        cycles: a.cycles.unwrap_or(cycle.cycles()),
         watchdog_cycles: job.run.watchdog_cycles,
         peer_timeout_s: job.run.peer_timeout_s,
+        safety: job.safety.clone(),
+        brake_gain: job
+            .axes
+            .iter()
+            .map(|a| {
+                a.model
+                    .controller
+                    .kv
+                    .unwrap_or(a.model.plant.total_inertia() * 200.0)
+            })
+            .collect(),
+        torque_limit: job
+            .axes
+            .iter()
+            .map(|a| a.model.controller.torque_limit.unwrap_or(f64::INFINITY))
+            .collect(),
     };
     let mut dev = SimDevice(plant);
     let outcome = run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP)?;
     drop(ep);
     let end = match outcome.end {
         PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
-        PlantEnd::SchedulerLost {
+        PlantEnd::Stopped {
+            cause,
             cycle,
-            detected_after_cycles,
-        } => json!({"reason": "scheduler_lost", "cycle": cycle,
-                    "detected_after_cycles": detected_after_cycles, "safe_stop": "torque_off"}),
-        PlantEnd::OperatorStop { cycle } => json!({"reason": "operator_stop", "cycle": cycle}),
+            safe_stop,
+        } => {
+            let mut e =
+                json!({"reason": cause.reason(), "cycle": cycle, "safe_stop": safe_stop.id()});
+            match cause {
+                StopCause::SchedulerLost {
+                    detected_after_cycles,
+                } => e["detected_after_cycles"] = json!(detected_after_cycles),
+                StopCause::FollowingError { axis }
+                | StopCause::TorqueSaturation { axis }
+                | StopCause::SoftLimit { axis } => e["axis"] = json!(job.axes[axis].name),
+                StopCause::OperatorStop => {}
+            }
+            e
+        }
     };
     write_json(
         &out.join("plant.json"),
         &json!({"pid": std::process::id(), "mode": mode.id(), "wait": wait.id(),
-                "cycles": outcome.cycles, "dropped_records": outcome.dropped_records, "end": end}),
+                "cycles": outcome.cycles, "planned_cycles": cfg.cycles, "dropped_records": outcome.dropped_records, "end": end,
+                "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes()}),
     )?;
     if export {
         // Started by hand: give the scheduler a moment to write its own file, then export.
@@ -199,18 +272,17 @@ pub fn plant(
 }
 
 /// `feedloop scheduler`.
-pub fn scheduler(
-    instance: &str,
-    job_path: &Path,
-    out: &Path,
-    mode: Option<String>,
-    wait: Option<String>,
-) -> Result<ExitCode> {
+pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
     signals::install();
+    let (instance, job_path, out) = (a.instance.as_str(), a.job.as_path(), a.out.as_path());
     let Loaded { job, mut cycle, .. } = load(job_path)?;
-    let mode = mode_of(&job, mode)?;
-    let wait = wait_of(&job, wait)?;
+    if let Some(c) = a.cycles {
+        cycle.set_cycles(c);
+    }
+    let mode = mode_of(&job, a.mode.clone())?;
+    let wait = wait_of(&job, a.wait.clone())?;
     create_dir(out)?;
+    let rt = apply_rt(a, wait);
     let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
     let ep = scheduler_endpoint(instance, wait, spin)?;
     let cfg = SchedulerConfig {
@@ -220,6 +292,12 @@ pub fn scheduler(
         stale_after_s: 0.5f64.max(job.period_s * 1000.0),
     };
     let n = job.axes.len();
+    let mut control = feedloop_runtime::control::ControlPlane::open(
+        instance,
+        &job,
+        &cycle,
+        std::sync::Arc::new(Builtins),
+    )?;
     let outcome = run_scheduler(
         &cfg,
         &mut cycle,
@@ -227,6 +305,7 @@ pub fn scheduler(
         &ep,
         &out.join("scheduler.log"),
         &signals::STOP,
+        Some(&mut control),
     )?;
     drop(ep);
     let end = match outcome.end {
@@ -238,9 +317,11 @@ pub fn scheduler(
     write_json(
         &out.join("scheduler.json"),
         &json!({"pid": std::process::id(), "commands": outcome.commands,
-                "out_of_order": outcome.out_of_order, "skipped": outcome.skipped,
+                "out_of_order": outcome.out_of_order, "skipped": outcome.skipped, "missing": outcome.missing,
                 "nonfinite_faults": cycle.chain().nonfinite_faults,
-                "dropped_records": outcome.dropped_records, "end": end}),
+                "dropped_records": outcome.dropped_records, "end": end,
+                "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes(),
+                "swaps": control.swaps}),
     )?;
     Ok(if outcome.end == SchedulerEnd::Completed {
         ExitCode::SUCCESS
@@ -253,13 +334,15 @@ fn default_instance() -> String {
     format!("run{}", std::process::id())
 }
 
-fn spawn(
+/// Starts `feedloop <role>` as a child process.
+pub fn spawn(
     role: &str,
     instance: &str,
     job: &Path,
     out: &Path,
     mode: Mode,
     wait: WaitKind,
+    extra: &[String],
 ) -> Result<Child> {
     let exe = std::env::current_exe().context("locating the feedloop binary")?;
     let mut cmd = Command::new(exe);
@@ -273,6 +356,7 @@ fn spawn(
     if role == "plant" {
         cmd.arg("--no-export");
     }
+    cmd.args(extra);
     cmd.spawn()
         .with_context(|| format!("starting the {role} process"))
 }
@@ -306,8 +390,8 @@ pub fn run(
     ] {
         let _ = std::fs::remove_file(out.join(f));
     }
-    let mut plant = spawn("plant", &instance, job_path, out, mode, wait)?;
-    let mut sched = match spawn("scheduler", &instance, job_path, out, mode, wait) {
+    let mut plant = spawn("plant", &instance, job_path, out, mode, wait, &[])?;
+    let mut sched = match spawn("scheduler", &instance, job_path, out, mode, wait, &[]) {
         Ok(c) => c,
         Err(e) => {
             let _ = plant.kill();
@@ -315,7 +399,19 @@ pub fn run(
             return Err(e);
         }
     };
-    let plant_status = plant.wait().context("waiting for the plant process")?;
+    // Wait for the plant; forward an operator stop (SIGINT/SIGTERM to us) to it once.
+    let mut forwarded = false;
+    let plant_status = loop {
+        if let Some(st) = plant.try_wait().context("waiting for the plant process")? {
+            break st;
+        }
+        if !forwarded && signals::STOP.load(std::sync::atomic::Ordering::Relaxed) {
+            // SAFETY: sending a signal to our own child by pid.
+            unsafe { libc::kill(plant.id() as libc::pid_t, libc::SIGTERM) };
+            forwarded = true;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
     // The scheduler ends on the plant's last sample or notices silence; bound the wait.
     let deadline =
         std::time::Instant::now() + Duration::from_secs_f64(job.run.peer_timeout_s + 2.0);
@@ -354,7 +450,8 @@ pub fn run(
     Ok(code)
 }
 
-fn read_json(path: &Path) -> Option<Value> {
+/// Reads a JSON file, if it is there and parses.
+pub fn read_json(path: &Path) -> Option<Value> {
     std::fs::read_to_string(path)
         .ok()
         .and_then(|s| serde_json::from_str(&s).ok())
@@ -436,7 +533,11 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
             info
         }
     };
-    if end.reason == "completed" && cycles != cycle.cycles() {
+    let planned = plant_info
+        .as_ref()
+        .and_then(|p| p["planned_cycles"].as_u64())
+        .unwrap_or(cycle.cycles());
+    if end.reason == "completed" && cycles != planned {
         end = EndInfo::new("incomplete_log", cycles);
     }
     let mut extra = BTreeMap::new();
@@ -450,6 +551,7 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     extra.insert("bad_sequence".into(), json!(t.bad_sequence));
     extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
     if let Some(s) = &sched_info {
+        extra.insert("swaps".into(), s["swaps"].clone());
         extra.insert("scheduler".into(), s.clone());
     }
     let v = summary_json(&SummaryInput {

@@ -1,13 +1,409 @@
 //! CLI of the model workbench: `trace import`, `model init`, `compare`, `diagnose`, `fit`.
-//! (Being written.)
+//!
+//! With `--json` a command prints pure JSON on standard output (progress and hints go to
+//! standard error).
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+use anyhow::Context;
+use feedloop_analysis::workbench::{
+    auto::{auto, diagnosis_html},
+    compare::compare,
+    data::{load_axis, pick_axis, AxisData, Prep},
+    diagnose::{diagnose, DiagOptions},
+    effects::WbModel,
+    fit::{fit, parse_effects},
+    import::{import, model_init, parse_map},
+    report, WorkbenchError,
+};
+use feedloop_runtime::trace::Trace;
 
 /// Workbench subcommands.
 #[derive(clap::Subcommand, Debug)]
-pub enum WorkbenchCmd {}
+pub enum WorkbenchCmd {
+    /// Traces: bring another tool's export into trace format v1.
+    Trace {
+        /// What to do.
+        #[command(subcommand)]
+        cmd: TraceCmd,
+    },
+    /// Model files: a nominal starting model from a trace.
+    Model {
+        /// What to do.
+        #[command(subcommand)]
+        cmd: ModelCmd,
+    },
+    /// Compare a model with a trace: equation error, simulation error, where it fails; report.html.
+    Compare {
+        /// Trace (format v1).
+        #[arg(long)]
+        trace: PathBuf,
+        /// Model file (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// Output folder (report.html, compare.json).
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Rank the candidate causes of the misfit (missing effects, wrong base parameters).
+    Diagnose {
+        /// Trace (format v1).
+        #[arg(long)]
+        trace: PathBuf,
+        /// Model file (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// Output folder (report.html, diagnose.json; with --auto also model.toml).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The guided loop: add the most significant effect, refit, diagnose again.
+        #[arg(long)]
+        auto: bool,
+        /// Most additions of the guided loop.
+        #[arg(long, default_value_t = 6)]
+        max_steps: usize,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Add effects, refit, write the new model file, print the errors before and after.
+    Fit {
+        /// Trace (format v1).
+        #[arg(long)]
+        trace: PathBuf,
+        /// Model file (TOML).
+        #[arg(long)]
+        model: PathBuf,
+        /// Effects to add, comma-separated (ids of the effect library).
+        #[arg(long, value_delimiter = ',')]
+        add: Vec<String>,
+        /// Base parameters to refit (default: all of the plant's base parameters).
+        #[arg(long, value_delimiter = ',')]
+        free: Option<Vec<String>>,
+        /// New model file.
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        common: Common,
+    },
+}
+
+/// Options shared by compare, diagnose and fit.
+#[derive(clap::Args, Debug)]
+pub struct Common {
+    /// Axis of the trace the model describes (default: the only axis).
+    #[arg(long)]
+    axis: Option<String>,
+    /// Cut-off of the zero-phase filter before differentiation, Hz (default min(100, fs/10)).
+    #[arg(long)]
+    cutoff_hz: Option<f64>,
+    /// Length of the simulation windows restarted from the measured state, s.
+    #[arg(long, default_value_t = 0.05)]
+    window_s: f64,
+    /// Print pure JSON on standard output.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `feedloop trace ...`
+#[derive(clap::Subcommand, Debug)]
+pub enum TraceCmd {
+    /// Import another tool's CSV export with explicit column mapping and scaling.
+    Import {
+        /// Source CSV (header row; `,`, `;` or tab separated).
+        #[arg(long)]
+        from: PathBuf,
+        /// `target=source[*factor][/divisor][+offset],...`, e.g. "t=time_ms*0.001,x.cmd=ref_mm*0.001".
+        #[arg(long)]
+        map: String,
+        /// Sampling period when no time column is mapped, s.
+        #[arg(long)]
+        period_s: Option<f64>,
+        /// Output trace (format v1).
+        #[arg(long)]
+        out: PathBuf,
+        /// Print pure JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// `feedloop model ...`
+#[derive(clap::Subcommand, Debug)]
+pub enum ModelCmd {
+    /// A nominal model for a trace: base parameters by least squares, no effects.
+    Init {
+        /// Trace (format v1) with a torque column.
+        #[arg(long)]
+        trace: PathBuf,
+        /// ballscrew | rigid.
+        #[arg(long)]
+        kind: String,
+        /// Axis (default: the only axis).
+        #[arg(long)]
+        axis: Option<String>,
+        /// Screw lead for a ball screw, m (default: from the motor/load travel ratio).
+        #[arg(long)]
+        lead_m: Option<f64>,
+        /// Output model file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Print pure JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn load(
+    trace: &Path,
+    model: &Path,
+    c: &Common,
+) -> Result<(Trace, WbModel, AxisData), WorkbenchError> {
+    let tr = Trace::read(trace)?;
+    let m = WbModel::load(model)?;
+    let axis = pick_axis(&tr, model, c.axis.as_deref())?;
+    let d = load_axis(
+        &tr,
+        &m.file,
+        &axis,
+        &Prep {
+            cutoff_hz: c.cutoff_hz,
+        },
+    )?;
+    Ok((tr, m, d))
+}
+
+fn mkdir(dir: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create folder", dir.display()))
+}
+
+fn write(path: &Path, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map(|x| format!("{x:.2} %")).unwrap_or_else(|| "-".into())
+}
 
 /// Runs a workbench subcommand.
 pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
-    match cmd {}
+    match cmd {
+        WorkbenchCmd::Trace {
+            cmd:
+                TraceCmd::Import {
+                    from,
+                    map,
+                    period_s,
+                    out,
+                    json,
+                },
+        } => {
+            let m = parse_map(&map)?;
+            let tr = import(&from, &m, period_s, &out)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"out": out.display().to_string(), "samples": tr.len(), "period_s": tr.period_s(), "columns": tr.columns})
+                );
+            } else {
+                println!(
+                    "wrote {} ({} samples at {} s; columns {})",
+                    out.display(),
+                    tr.len(),
+                    tr.period_s(),
+                    tr.columns.join(", ")
+                );
+            }
+        }
+        WorkbenchCmd::Model {
+            cmd:
+                ModelCmd::Init {
+                    trace,
+                    kind,
+                    axis,
+                    lead_m,
+                    out,
+                    json,
+                },
+        } => {
+            let tr = Trace::read(&trace)?;
+            let m = model_init(&tr, &kind, axis.as_deref(), lead_m, &out)?;
+            let params: serde_json::Map<String, serde_json::Value> = m
+                .base
+                .iter()
+                .map(|(k, v)| (k.clone(), serde_json::json!(v)))
+                .collect();
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"out": out.display().to_string(), "kind": kind, "params": params})
+                );
+            } else {
+                println!(
+                    "wrote {}: {}",
+                    out.display(),
+                    m.base
+                        .iter()
+                        .map(|(k, v)| format!("{k} = {v:.6e}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            }
+        }
+        WorkbenchCmd::Compare {
+            trace,
+            model,
+            out,
+            common,
+        } => {
+            let (_tr, m, d) = load(&trace, &model, &common)?;
+            let c = compare(&m, &d, common.window_s);
+            mkdir(&out)?;
+            let mut j = c.to_json(&d);
+            let report_path = out.join("report.html");
+            j["report"] = serde_json::json!(report_path.display().to_string());
+            write(
+                &report_path,
+                &report::html(
+                    &d,
+                    &c,
+                    &format!("compare: {} vs {}", model.display(), trace.display()),
+                    "",
+                ),
+            )?;
+            write(
+                &out.join("compare.json"),
+                &serde_json::to_string_pretty(&j)?,
+            )?;
+            if common.json {
+                println!("{}", serde_json::to_string_pretty(&j)?);
+            } else {
+                println!(
+                    "equation error NRMSE: {}   windowed simulation NRMSE: {}   free run: {}",
+                    opt(j["equation_nrmse_pct"].as_f64()),
+                    opt(j["window_sim_nrmse_pct"].as_f64()),
+                    opt(j["free_sim_nrmse_pct"].as_f64())
+                );
+                for s in &c.by_kind {
+                    println!(
+                        "  {:<18} {:5.1} % of the residual in {:5.1} % of the time",
+                        s.name, s.share_pct, s.time_pct
+                    );
+                }
+                println!("report: {}", report_path.display());
+            }
+        }
+        WorkbenchCmd::Diagnose {
+            trace,
+            model,
+            out,
+            auto: guided,
+            max_steps,
+            common,
+        } => {
+            let (tr, m, d) = load(&trace, &model, &common)?;
+            d.require_torque("diagnose (the equation error is measured on it)", &tr)?;
+            if guided {
+                let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
+                mkdir(&out)?;
+                let r = auto(&m, &d, common.window_s, max_steps)?;
+                let model_path = out.join("model.toml");
+                r.model.write(&model_path)?;
+                let c = compare(&r.model, &d, common.window_s);
+                let extra = format!("{}{}", r.html(), diagnosis_html(&r.last));
+                write(
+                    &out.join("report.html"),
+                    &report::html(&d, &c, "diagnose --auto: final model", &extra),
+                )?;
+                let mut j = r.to_json();
+                j["model"] = serde_json::json!(model_path.display().to_string());
+                write(
+                    &out.join("diagnose.json"),
+                    &serde_json::to_string_pretty(&j)?,
+                )?;
+                if common.json {
+                    println!("{}", serde_json::to_string_pretty(&j)?);
+                } else {
+                    for (i, s) in r.steps.iter().enumerate() {
+                        println!(
+                            "step {i}: {:<40} equation NRMSE {}  windowed sim NRMSE {}",
+                            if s.added.is_empty() {
+                                "(nominal)".to_string()
+                            } else {
+                                s.added.join(", ")
+                            },
+                            opt(s.errors.equation_nrmse_pct),
+                            opt(s.errors.window_sim_nrmse_pct)
+                        );
+                    }
+                    println!("{}\nfinal model: {}", r.last.verdict, model_path.display());
+                }
+            } else {
+                let dg = diagnose(&m, &d, &DiagOptions::default());
+                let j = dg.to_json();
+                if let Some(out) = &out {
+                    mkdir(out)?;
+                    let c = compare(&m, &d, common.window_s);
+                    write(
+                        &out.join("report.html"),
+                        &report::html(&d, &c, "diagnose", &diagnosis_html(&dg)),
+                    )?;
+                    write(
+                        &out.join("diagnose.json"),
+                        &serde_json::to_string_pretty(&j)?,
+                    )?;
+                }
+                if common.json {
+                    println!("{}", serde_json::to_string_pretty(&j)?);
+                } else {
+                    for c in &dg.candidates {
+                        println!(
+                            "{:<20} {:<10} {:>6.1} %  {}  {}",
+                            c.effect,
+                            c.class,
+                            c.error_reduction_pct,
+                            if c.significant {
+                                "significant"
+                            } else {
+                                "-          "
+                            },
+                            c.evidence
+                        );
+                    }
+                    println!("{}", dg.verdict);
+                }
+            }
+        }
+        WorkbenchCmd::Fit {
+            trace,
+            model,
+            add,
+            free,
+            out,
+            common,
+        } => {
+            let (_tr, m, d) = load(&trace, &model, &common)?;
+            let add = parse_effects(&add)?;
+            let r = fit(&m, &d, &add, free.as_deref(), common.window_s)?;
+            r.model.write(&out)?;
+            if common.json {
+                println!("{}", serde_json::to_string_pretty(&r.to_json())?);
+            } else {
+                for (k, v) in &r.params {
+                    println!("{k} = {v:.6}");
+                }
+                println!(
+                    "equation NRMSE {} -> {}; windowed simulation NRMSE {} -> {}",
+                    opt(r.before.equation_nrmse_pct),
+                    opt(r.after.equation_nrmse_pct),
+                    opt(r.before.window_sim_nrmse_pct),
+                    opt(r.after.window_sim_nrmse_pct)
+                );
+                println!("wrote {}", out.display());
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -156,6 +156,11 @@ pub trait Controller: Send {
     /// outputs were produced by the previous controller of this stage), the next output continues
     /// without a step (bumpless switching). The default does nothing.
     fn initialize_from(&mut self, _last: &AxisSignals) {}
+    /// The controller's main gain, used to scale the bumpless bound of a swap (e.g. Kv of a
+    /// velocity loop). `None` when the notion does not apply.
+    fn gain(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// A multi-axis law that runs after the pre-velocity stages of all axes (e.g. a contour coupler).

@@ -59,6 +59,11 @@ impl ControlCycle {
         self.cycles
     }
 
+    /// Overrides the number of cycles (e.g. for benchmarks); the trajectory holds its end state.
+    pub fn set_cycles(&mut self, cycles: u64) {
+        self.cycles = cycles.max(1);
+    }
+
     /// Control period, s.
     pub fn period_s(&self) -> f64 {
         self.period_s

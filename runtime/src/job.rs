@@ -100,6 +100,41 @@ pub struct RunOptions {
     pub peer_timeout_s: f64,
 }
 
+/// How the plant brings the axes to rest when a run must stop early.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SafeStop {
+    /// Zero torque at once (the axes coast).
+    TorqueOff,
+    /// Brake on motor velocity with the axis' velocity gain, within its torque limit, for
+    /// `brake_time_s`, then torque off.
+    BrakeRamp,
+}
+
+impl SafeStop {
+    /// Name in files and summaries.
+    pub fn id(self) -> &'static str {
+        match self {
+            SafeStop::TorqueOff => "torque_off",
+            SafeStop::BrakeRamp => "brake_ramp",
+        }
+    }
+}
+
+/// Drive-side safety limits checked by the plant every cycle (`[safety]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SafetyOptions {
+    /// What to do when stopping early. Default `brake_ramp`.
+    pub safe_stop: SafeStop,
+    /// Braking time of `brake_ramp`, s. Default 0.2.
+    pub brake_time_s: f64,
+    /// "Following error too large" alarm: |cmd - load| above this (load units) stops the run.
+    pub max_following_error: Option<f64>,
+    /// Torque at its limit for longer than this (s) stops the run.
+    pub max_saturation_s: Option<f64>,
+    /// Soft travel limits per axis (job order), load units: outside [lo, hi] stops the run.
+    pub soft_limits: Vec<Option<(f64, f64)>>,
+}
+
 /// One axis of the job.
 #[derive(Debug, Clone)]
 pub struct JobAxis {
@@ -137,6 +172,8 @@ pub struct Job {
     pub duration_s: Option<f64>,
     /// `[run]` options.
     pub run: RunOptions,
+    /// `[safety]` options.
+    pub safety: SafetyOptions,
     /// Axes in file order (this order is the wire order).
     pub axes: Vec<JobAxis>,
     /// Explicit chain entries; stages not given default to `position_p` + `pi_velocity`.
@@ -331,6 +368,7 @@ impl Job {
             }
         }
 
+        let safety = safety_options(f.opt_table("safety")?, path, &axes)?;
         let trajectory = f
             .opt_table("trajectory")?
             .cloned()
@@ -342,6 +380,7 @@ impl Job {
             period_s,
             duration_s,
             run,
+            safety,
             axes,
             chain,
             couplers,
@@ -365,6 +404,65 @@ fn names(axes: &[JobAxis]) -> String {
         .map(|a| a.name.as_str())
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+fn safety_options(
+    t: Option<&toml::Table>,
+    path: &Path,
+    axes: &[JobAxis],
+) -> Result<SafetyOptions, ConfigError> {
+    let empty = toml::Table::new();
+    let mut f = Fields::new(t.unwrap_or(&empty), path, "safety");
+    let safe_stop = match f.opt_str("safe_stop")? {
+        None | Some("brake_ramp") => SafeStop::BrakeRamp,
+        Some("torque_off") => SafeStop::TorqueOff,
+        Some(o) => {
+            return Err(f.error(
+                "safe_stop",
+                format!("unknown safe stop `{o}` (torque_off, brake_ramp)"),
+            ))
+        }
+    };
+    let brake_time_s = f.f64_or("brake_time_s", Range::Within(0.0, 60.0), 0.2)?;
+    let max_following_error = f.opt_f64("max_following_error_m", Range::Positive)?;
+    let max_saturation_s = f.opt_f64("max_saturation_s", Range::Positive)?;
+    let mut soft_limits = vec![None; axes.len()];
+    if let Some(lims) = f.opt_table("soft_limits_m")? {
+        for (name, v) in lims {
+            let key = format!("safety.soft_limits_m.{name}");
+            let i = axes.iter().position(|a| &a.name == name).ok_or_else(|| {
+                ConfigError::new(path, &key, format!("axis `{name}` does not exist"))
+            })?;
+            let arr = v.as_array().filter(|a| a.len() == 2).ok_or_else(|| {
+                ConfigError::new(
+                    path,
+                    &key,
+                    "must be [lower, upper] in load units (m or rad)",
+                )
+            })?;
+            let num = |x: &toml::Value| x.as_float().or_else(|| x.as_integer().map(|i| i as f64));
+            match (num(&arr[0]), num(&arr[1])) {
+                (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {
+                    soft_limits[i] = Some((lo, hi))
+                }
+                _ => {
+                    return Err(ConfigError::new(
+                        path,
+                        &key,
+                        "must be [lower, upper] with finite lower < upper",
+                    ))
+                }
+            }
+        }
+    }
+    f.finish()?;
+    Ok(SafetyOptions {
+        safe_stop,
+        brake_time_s,
+        max_following_error,
+        max_saturation_s,
+        soft_limits,
+    })
 }
 
 fn run_options(t: &toml::Table, path: &Path) -> Result<RunOptions, ConfigError> {

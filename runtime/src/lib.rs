@@ -9,6 +9,7 @@
 
 pub mod chain;
 pub mod clock;
+pub mod control;
 pub mod controller;
 pub mod cycle;
 pub mod export;

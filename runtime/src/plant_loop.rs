@@ -14,11 +14,13 @@ use std::time::Duration;
 
 use crate::clock::{now_ns, wait_until_ns};
 use crate::ipc::{IpcError, PlantEndpoint, WaitOutcome};
-use crate::job::{Mode, WaitKind};
+use crate::job::{Mode, SafeStop, SafetyOptions, WaitKind};
 use crate::record::{
     AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_MISSED, REC_OVERRUN, REC_STALL,
 };
-use crate::wire::{ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO, PROTOCOL_VERSION};
+use crate::wire::{
+    ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
+};
 
 /// What the loop needs of the physics (implemented by the plant simulator, later by a drive bridge).
 pub trait PlantDevice {
@@ -49,6 +51,52 @@ pub struct PlantLoopConfig {
     pub watchdog_cycles: u64,
     /// Lockstep and handshake: how long to wait for the scheduler, s.
     pub peer_timeout_s: f64,
+    /// Drive-side limits and the safe-stop behaviour.
+    pub safety: SafetyOptions,
+    /// Per axis: braking gain on motor velocity for `brake_ramp` (N m s/rad or N s/m).
+    pub brake_gain: Vec<f64>,
+    /// Per axis: torque (force) limit, N m (N).
+    pub torque_limit: Vec<f64>,
+}
+
+/// Why the plant stopped the axes early (the reason names in `summary.json`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopCause {
+    /// The scheduler stopped answering: `scheduler_lost`.
+    SchedulerLost {
+        /// Cycles without a command before the declaration.
+        detected_after_cycles: u64,
+    },
+    /// SIGINT/SIGTERM or a stop request from the scheduler: `operator_stop`.
+    OperatorStop,
+    /// |cmd - load| above the limit on this axis: `following_error`.
+    FollowingError {
+        /// Axis index.
+        axis: usize,
+    },
+    /// Torque at its limit for too long: `torque_saturation`.
+    TorqueSaturation {
+        /// Axis index.
+        axis: usize,
+    },
+    /// Outside the soft travel limits: `soft_limit`.
+    SoftLimit {
+        /// Axis index.
+        axis: usize,
+    },
+}
+
+impl StopCause {
+    /// The reason string of `summary.json`.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            StopCause::SchedulerLost { .. } => "scheduler_lost",
+            StopCause::OperatorStop => "operator_stop",
+            StopCause::FollowingError { .. } => "following_error",
+            StopCause::TorqueSaturation { .. } => "torque_saturation",
+            StopCause::SoftLimit { .. } => "soft_limit",
+        }
+    }
 }
 
 /// Why a plant run ended.
@@ -56,17 +104,14 @@ pub struct PlantLoopConfig {
 pub enum PlantEnd {
     /// All cycles ran.
     Completed,
-    /// The scheduler stopped answering.
-    SchedulerLost {
-        /// Cycle at which it was declared lost.
+    /// The axes were brought to a safe stop early.
+    Stopped {
+        /// Why.
+        cause: StopCause,
+        /// Cycle at which the stop began.
         cycle: u64,
-        /// Cycles without a command before the declaration.
-        detected_after_cycles: u64,
-    },
-    /// A stop was requested (signal).
-    OperatorStop {
-        /// Cycle at which the stop was taken.
-        cycle: u64,
+        /// How the axes were stopped.
+        safe_stop: SafeStop,
     },
 }
 
@@ -128,12 +173,23 @@ pub fn run_plant<P: PlantDevice>(
     let mut applied = ActuatorCommand::empty(n as u32, tag);
     let mut end = PlantEnd::Completed;
     let mut silent_cycles = 0u64;
+    let mut saturated_cycles = [0u64; crate::wire::MAX_AXES];
+    let max_sat_cycles = cfg
+        .safety
+        .max_saturation_s
+        .map(|s| (s / cfg.period_s).ceil() as u64);
+    // Once stopping: cycles of braking left.
+    let mut stopping: Option<u64> = None;
+    let brake_cycles = match cfg.safety.safe_stop {
+        SafeStop::TorqueOff => 1,
+        SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
+    };
     let t0 = now_ns() + 5_000_000;
     let mut k = 0u64;
-    while k < cfg.cycles {
-        if stop.load(std::sync::atomic::Ordering::Relaxed) {
-            end = PlantEnd::OperatorStop { cycle: k };
-            break;
+    while k < cfg.cycles || stopping.is_some_and(|left| left > 0) {
+        let mut cause: Option<StopCause> = None;
+        if stopping.is_none() && stop.load(std::sync::atomic::Ordering::Relaxed) {
+            cause = Some(StopCause::OperatorStop);
         }
         let mut flags = 0u8;
         let mut wake_late_ns = 0u64;
@@ -156,44 +212,90 @@ pub fn run_plant<P: PlantDevice>(
         let c0 = now_ns();
         sample.seq = k;
         sample.plant_time_s = k as f64 * cfg.period_s;
-        sample.flags = if k + 1 == cfg.cycles { FLAG_END } else { 0 };
+        let last = stopping.is_none() && k + 1 == cfg.cycles;
+        sample.flags = if last || stopping.is_some() {
+            FLAG_END
+        } else {
+            0
+        };
         plant.sense(&mut sample);
         let sense_ns = now_ns() - c0;
         let published = now_ns();
-        ep.send(sample)?;
-
         let mut latency_ns = u64::MAX;
-        while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
-            if c.flags & FLAG_HELLO != 0 {
-                continue;
-            }
-            if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
-                flags |= REC_BAD_SEQ;
-                continue;
-            }
-            latency_ns = now_ns() - published;
-            applied = c;
-            break;
-        }
-        if latency_ns == u64::MAX {
-            flags |= REC_MISSED;
-            let on_time = flags & REC_OVERRUN == 0;
-            if cfg.mode == Mode::Lockstep {
-                end = PlantEnd::SchedulerLost {
-                    cycle: k,
-                    detected_after_cycles: 1,
-                };
-            } else if on_time {
-                silent_cycles += 1;
-                if silent_cycles >= cfg.watchdog_cycles {
-                    end = PlantEnd::SchedulerLost {
-                        cycle: k,
-                        detected_after_cycles: silent_cycles,
-                    };
+        if stopping.is_none() {
+            ep.send(sample)?;
+            while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
+                if c.flags & FLAG_HELLO != 0 {
+                    continue;
                 }
+                if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
+                    flags |= REC_BAD_SEQ;
+                    continue;
+                }
+                latency_ns = now_ns() - published;
+                if c.flags & FLAG_STOP != 0 {
+                    cause = cause.or(Some(StopCause::OperatorStop));
+                } else {
+                    applied = c;
+                }
+                break;
             }
-        } else {
-            silent_cycles = 0;
+            if latency_ns == u64::MAX {
+                flags |= REC_MISSED;
+                let on_time = flags & REC_OVERRUN == 0;
+                if cfg.mode == Mode::Lockstep {
+                    silent_cycles = 1;
+                    cause = cause.or(Some(StopCause::SchedulerLost {
+                        detected_after_cycles: 1,
+                    }));
+                } else if on_time {
+                    silent_cycles += 1;
+                    if silent_cycles >= cfg.watchdog_cycles {
+                        cause = cause.or(Some(StopCause::SchedulerLost {
+                            detected_after_cycles: silent_cycles,
+                        }));
+                    }
+                }
+            } else {
+                silent_cycles = 0;
+            }
+            if cause.is_none() {
+                cause = check_limits(
+                    cfg,
+                    &sample,
+                    &applied,
+                    n,
+                    &mut saturated_cycles,
+                    max_sat_cycles,
+                );
+            }
+        }
+        if let Some(c) = cause {
+            end = PlantEnd::Stopped {
+                cause: c,
+                cycle: k,
+                safe_stop: cfg.safety.safe_stop,
+            };
+            stopping = Some(brake_cycles);
+            // Tell the scheduler the run is over.
+            let mut bye = sample;
+            bye.flags = FLAG_END;
+            let _ = ep.send(bye);
+        }
+        if let Some(left) = stopping.as_mut() {
+            // Safe stop: brake on the measured motor velocity, or torque off.
+            for i in 0..n {
+                let t = match cfg.safety.safe_stop {
+                    SafeStop::TorqueOff => 0.0,
+                    SafeStop::BrakeRamp => {
+                        let lim = cfg.torque_limit.get(i).copied().unwrap_or(0.0);
+                        let g = cfg.brake_gain.get(i).copied().unwrap_or(0.0);
+                        (-g * sample.axes[i].motor_vel).clamp(-lim, lim)
+                    }
+                };
+                applied.axes[i].torque = if t.is_finite() { t } else { 0.0 };
+            }
+            *left -= 1;
         }
 
         let c1 = now_ns();
@@ -220,9 +322,6 @@ pub fn run_plant<P: PlantDevice>(
         }
         rec.push(r);
         k += 1;
-        if !matches!(end, PlantEnd::Completed) {
-            break;
-        }
     }
     // Safe state: no torque. Tell the scheduler we are done.
     let off = ActuatorCommand::empty(n as u32, tag);
@@ -240,6 +339,42 @@ pub fn run_plant<P: PlantDevice>(
         cycles: k,
         dropped_records: dropped,
     })
+}
+
+/// Drive-side checks of one cycle: following error, soft limits, saturation time.
+fn check_limits(
+    cfg: &PlantLoopConfig,
+    sample: &SensorSample,
+    applied: &ActuatorCommand,
+    n: usize,
+    saturated_cycles: &mut [u64],
+    max_sat_cycles: Option<u64>,
+) -> Option<StopCause> {
+    for i in 0..n {
+        let load = sample.axes[i].load_pos;
+        if let Some(max) = cfg.safety.max_following_error {
+            if (applied.axes[i].reference - load).abs() > max {
+                return Some(StopCause::FollowingError { axis: i });
+            }
+        }
+        if let Some(Some((lo, hi))) = cfg.safety.soft_limits.get(i) {
+            if load < *lo || load > *hi {
+                return Some(StopCause::SoftLimit { axis: i });
+            }
+        }
+        if let Some(maxc) = max_sat_cycles {
+            let lim = cfg.torque_limit.get(i).copied().unwrap_or(f64::INFINITY);
+            if applied.axes[i].torque.abs() >= 0.999 * lim {
+                saturated_cycles[i] += 1;
+                if saturated_cycles[i] > maxc {
+                    return Some(StopCause::TorqueSaturation { axis: i });
+                }
+            } else {
+                saturated_cycles[i] = 0;
+            }
+        }
+    }
+    None
 }
 
 fn handshake(

@@ -8,7 +8,7 @@ use crate::cycle::ControlCycle;
 use crate::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
 use crate::job::Mode;
 use crate::record::{Recorder, SchedRecord};
-use crate::wire::{ActuatorCommand, FLAG_END, FLAG_HELLO, PROTOCOL_VERSION};
+use crate::wire::{ActuatorCommand, FLAG_END, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION};
 
 /// Settings of one scheduler run.
 #[derive(Debug, Clone)]
@@ -56,6 +56,8 @@ pub struct SchedulerOutcome {
     pub out_of_order: u64,
     /// Samples skipped because a newer one was queued.
     pub skipped: u64,
+    /// Sequence numbers never seen (gaps), excluding skipped ones.
+    pub missing: u64,
     /// Records the recorder could not keep.
     pub dropped_records: u64,
 }
@@ -84,6 +86,7 @@ pub fn run_scheduler(
     ep: &SchedulerEndpoint,
     log_path: &Path,
     stop: &std::sync::atomic::AtomicBool,
+    mut control: Option<&mut crate::control::ControlPlane>,
 ) -> Result<SchedulerOutcome, SchedulerError> {
     let tag = crate::wire::instance_tag(&cfg.instance);
     let log_err = |e: std::io::Error| SchedulerError::Log {
@@ -106,14 +109,15 @@ pub fn run_scheduler(
         commands: 0,
         out_of_order: 0,
         skipped: 0,
+        missing: 0,
         dropped_records: 0,
     };
     let t_start = now_ns();
+    let mut stop_sent = false;
     loop {
-        if stop.load(std::sync::atomic::Ordering::Relaxed) {
-            out.end = SchedulerEnd::OperatorStop {
-                cycle: next_seq.saturating_sub(1),
-            };
+        let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
+        if stop_now && !started {
+            out.end = SchedulerEnd::OperatorStop { cycle: 0 };
             break;
         }
         let wait = if started { silence_ns } else { start_timeout };
@@ -129,8 +133,11 @@ pub fn run_scheduler(
                     }
                     .into());
                 }
-                out.end = SchedulerEnd::PlantLost {
-                    cycle: next_seq.saturating_sub(1),
+                let cycle = next_seq.saturating_sub(1);
+                out.end = if stop_sent {
+                    SchedulerEnd::OperatorStop { cycle }
+                } else {
+                    SchedulerEnd::PlantLost { cycle }
                 };
                 break;
             }
@@ -175,14 +182,33 @@ pub fn run_scheduler(
             out.out_of_order += 1;
             continue;
         }
-        if s.flags & FLAG_END != 0 && s.seq >= cycle.cycles() {
-            out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
+        if s.seq > next_seq + u64::from(skipped) {
+            out.missing += s.seq - next_seq - u64::from(skipped);
+        }
+        if s.flags & FLAG_END != 0 && (s.seq >= cycle.cycles() || stop_sent) {
+            out.end = if stop_sent {
+                SchedulerEnd::OperatorStop { cycle: s.seq }
+            } else {
+                SchedulerEnd::PlantEnded { cycle: s.seq }
+            };
             break;
+        }
+        if let Some(c) = control.as_deref_mut() {
+            c.before_cycle(cycle, s.seq);
         }
         let c0 = now_ns();
         cycle.step(&s, &mut cmd);
+        if stop_now {
+            cmd.flags |= FLAG_STOP;
+            stop_sent = true;
+        } else {
+            cmd.flags &= !FLAG_STOP;
+        }
         let compute_ns = (now_ns() - c0).min(u32::MAX as u64) as u32;
         ep.send(cmd)?;
+        if let Some(c) = control.as_deref_mut() {
+            c.after_cycle(cycle, &cmd, s.seq);
+        }
         out.commands += 1;
         out.skipped += u64::from(skipped);
         next_seq = s.seq + 1;
@@ -197,7 +223,9 @@ pub fn run_scheduler(
         }
         rec.push(r);
         if s.flags & FLAG_END != 0 {
-            if s.seq + 1 < cycle.cycles() {
+            if stop_sent {
+                out.end = SchedulerEnd::OperatorStop { cycle: s.seq };
+            } else if s.seq + 1 < cycle.cycles() {
                 out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
             }
             break;

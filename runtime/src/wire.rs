@@ -17,6 +17,8 @@ pub const PROTOCOL_VERSION: u32 = 1;
 pub const FLAG_HELLO: u32 = 1;
 /// `SensorSample::flags` / `ActuatorCommand::flags`: the sender is ending the run after this message.
 pub const FLAG_END: u32 = 2;
+/// `ActuatorCommand::flags`: the scheduler asks the plant for a controlled stop (operator stop).
+pub const FLAG_STOP: u32 = 4;
 
 /// What the plant measured on one axis at the start of a cycle.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]

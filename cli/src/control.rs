@@ -1,0 +1,65 @@
+//! `feedloop swap` and `feedloop status`: clients of a running loop's control service.
+
+use std::path::Path;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use serde_json::json;
+
+use feedloop_runtime::control::request;
+
+/// `feedloop swap`.
+pub fn swap(
+    instance: &str,
+    axis: &str,
+    stage: &str,
+    plugin: &str,
+    params: Option<&Path>,
+    lib: Option<&Path>,
+    timeout_s: f64,
+) -> Result<ExitCode> {
+    let params_text = match params {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            // Validate the syntax here so the error names the file and line.
+            feedloop_runtime::params::parse_toml(p, &text)?;
+            Some(text)
+        }
+        None => None,
+    };
+    let lib_path = match lib {
+        Some(l) => Some(
+            std::fs::canonicalize(l)
+                .with_context(|| format!("plugin library {}", l.display()))?
+                .display()
+                .to_string(),
+        ),
+        None => None,
+    };
+    let req = json!({"op": "swap", "axis": axis, "stage": stage, "plugin": plugin,
+                     "params": params_text, "lib": lib_path});
+    let (code, v) = request(instance, &req, Duration::from_secs_f64(timeout_s))?;
+    println!("{}", serde_json::to_string_pretty(&v)?);
+    Ok(if code == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+/// `feedloop status`.
+pub fn status(instance: &str, timeout_s: f64) -> Result<ExitCode> {
+    let (code, v) = request(
+        instance,
+        &json!({"op": "status"}),
+        Duration::from_secs_f64(timeout_s),
+    )?;
+    println!("{}", serde_json::to_string_pretty(&v)?);
+    Ok(if code == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
