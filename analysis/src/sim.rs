@@ -19,6 +19,21 @@ use feedloop_runtime::summary::Tracking;
 use feedloop_runtime::trace::TraceWriter;
 use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
 
+/// The simulated plant behind the plant process's device trait.
+pub struct SimDevice(pub Plant);
+
+impl feedloop_runtime::plant_loop::PlantDevice for SimDevice {
+    fn axis_count(&self) -> usize {
+        self.0.axis_count()
+    }
+    fn sense(&mut self, out: &mut SensorSample) {
+        self.0.sense(out)
+    }
+    fn step(&mut self, cmd: &ActuatorCommand) {
+        self.0.step(cmd)
+    }
+}
+
 /// Errors of a simulation.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
 
-use feedloop_analysis::sim::{contour_axes, simulate};
+use feedloop_analysis::sim::{contour_axes, simulate, SimDevice};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
 use feedloop_runtime::cycle::ControlCycle;
@@ -18,29 +18,13 @@ use feedloop_runtime::export::{
 };
 use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
 use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{run_plant, PlantDevice, PlantEnd, PlantLoopConfig, StopCause};
+use feedloop_runtime::plant_loop::{run_plant, PlantEnd, PlantLoopConfig, StopCause};
 use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
 use feedloop_runtime::summary::{timing, Tracking};
 use feedloop_runtime::trace::TraceWriter;
-use feedloop_runtime::wire::{ActuatorCommand, SensorSample};
 
 use crate::signals;
-
-/// The simulated plant seen through the loop's device trait.
-struct SimDevice(Plant);
-
-impl PlantDevice for SimDevice {
-    fn axis_count(&self) -> usize {
-        self.0.axis_count()
-    }
-    fn sense(&mut self, out: &mut SensorSample) {
-        self.0.sense(out)
-    }
-    fn step(&mut self, cmd: &ActuatorCommand) {
-        self.0.step(cmd)
-    }
-}
 
 /// A job with everything built from it validated.
 struct Loaded {
@@ -194,7 +178,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
     let wait = wait_of(&job, a.wait.clone())?;
     create_dir(out)?;
     let rt = apply_rt(a, wait);
-    let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
+    let spin = Duration::from_secs_f64(job.spin_s());
     let ep = plant_endpoint(instance, wait, spin)?;
     let cfg = PlantLoopConfig {
         instance: instance.to_string(),
@@ -221,6 +205,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
             .iter()
             .map(|a| a.model.controller.torque_limit.unwrap_or(f64::INFINITY))
             .collect(),
+        cycle_hook: None,
     };
     let mut dev = SimDevice(plant);
     let outcome = run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP)?;
@@ -283,13 +268,14 @@ pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
     let wait = wait_of(&job, a.wait.clone())?;
     create_dir(out)?;
     let rt = apply_rt(a, wait);
-    let spin = Duration::from_secs_f64(job.run.spin_us * 1e-6);
+    let spin = Duration::from_secs_f64(job.spin_s());
     let ep = scheduler_endpoint(instance, wait, spin)?;
     let cfg = SchedulerConfig {
         instance: instance.to_string(),
         mode,
         peer_timeout_s: job.run.peer_timeout_s,
         stale_after_s: 0.5f64.max(job.period_s * 1000.0),
+        cycle_hook: None,
     };
     let n = job.axes.len();
     let mut control = feedloop_runtime::control::ControlPlane::open(

@@ -24,6 +24,18 @@ use iceoryx2::prelude::*;
 use crate::job::WaitKind;
 use crate::wire::{ActuatorCommand, SensorSample};
 
+thread_local! {
+    static IN_SEND: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether the calling thread is inside an iceoryx2 loan/send of [`Endpoint::send`].
+///
+/// iceoryx2 0.10 allocates one small reference-counted block per loan (and frees it on send);
+/// allocation-counting tests use this to tell those apart from feedloop's own allocations.
+pub fn in_iceoryx_send() -> bool {
+    IN_SEND.with(std::cell::Cell::get)
+}
+
 /// Errors setting up or using the services.
 #[derive(Debug, thiserror::Error)]
 pub enum IpcError {
@@ -246,14 +258,17 @@ where
 
     /// Publishes `msg` (zero-copy loan) and, for blocking/hybrid peers, notifies the event.
     pub fn send(&self, msg: Out) -> Result<(), IpcError> {
-        let sample = self
+        IN_SEND.with(|f| f.set(true));
+        let sent = self
             .publisher
             .loan_uninit()
-            .map_err(|e| IpcError::Send(format!("{e:?}")))?;
-        sample
-            .write_payload(msg)
-            .send()
-            .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+            .map(|sample| sample.write_payload(msg).send());
+        IN_SEND.with(|f| f.set(false));
+        match sent {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => return Err(IpcError::Send(format!("{e:?}"))),
+            Err(e) => return Err(IpcError::Send(format!("{e:?}"))),
+        }
         if self.wait != WaitKind::Busy {
             self.notifier
                 .notify()

@@ -91,7 +91,9 @@ pub struct RunOptions {
     pub mode: Mode,
     /// Default wait strategy.
     pub wait: WaitKind,
-    /// Hybrid wait: spin this long before blocking, microseconds. Default 50.
+    /// Hybrid wait: spin this long before blocking, microseconds. 0 (the default) means
+    /// 0.9 periods + 20 us, capped to 20 .. 500 us: enough to catch the next message while
+    /// spinning when the loop keeps its period, and to block when the peer is away.
     pub spin_us: f64,
     /// Plant watchdog: commands missing for this many on-time cycles means the scheduler is lost.
     /// Default 100.
@@ -393,6 +395,15 @@ impl Job {
         self.axes.iter().map(|a| a.name.clone()).collect()
     }
 
+    /// The hybrid wait's spin time, s (see [`RunOptions::spin_us`]).
+    pub fn spin_s(&self) -> f64 {
+        if self.run.spin_us > 0.0 {
+            self.run.spin_us * 1e-6
+        } else {
+            (0.9 * self.period_s + 20e-6).clamp(20e-6, 500e-6)
+        }
+    }
+
     /// Number of cycles for a run of `duration_s`: round(duration / period).
     pub fn cycles_for(&self, duration_s: f64) -> u64 {
         (duration_s / self.period_s).round().max(1.0) as u64
@@ -477,7 +488,7 @@ fn run_options(t: &toml::Table, path: &Path) -> Result<RunOptions, ConfigError> 
         Some(s) => WaitKind::parse(s)
             .ok_or_else(|| f.error("wait", format!("unknown wait `{s}` (busy, block, hybrid)")))?,
     };
-    let spin_us = f.f64_or("spin_us", Range::Within(0.0, 100_000.0), 50.0)?;
+    let spin_us = f.f64_or("spin_us", Range::Within(0.0, 100_000.0), 0.0)?;
     let watchdog_cycles = f.opt_i64("watchdog_cycles", 1, 1_000_000)?.unwrap_or(100) as u64;
     let peer_timeout_s = f.f64_or("peer_timeout_s", Range::Within(0.01, 3600.0), 5.0)?;
     f.finish()?;

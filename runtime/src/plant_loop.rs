@@ -57,6 +57,8 @@ pub struct PlantLoopConfig {
     pub brake_gain: Vec<f64>,
     /// Per axis: torque (force) limit, N m (N).
     pub torque_limit: Vec<f64>,
+    /// Called at the end of every cycle with its number (tests use it to count allocations).
+    pub cycle_hook: Option<fn(u64)>,
 }
 
 /// Why the plant stopped the axes early (the reason names in `summary.json`).
@@ -184,7 +186,7 @@ pub fn run_plant<P: PlantDevice>(
         SafeStop::TorqueOff => 1,
         SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
     };
-    let t0 = now_ns() + 5_000_000;
+    let mut t0 = now_ns() + 5_000_000;
     let mut k = 0u64;
     while k < cfg.cycles || stopping.is_some_and(|left| left > 0) {
         let mut cause: Option<StopCause> = None;
@@ -203,6 +205,9 @@ pub fn run_plant<P: PlantDevice>(
             }
             if wake_late_ns > STALL_NS {
                 flags |= REC_STALL;
+                // The machine stopped: re-anchor the schedule at now instead of racing through
+                // the missed deadlines (the stall is reported, not smeared over later cycles).
+                t0 += wake_late_ns;
             }
             cmd_deadline = (deadline + period_ns).max(now_ns() + period_ns);
         } else {
@@ -321,6 +326,9 @@ pub fn run_plant<P: PlantDevice>(
             };
         }
         rec.push(r);
+        if let Some(h) = cfg.cycle_hook {
+            h(k);
+        }
         k += 1;
     }
     // Safe state: no torque. Tell the scheduler we are done.

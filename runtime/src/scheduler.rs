@@ -21,6 +21,8 @@ pub struct SchedulerConfig {
     pub peer_timeout_s: f64,
     /// Realtime: silence longer than this means the plant is lost, s.
     pub stale_after_s: f64,
+    /// Called after every answered cycle with its number (tests use it to count allocations).
+    pub cycle_hook: Option<fn(u64)>,
 }
 
 /// Why a scheduler run ended.
@@ -222,6 +224,9 @@ pub fn run_scheduler(
             r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
         }
         rec.push(r);
+        if let Some(h) = cfg.cycle_hook {
+            h(s.seq);
+        }
         if s.flags & FLAG_END != 0 {
             if stop_sent {
                 out.end = SchedulerEnd::OperatorStop { cycle: s.seq };
