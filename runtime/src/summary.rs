@@ -207,28 +207,29 @@ pub fn contour_distances(path: &[[f64; 4]]) -> Vec<f64> {
         let (cx, cy) = (ax + t * dx - px, ay + t * dy - py);
         (cx * cx + cy * cy).sqrt()
     };
+    // Walk the nearest segment forward while it improves (the command moves on by about one
+    // segment per sample), then look a few segments either side to step over flat spots.
     let mut j = 0usize;
-    const WINDOW: usize = 64;
+    const LOCAL: usize = 8;
     for (k, p) in path.iter().enumerate() {
         let (px, py) = (p[2], p[3]);
-        // Let the nearest index run ahead while it improves, but never beyond the present sample.
         let hi = k.min(n - 2);
-        let lo = j.saturating_sub(WINDOW);
-        let mut best = f64::INFINITY;
         let mut best_j = j.min(hi);
-        let mut i = lo;
-        loop {
-            if i > hi {
+        let mut best = seg_dist(best_j, px, py);
+        while best_j < hi {
+            let d = seg_dist(best_j + 1, px, py);
+            if d > best {
                 break;
             }
+            best = d;
+            best_j += 1;
+        }
+        for i in best_j.saturating_sub(LOCAL)..=(best_j + LOCAL).min(hi) {
             let d = seg_dist(i, px, py);
             if d < best {
                 best = d;
                 best_j = i;
-            } else if i > j + WINDOW {
-                break;
             }
-            i += 1;
         }
         j = best_j;
         out.push(best);
