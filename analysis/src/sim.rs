@@ -98,14 +98,18 @@ impl Simulation {
         self.plant.sense(&mut self.sample);
         self.cycle.step(&self.sample, &mut self.cmd);
         self.plant.step(&self.cmd);
-        for i in 0..self.n {
-            let s = &self.sample.axes[i];
-            rows[i] = AxisRecord {
-                cmd: self.cmd.axes[i].reference,
+        for ((row, s), c) in rows
+            .iter_mut()
+            .zip(&self.sample.axes)
+            .zip(&self.cmd.axes)
+            .take(self.n)
+        {
+            *row = AxisRecord {
+                cmd: c.reference,
                 load: s.load_pos,
                 motor: s.motor_pos,
                 motor_vel: s.motor_vel,
-                torque: self.cmd.axes[i].torque,
+                torque: c.torque,
             };
         }
         self.k += 1;
@@ -159,8 +163,11 @@ pub fn simulate(
             let f = std::fs::File::create(p).map_err(|e| io_err(p, e))?;
             Some((
                 p,
-                TraceWriter::new(std::io::BufWriter::with_capacity(1 << 20, f), &trace_columns(&names))
-                    .map_err(|e| io_err(p, e))?,
+                TraceWriter::new(
+                    std::io::BufWriter::with_capacity(1 << 20, f),
+                    &trace_columns(&names),
+                )
+                .map_err(|e| io_err(p, e))?,
             ))
         }
         None => None,

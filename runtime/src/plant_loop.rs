@@ -358,10 +358,10 @@ fn check_limits(
     saturated_cycles: &mut [u64],
     max_sat_cycles: Option<u64>,
 ) -> Option<StopCause> {
-    for i in 0..n {
-        let load = sample.axes[i].load_pos;
+    for (i, (s, a)) in sample.axes.iter().zip(&applied.axes).enumerate().take(n) {
+        let load = s.load_pos;
         if let Some(max) = cfg.safety.max_following_error {
-            if (applied.axes[i].reference - load).abs() > max {
+            if (a.reference - load).abs() > max {
                 return Some(StopCause::FollowingError { axis: i });
             }
         }
@@ -372,7 +372,7 @@ fn check_limits(
         }
         if let Some(maxc) = max_sat_cycles {
             let lim = cfg.torque_limit.get(i).copied().unwrap_or(f64::INFINITY);
-            if applied.axes[i].torque.abs() >= 0.999 * lim {
+            if a.torque.abs() >= 0.999 * lim {
                 saturated_cycles[i] += 1;
                 if saturated_cycles[i] > maxc {
                     return Some(StopCause::TorqueSaturation { axis: i });

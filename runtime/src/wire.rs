@@ -6,6 +6,7 @@
 //! Units are SI; positions and velocities are in the axis' own units (see field docs).
 
 use iceoryx2::prelude::ZeroCopySend;
+use serde::{Deserialize, Serialize};
 
 /// Largest number of axes one instance can drive. Wire types are sized for it.
 pub const MAX_AXES: usize = 8;
@@ -21,7 +22,7 @@ pub const FLAG_END: u32 = 2;
 pub const FLAG_STOP: u32 = 4;
 
 /// What the plant measured on one axis at the start of a cycle.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
 pub struct AxisSensor {
     /// Motor position: rad for a rotary motor, m for a linear motor.
@@ -35,7 +36,7 @@ pub struct AxisSensor {
 }
 
 /// One cycle's sensor sample, published by the plant.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
 #[type_name("FeedloopSensorSampleV1")]
 pub struct SensorSample {
@@ -58,7 +59,7 @@ pub struct SensorSample {
 }
 
 /// What the scheduler asks of one axis for the coming period.
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
 pub struct AxisCommand {
     /// Torque (N m, rotary motor) or force (N, linear motor) to apply for one period (zero-order hold).
@@ -68,7 +69,7 @@ pub struct AxisCommand {
 }
 
 /// One cycle's actuator command, published by the scheduler.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, Serialize, Deserialize)]
 #[repr(C)]
 #[type_name("FeedloopActuatorCommandV1")]
 pub struct ActuatorCommand {

@@ -273,7 +273,7 @@ impl XcGeometry {
         for i in 0..n {
             let phi = 2.0 * PI * i as f64 / n as f64;
             let [r, dr, ddr] = self.profile.derivatives(phi);
-            if !(r > 0.0) || !r.is_finite() {
+            if !r.is_finite() || r <= 0.0 {
                 return Err(format!(
                     "the profile radius is {r} m at phi = {phi:.4} rad (must be > 0)"
                 ));

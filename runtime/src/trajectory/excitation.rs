@@ -315,23 +315,33 @@ pub struct Multisine {
     scale: Vec<f64>,
     /// Per axis delay, s.
     delay_s: Vec<f64>,
+    /// Line spacing `2 pi / P`, rad/s.
+    base_omega: f64,
+    /// Harmonic number of the first line.
+    k_lo: usize,
     /// Angular frequencies, rad/s.
     omega: Vec<f64>,
     /// Unit-scale amplitudes `B_k / c`.
     weight: Vec<f64>,
-    /// Phases, rad.
-    phase: Vec<f64>,
+    /// `(cos phi_k, sin phi_k)` of the phases.
+    phase_cs: Vec<(f64, f64)>,
     fade_s: f64,
     steady_s: f64,
     dwell_s: f64,
 }
 
 impl Multisine {
-    /// `m^(d)(t) / c` for d = 0..5.
+    /// `m^(d)(t) / c` for d = 0..5. The lines are consecutive harmonics, so `e^(i k theta)` is
+    /// stepped from one line to the next by a complex product (one `sin_cos` per call).
     fn unit(&self, t: f64) -> RefState {
         let mut m = [0.0; REF_DERIVS];
-        for ((w, b), ph) in self.omega.iter().zip(&self.weight).zip(&self.phase) {
-            let (s, c) = (w * t + ph).sin_cos();
+        let theta = self.base_omega * t;
+        let (s1, c1) = theta.sin_cos();
+        let (mut sk, mut ck) = (self.k_lo as f64 * theta).sin_cos();
+        for ((w, b), (cp, sp)) in self.omega.iter().zip(&self.weight).zip(&self.phase_cs) {
+            // sin and cos of k theta + phi_k.
+            let s = sk * cp + ck * sp;
+            let c = ck * cp - sk * sp;
             // d/dt rotates (s, c) -> (c, -s) and scales by w.
             let mut f = *b;
             let cyc = [s, c, -s, -c];
@@ -339,6 +349,7 @@ impl Multisine {
                 *md += f * cyc[d % 4];
                 f *= w;
             }
+            (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
         }
         m
     }
@@ -470,14 +481,15 @@ pub(crate) fn multisine(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>,
     let kcount = (k_hi - k_lo + 1) as f64;
     let mut omega = Vec::new();
     let mut weight = Vec::new();
-    let mut phase = Vec::new();
+    let mut phase_cs = Vec::new();
     for (i, k) in (k_lo..=k_hi).enumerate() {
         let w = 2.0 * PI * k as f64 / period;
         omega.push(w);
         weight.push(if is_vel { 1.0 / w } else { 1.0 });
         let kk = (i + 1) as f64;
         // Schroeder phases; the extra -pi/2 for velocity makes the velocity a sine sum.
-        phase.push(-PI * kk * (kk - 1.0) / kcount - if is_vel { PI / 2.0 } else { 0.0 });
+        let phase = -PI * kk * (kk - 1.0) / kcount - if is_vel { PI / 2.0 } else { 0.0 };
+        phase_cs.push((phase.cos(), phase.sin()));
     }
     let n = ctx.axes.len();
     let mut ms = Multisine {
@@ -485,9 +497,11 @@ pub(crate) fn multisine(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>,
         start,
         scale: vec![1.0; n],
         delay_s: (0..n).map(|a| a as f64 * period / n as f64).collect(),
+        base_omega: 2.0 * PI / period,
+        k_lo,
         omega,
         weight,
-        phase,
+        phase_cs,
         fade_s,
         steady_s: periods as f64 * period,
         dwell_s,

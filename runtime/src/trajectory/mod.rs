@@ -597,3 +597,53 @@ mod tests {
         assert!(e.reason.contains("table keyed by axis name"), "{e}");
     }
 }
+
+#[cfg(test)]
+mod timing {
+    use super::test_util::*;
+    use super::*;
+
+    /// Measures (does not assert) the cost of one `eval` per kind: `cargo test --release -p
+    /// feedloop-runtime eval_cost -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn eval_cost_is_measured_per_kind() {
+        let cases = [
+            ("move", "kind = \"move\"\nto_m = 0.05\nduration_s = 0.3", vec!["x"]),
+            (
+                "circle",
+                "kind = \"circle\"\ncenter_m = [-0.01, 0]\nradius_m = 0.01\nfeed_m_per_s = 0.0333\nturns = 2",
+                vec!["x", "y"],
+            ),
+            (
+                "multisine 100 lines",
+                "kind = \"multisine\"\namplitude_m_per_s = 0.01\nsignal_period_s = 1\nf_min_hz = 1\nf_max_hz = 100",
+                vec!["x"],
+            ),
+            (
+                "random_segments",
+                "kind = \"random_segments\"\nvelocity_m_per_s = 0.02\nmin_segment_s = 0.01\nmax_segment_s = 0.05\nduration_s = 60\nmax_travel_m = 0.01",
+                vec!["x"],
+            ),
+            (
+                "xc_cam table 32 harmonics",
+                "kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"table\"\nradius_table_m = [0.03, 0.031, 0.032, 0.031, 0.03, 0.029, 0.028, 0.029, 0.03, 0.031, 0.032, 0.031, 0.03, 0.029, 0.028, 0.029]\nspeed_rad_per_s = 6\nturns = 3",
+                vec!["x", "c"],
+            ),
+        ];
+        for (name, text, axes) in cases {
+            let tr = build_str(text, &axes).unwrap();
+            let mut out = vec![[0.0; REF_DERIVS]; axes.len()];
+            let n = 200_000;
+            let dur = tr.duration_s();
+            let start = std::time::Instant::now();
+            let mut acc = 0.0;
+            for k in 0..n {
+                tr.eval(dur * k as f64 / n as f64, &mut out);
+                acc += out[0][5];
+            }
+            let ns = start.elapsed().as_secs_f64() / n as f64 * 1e9;
+            println!("{name}: {ns:.0} ns per eval ({acc:.1e})");
+        }
+    }
+}
