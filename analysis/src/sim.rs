@@ -208,3 +208,22 @@ pub fn simulate(
         tracking,
     })
 }
+
+/// Runs a whole job in process and returns its trace rows per axis (`[axis][cycle]`).
+pub fn run_records(
+    job: &Job,
+    registry: &dyn PluginRegistry,
+) -> Result<Vec<Vec<AxisRecord>>, SimError> {
+    let mut sim = Simulation::new(job, registry)?;
+    let n = job.axes.len();
+    let cycles = sim.cycles() as usize;
+    let mut out = vec![Vec::with_capacity(cycles); n];
+    let mut rows = [AxisRecord::default(); MAX_AXES];
+    for _ in 0..cycles {
+        sim.step(&mut rows[..n]);
+        for (o, r) in out.iter_mut().zip(&rows[..n]) {
+            o.push(*r);
+        }
+    }
+    Ok(out)
+}

@@ -6,6 +6,7 @@
 
 mod bench;
 mod control;
+mod learn;
 mod processes;
 mod signals;
 mod workbench_cmd;
@@ -105,6 +106,9 @@ enum Command {
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
     },
+    /// Learning compensators (seed 004's quadrant compensator).
+    #[command(subcommand)]
+    Learn(learn::LearnCmd),
     /// Benchmarks of the running loop.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
@@ -144,6 +148,7 @@ fn main() -> ExitCode {
         Command::Plant { args, no_export } => processes::plant(&args, !no_export),
         Command::Scheduler { args } => processes::scheduler(&args),
         Command::Bench(cmd) => bench::run(cmd),
+        Command::Learn(cmd) => learn::run(cmd),
         Command::Swap {
             instance,
             axis,

@@ -553,7 +553,8 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
         extra,
     });
     write_json(&dir.join("summary.json"), &v)?;
-    let code = if end.reason == "completed" {
+    // A completed run and an operator stop are clean exits; every fault stop is not.
+    let code = if end.reason == "completed" || end.reason == "operator_stop" {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)

@@ -99,6 +99,9 @@ pub struct Common {
     /// Cut-off of the zero-phase filter before differentiation, Hz (default min(100, fs/10)).
     #[arg(long)]
     cutoff_hz: Option<f64>,
+    /// Use the torque column unfiltered (default: the same zero-phase filter as the positions).
+    #[arg(long)]
+    raw_torque: bool,
     /// Length of the simulation windows restarted from the measured state, s.
     #[arg(long, default_value_t = 0.05)]
     window_s: f64,
@@ -170,6 +173,7 @@ fn load(
         &axis,
         &Prep {
             cutoff_hz: c.cutoff_hz,
+            filter_torque: !c.raw_torque,
         },
     )?;
     Ok((tr, m, d))

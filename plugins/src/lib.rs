@@ -3,16 +3,30 @@
 //! One file per control law; each opens with its equation, units and source seed.
 #![warn(missing_docs)]
 
+pub mod filters;
+pub mod friction_feedforward;
+pub mod inverse_feedforward;
+pub mod nl_pid_coupler;
 pub mod pi_velocity;
 pub mod position_p;
+pub mod quadrant;
+pub mod quadrant_learn;
+
+#[cfg(test)]
+pub(crate) mod test_util;
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{AxisContext, Controller, PluginRegistry, Stage};
+use feedloop_runtime::controller::{AxisContext, Controller, Coupler, PluginRegistry, Stage};
 use feedloop_runtime::params::ConfigError;
 
+pub use friction_feedforward::FrictionFeedforward;
+pub use inverse_feedforward::{InverseFeedforward, InverseFeedforwardParams};
+pub use nl_pid_coupler::{NlPidCoupler, NlPidCouplerParams};
 pub use pi_velocity::{PiVelocity, PiVelocityParams};
 pub use position_p::{PositionP, PositionPParams};
+pub use quadrant::{QuadrantCompensator, QuadrantParams, QuadrantTable};
+pub use quadrant_learn::{learn_quadrant, LearnError, LearnOptions, LearnReport};
 
 /// The registry of built-in plugins.
 #[derive(Debug, Default, Clone, Copy)]
@@ -23,6 +37,9 @@ impl PluginRegistry for Builtins {
         vec![
             (PositionP::ID, Stage::Position),
             (PiVelocity::ID, Stage::Velocity),
+            (InverseFeedforward::ID, Stage::Feedforward),
+            (FrictionFeedforward::ID, Stage::Compensator),
+            (QuadrantCompensator::ID, Stage::Compensator),
         ]
     }
 
@@ -40,6 +57,15 @@ impl PluginRegistry for Builtins {
             PiVelocity::ID => Ok(Box::new(PiVelocity::new(PiVelocityParams::from_table(
                 params, axis, file, None,
             )?))),
+            InverseFeedforward::ID => Ok(Box::new(InverseFeedforward::new(
+                InverseFeedforwardParams::from_table(params, axis, file)?,
+            ))),
+            FrictionFeedforward::ID => Ok(Box::new(FrictionFeedforward::from_table(
+                params, axis, file,
+            )?)),
+            QuadrantCompensator::ID => Ok(Box::new(QuadrantCompensator::new(
+                QuadrantParams::from_table(params, axis, file)?,
+            ))),
             other => {
                 let known: Vec<_> = self.ids().into_iter().map(|(i, _)| i).collect();
                 Err(ConfigError::new(
@@ -48,6 +74,32 @@ impl PluginRegistry for Builtins {
                     format!("unknown plugin `{other}` (built-in: {})", known.join(", ")),
                 ))
             }
+        }
+    }
+
+    fn create_coupler(
+        &self,
+        id: &str,
+        params: &toml::Table,
+        contexts: &[AxisContext],
+        axes: &[usize],
+        file: &Path,
+    ) -> Result<Box<dyn Coupler>, ConfigError> {
+        match id {
+            NlPidCoupler::ID => Ok(Box::new(NlPidCoupler::new(
+                NlPidCouplerParams::from_table(params, file)?,
+                contexts,
+                axes,
+                file,
+            )?)),
+            other => Err(ConfigError::new(
+                file,
+                "plugin",
+                format!(
+                    "unknown coupler plugin `{other}` (built-in: {})",
+                    NlPidCoupler::ID
+                ),
+            )),
         }
     }
 }

@@ -11,6 +11,20 @@
 //! Keys: `kv_nms_per_rad` (N m s/rad; `kv_ns_per_m` in N s/m for a linear axis), `tv_s` (s,
 //! 0 = proportional only), `torque_limit_nm` (N m; `force_limit_n` in N for a linear axis).
 //! Typical for a 2e-3 kg m^2 motor with a 3e-3 kg m^2 load: Kv = 5, Tv = 5 ms.
+//!
+//! Optional filters (all off by default; 0 Hz also means off), see [`crate::filters`] for the
+//! discretisation (bilinear with prewarp at the filter frequency):
+//! - `vel_filter_hz`: first-order low-pass on the velocity command V (everything the position,
+//!   feedforward, compensator and coupler stages wrote), before the error is formed:
+//!   e = LP(V) - wM.
+//! - `torque_lowpass_hz`: first-order low-pass on the feedback torque Kv (e + I / Tv).
+//! - `notch_hz`, `notch_q` (default 1), `notch_depth` (gain at `notch_hz`, default 0 = full
+//!   notch): a notch on the feedback torque, e.g. at a screw resonance.
+//!
+//! The torque filters act on the feedback part only; `torque_ff` is added after them, so an
+//! exact model feedforward (e.g. `inverse_feedforward`, `structure = "split"`) is not distorted.
+//! Frequencies must be below 0.45 / period. Filter states are part of the snapshot, and a switch
+//! to this controller starts with the filters at rest at the last cycle's values.
 
 use std::path::Path;
 
@@ -19,6 +33,8 @@ use feedloop_runtime::controller::{
 };
 use feedloop_runtime::model::AxisKind;
 use feedloop_runtime::params::{ConfigError, Fields, Range};
+
+use crate::filters::{Biquad, LowPass1, MAX_FRACTION_OF_RATE};
 
 /// Parameters of [`PiVelocity`] (motor units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -29,6 +45,99 @@ pub struct PiVelocityParams {
     pub tv_s: f64,
     /// Output limit: N m or N.
     pub torque_limit: f64,
+    /// Optional velocity-command and torque filters.
+    pub filters: LoopFilterParams,
+}
+
+/// A notch filter's parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NotchParams {
+    /// Centre frequency, Hz (`notch_hz`).
+    pub hz: f64,
+    /// Quality factor (`notch_q`): centre frequency / width. Typical 0.5 .. 5; default 1.
+    pub q: f64,
+    /// Gain at the centre (`notch_depth`), 0 (full notch) .. 1 (no notch); default 0.
+    pub depth: f64,
+}
+
+/// Optional filters of the velocity loop, with the sampling period they are designed for.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LoopFilterParams {
+    /// Sampling period the filters are discretised for, s (the job's `period_s`).
+    pub period_s: f64,
+    /// Low-pass corner on the velocity command, Hz (`vel_filter_hz`); `None` = off.
+    pub vel_filter_hz: Option<f64>,
+    /// Low-pass corner on the feedback torque, Hz (`torque_lowpass_hz`); `None` = off.
+    pub torque_lowpass_hz: Option<f64>,
+    /// Notch on the feedback torque; `None` = off.
+    pub notch: Option<NotchParams>,
+}
+
+/// Reads an optional filter frequency `key` (0 = off), checking it against the sampling rate.
+pub(crate) fn read_hz(
+    f: &mut Fields<'_>,
+    key: &str,
+    period_s: f64,
+) -> Result<Option<Option<f64>>, ConfigError> {
+    let Some(hz) = f.opt_f64(key, Range::NonNegative)? else {
+        return Ok(None);
+    };
+    if hz == 0.0 {
+        return Ok(Some(None));
+    }
+    let max = MAX_FRACTION_OF_RATE / period_s;
+    if hz > max {
+        return Err(f.error(
+            key,
+            format!("must be <= 0.45 / period_s = {max} Hz at this job's period, got {hz}"),
+        ));
+    }
+    Ok(Some(Some(hz)))
+}
+
+impl LoopFilterParams {
+    /// Reads the filter keys; keys left out keep `base`'s setting.
+    fn read(
+        f: &mut Fields<'_>,
+        period_s: f64,
+        base: Option<&LoopFilterParams>,
+    ) -> Result<Self, ConfigError> {
+        let b = base.copied().unwrap_or_default();
+        let vel = read_hz(f, "vel_filter_hz", period_s)?;
+        let tlp = read_hz(f, "torque_lowpass_hz", period_s)?;
+        let notch_hz = read_hz(f, "notch_hz", period_s)?;
+        let q = f.opt_f64("notch_q", Range::Within(0.05, 100.0))?;
+        let depth = f.opt_f64("notch_depth", Range::Within(0.0, 1.0))?;
+        let notch = match notch_hz {
+            Some(None) => None,
+            Some(Some(hz)) => Some(NotchParams {
+                hz,
+                q: q.or(b.notch.map(|n| n.q)).unwrap_or(1.0),
+                depth: depth.or(b.notch.map(|n| n.depth)).unwrap_or(0.0),
+            }),
+            None => match b.notch {
+                Some(n) => Some(NotchParams {
+                    hz: n.hz,
+                    q: q.unwrap_or(n.q),
+                    depth: depth.unwrap_or(n.depth),
+                }),
+                None => {
+                    for key in ["notch_q", "notch_depth"] {
+                        if f.has(key) {
+                            return Err(f.error(key, "needs `notch_hz` (the notch centre, Hz)"));
+                        }
+                    }
+                    None
+                }
+            },
+        };
+        Ok(Self {
+            period_s,
+            vel_filter_hz: vel.unwrap_or(b.vel_filter_hz),
+            torque_lowpass_hz: tlp.unwrap_or(b.torque_lowpass_hz),
+            notch,
+        })
+    }
 }
 
 /// Parameter key names for an axis kind: (kv, limit).
@@ -53,6 +162,7 @@ impl PiVelocityParams {
         let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
         let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
         let lim = f.opt_f64(lim_key, Range::Within(1e-9, 1e9))?;
+        let filters = LoopFilterParams::read(&mut f, axis.period_s, base.map(|b| &b.filters))?;
         f.finish()?;
         let d = &axis.defaults;
         let missing = |key: &str| {
@@ -75,6 +185,7 @@ impl PiVelocityParams {
                 .or(base.map(|b| b.torque_limit))
                 .or(d.torque_limit)
                 .ok_or_else(|| missing(lim_key))?,
+            filters,
         })
     }
 }
@@ -90,6 +201,80 @@ pub struct PiTerms {
     pub saturated: bool,
 }
 
+/// The filters' discrete state.
+#[derive(Debug, Clone, Copy)]
+struct LoopFilters {
+    vel: Option<LowPass1>,
+    torque: Option<LowPass1>,
+    notch: Option<Biquad>,
+}
+
+impl LoopFilters {
+    fn new(p: &LoopFilterParams) -> Self {
+        let t = p.period_s;
+        Self {
+            vel: p.vel_filter_hz.map(|hz| LowPass1::new(hz, t)),
+            torque: p.torque_lowpass_hz.map(|hz| LowPass1::new(hz, t)),
+            notch: p.notch.map(|n| Biquad::notch(n.hz, n.q, n.depth, t)),
+        }
+    }
+
+    #[inline]
+    fn velocity(&mut self, v: f64) -> f64 {
+        match &mut self.vel {
+            Some(f) => f.process(v),
+            None => v,
+        }
+    }
+
+    #[inline]
+    fn torque(&mut self, x: f64) -> f64 {
+        let x = match &mut self.torque {
+            Some(f) => f.process(x),
+            None => x,
+        };
+        match &mut self.notch {
+            Some(f) => f.process(x),
+            None => x,
+        }
+    }
+
+    /// Rest at velocity command `v` and feedback torque `tau`.
+    fn settle(&mut self, v: f64, tau: f64) {
+        if let Some(f) = &mut self.vel {
+            f.settle(v);
+        }
+        if let Some(f) = &mut self.torque {
+            f.settle(tau);
+        }
+        if let Some(f) = &mut self.notch {
+            f.settle(tau);
+        }
+    }
+
+    fn state(&self) -> [f64; 4] {
+        let n = self.notch.map(|f| f.state()).unwrap_or([0.0; 2]);
+        [
+            self.vel.map(|f| f.state()).unwrap_or(0.0),
+            self.torque.map(|f| f.state()).unwrap_or(0.0),
+            n[0],
+            n[1],
+        ]
+    }
+
+    fn set_state(&mut self, s: [f64; 4]) {
+        if let Some(f) = &mut self.vel {
+            f.set_state(s[0]);
+        }
+        if let Some(f) = &mut self.torque {
+            f.set_state(s[1]);
+        }
+        if let Some(f) = &mut self.notch {
+            f.set_state([s[2], s[3]]);
+        }
+    }
+}
+
 /// The PI velocity controller.
 #[derive(Debug, Clone)]
 pub struct PiVelocity {
@@ -97,6 +282,7 @@ pub struct PiVelocity {
     /// Integral of the velocity error, motor units (rad or m).
     integral: f64,
     terms: PiTerms,
+    filters: LoopFilters,
 }
 
 impl PiVelocity {
@@ -106,6 +292,7 @@ impl PiVelocity {
     /// Builds the controller with a zero integrator.
     pub fn new(params: PiVelocityParams) -> Self {
         Self {
+            filters: LoopFilters::new(&params.filters),
             params,
             integral: 0.0,
             terms: PiTerms::default(),
@@ -130,7 +317,8 @@ impl Controller for PiVelocity {
 
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
         let p = &self.params;
-        let e = io.vel_cmd - io.motor_vel;
+        let v = self.filters.velocity(io.vel_cmd);
+        let e = v - io.motor_vel;
         let prev = self.integral;
         let use_i = p.tv_s > 0.0;
         if use_i {
@@ -141,8 +329,27 @@ impl Controller for PiVelocity {
         } else {
             0.0
         };
-        let raw = p.kv * e + i_term + io.torque_ff;
+        let feedback = self.filters.torque(p.kv * e + i_term);
+        let raw = feedback + io.torque_ff;
         let lim = p.torque_limit;
+        if !raw.is_finite() {
+            // A non-finite input or state: restart from rest and output only a finite
+            // feed-forward (or nothing), never NaN/inf.
+            self.integral = 0.0;
+            self.filters.settle(0.0, 0.0);
+            let ff = if io.torque_ff.is_finite() {
+                io.torque_ff.clamp(-lim, lim)
+            } else {
+                0.0
+            };
+            self.terms = PiTerms {
+                p: 0.0,
+                i: 0.0,
+                saturated: true,
+            };
+            io.torque = ff;
+            return;
+        }
         let out = raw.clamp(-lim, lim);
         let saturated = out != raw;
         if saturated && use_i && e * raw > 0.0 {
@@ -160,24 +367,39 @@ impl Controller for PiVelocity {
             },
             saturated,
         };
-        io.torque = if out.is_nan() { 0.0 } else { out };
+        io.torque = out;
     }
 
+    /// Snapshot layout: [integral, velocity low-pass, torque low-pass, notch s1, notch s2].
     fn snapshot(&self) -> ControllerState {
-        ControllerState::from_slice(&[self.integral])
+        let f = self.filters.state();
+        ControllerState::from_slice(&[self.integral, f[0], f[1], f[2], f[3]])
     }
 
     fn restore(&mut self, state: &ControllerState) {
-        self.integral = state.as_slice().first().copied().unwrap_or(0.0);
+        let v = state.as_slice();
+        let at = |i: usize| v.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0);
+        self.integral = at(0);
+        self.filters.set_state([at(1), at(2), at(3), at(4)]);
+    }
+
+    fn gain(&self) -> Option<f64> {
+        Some(self.params.kv)
     }
 
     fn initialize_from(&mut self, last: &AxisSignals) {
         // Choose the integrator so that last cycle's inputs would have produced last cycle's
         // torque: then the first output of this controller continues from it.
+        // With the filters at rest at last cycle's values they pass them unchanged (unit DC
+        // gain), so the same relation holds with filters on.
         let p = &self.params;
+        let fb = last.torque - last.torque_ff;
+        if last.vel_cmd.is_finite() && fb.is_finite() {
+            self.filters.settle(last.vel_cmd, fb);
+        }
         if p.tv_s > 0.0 && last.torque.is_finite() {
             let e = last.vel_cmd - last.motor_vel;
-            let i = ((last.torque - last.torque_ff) / p.kv - e) * p.tv_s;
+            let i = (fb / p.kv - e) * p.tv_s;
             self.integral = if i.is_finite() { i } else { 0.0 };
         }
     }
@@ -200,6 +422,7 @@ mod tests {
             kv,
             tv_s: tv,
             torque_limit: lim,
+            filters: LoopFilterParams::default(),
         })
     }
 
@@ -262,5 +485,150 @@ mod tests {
         c.step(&ctx(), &mut io);
         // same error: output moves only by one integration step Kv T e / Tv = 3*1e-3*0.5/0.005
         assert!((io.torque - 7.0 - 0.3).abs() < 1e-9, "{}", io.torque);
+    }
+
+    fn params(text: &str) -> Result<PiVelocityParams, ConfigError> {
+        let t: toml::Table = text.parse().unwrap();
+        PiVelocityParams::from_table(
+            &t,
+            &crate::test_util::ballscrew_axis(1e-4),
+            Path::new("j.toml"),
+            None,
+        )
+    }
+
+    #[test]
+    fn filter_keys_are_read_with_notch_defaults_q_1_and_full_depth() {
+        let p = params("vel_filter_hz = 500\ntorque_lowpass_hz = 1200\nnotch_hz = 700").unwrap();
+        assert_eq!(p.filters.vel_filter_hz, Some(500.0));
+        assert_eq!(p.filters.torque_lowpass_hz, Some(1200.0));
+        assert_eq!(
+            p.filters.notch,
+            Some(NotchParams {
+                hz: 700.0,
+                q: 1.0,
+                depth: 0.0
+            })
+        );
+        assert_eq!(p.filters.period_s, 1e-4);
+    }
+
+    #[test]
+    fn notch_q_without_notch_hz_is_refused_naming_notch_q() {
+        let e = params("notch_q = 2").unwrap_err();
+        assert_eq!(e.key, "notch_q");
+    }
+
+    #[test]
+    fn filter_above_0_45_of_the_sampling_rate_is_refused_naming_the_key() {
+        // 10 kHz sampling: 4500 Hz is the ceiling
+        let e = params("torque_lowpass_hz = 4600").unwrap_err();
+        assert_eq!(e.key, "torque_lowpass_hz");
+        assert!(params("torque_lowpass_hz = 4500").is_ok());
+    }
+
+    #[test]
+    fn retune_keeps_the_base_filters_and_zero_hz_turns_one_off() {
+        let t: toml::Table = "notch_hz = 700\nnotch_q = 3\nvel_filter_hz = 400"
+            .parse()
+            .unwrap();
+        let axis = crate::test_util::ballscrew_axis(1e-4);
+        let base = PiVelocityParams::from_table(&t, &axis, Path::new("j"), None).unwrap();
+        let t2: toml::Table = "vel_filter_hz = 0\nnotch_depth = 0.5".parse().unwrap();
+        let p = PiVelocityParams::from_table(&t2, &axis, Path::new("j"), Some(&base)).unwrap();
+        assert_eq!(p.filters.vel_filter_hz, None);
+        assert_eq!(
+            p.filters.notch,
+            Some(NotchParams {
+                hz: 700.0,
+                q: 3.0,
+                depth: 0.5
+            })
+        );
+    }
+
+    fn filtered() -> PiVelocity {
+        let p = params("vel_filter_hz = 300\ntorque_lowpass_hz = 900\nnotch_hz = 600\nnotch_q = 2")
+            .unwrap();
+        PiVelocity::new(p)
+    }
+
+    #[test]
+    fn snapshot_and_restore_carry_the_filter_states() {
+        let c1 = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        let mut a = filtered();
+        let mut io = AxisSignals::default();
+        for k in 0..50 {
+            io.vel_cmd = (k as f64 * 0.3).sin();
+            a.step(&c1, &mut io);
+        }
+        let snap = a.snapshot();
+        assert_eq!(snap.len, 5);
+        let mut b = filtered();
+        b.restore(&snap);
+        for k in 50..80 {
+            let mut ia = AxisSignals {
+                vel_cmd: (k as f64 * 0.3).sin(),
+                ..Default::default()
+            };
+            let mut ib = ia;
+            a.step(&c1, &mut ia);
+            b.step(&c1, &mut ib);
+            assert_eq!(ia.torque, ib.torque);
+        }
+    }
+
+    #[test]
+    fn infinite_velocity_command_through_the_filters_gives_finite_torque_and_recovers() {
+        let c1 = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        let mut c = filtered();
+        let mut io = AxisSignals {
+            vel_cmd: f64::INFINITY,
+            torque_ff: 0.5,
+            ..Default::default()
+        };
+        c.step(&c1, &mut io);
+        assert_eq!(io.torque, 0.5);
+        io.vel_cmd = f64::NAN;
+        io.torque_ff = f64::NAN;
+        c.step(&c1, &mut io);
+        assert_eq!(io.torque, 0.0);
+        io.vel_cmd = 0.1;
+        io.torque_ff = 0.0;
+        for _ in 0..10 {
+            c.step(&c1, &mut io);
+            assert!(io.torque.is_finite() && io.torque > 0.0, "{}", io.torque);
+        }
+    }
+
+    #[test]
+    fn switching_to_a_filtered_loop_continues_the_last_torque() {
+        let c1 = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        let mut c = filtered();
+        let last = AxisSignals {
+            vel_cmd: 2.0,
+            motor_vel: 1.5,
+            torque_ff: 1.0,
+            torque: 7.0,
+            ..Default::default()
+        };
+        c.initialize_from(&last);
+        let mut io = last;
+        c.step(&c1, &mut io);
+        // same inputs: only one integration step Kv T e / Tv = 5 * 1e-4 * 0.5 / 0.005 = 0.05,
+        // seen through the torque filters (gain below 1 at the step's first sample)
+        assert!((io.torque - 7.0).abs() < 0.05, "{}", io.torque);
     }
 }

@@ -6,6 +6,11 @@
 //! units (rad for a ball-screw axis, m for a linear axis); V is the velocity command handed to
 //! the velocity loop (motor units per s). Kp (`kp_per_s`, 1/s) sets the position bandwidth; at a
 //! constant feed v the steady following error is v / Kp. Typical Kp: 20 .. 150 1/s.
+//!
+//! Optional `vel_filter_hz` (Hz, 0 or absent = off): a first-order low-pass on this stage's own
+//! velocity command, V = LP(Kp (th - thL)), discretised bilinearly with prewarp at the corner
+//! (see [`crate::filters`]); feedforward stages added after it are not filtered. Must be below
+//! 0.45 / period. Its state is the snapshot.
 
 use std::path::Path;
 
@@ -14,11 +19,18 @@ use feedloop_runtime::controller::{
 };
 use feedloop_runtime::params::{ConfigError, Fields, Range};
 
+use crate::filters::LowPass1;
+use crate::pi_velocity::read_hz;
+
 /// Parameters of [`PositionP`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PositionPParams {
     /// Position loop gain, 1/s.
     pub kp_per_s: f64,
+    /// Low-pass corner on the output velocity command, Hz (`vel_filter_hz`); `None` = off.
+    pub vel_filter_hz: Option<f64>,
+    /// Sampling period the filter is discretised for, s.
+    pub period_s: f64,
 }
 
 impl PositionPParams {
@@ -30,6 +42,7 @@ impl PositionPParams {
     ) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
         let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
+        let vel_filter_hz = read_hz(&mut f, "vel_filter_hz", axis.period_s)?.flatten();
         f.finish()?;
         let kp_per_s = kp.or(axis.defaults.kp_per_s).ok_or_else(|| {
             ConfigError::new(
@@ -41,7 +54,11 @@ impl PositionPParams {
                 ),
             )
         })?;
-        Ok(Self { kp_per_s })
+        Ok(Self {
+            kp_per_s,
+            vel_filter_hz,
+            period_s: axis.period_s,
+        })
     }
 }
 
@@ -49,6 +66,7 @@ impl PositionPParams {
 #[derive(Debug, Clone)]
 pub struct PositionP {
     params: PositionPParams,
+    filter: Option<LowPass1>,
 }
 
 impl PositionP {
@@ -57,7 +75,12 @@ impl PositionP {
 
     /// Builds the controller.
     pub fn new(params: PositionPParams) -> Self {
-        Self { params }
+        Self {
+            filter: params
+                .vel_filter_hz
+                .map(|hz| LowPass1::new(hz, params.period_s)),
+            params,
+        }
     }
 }
 
@@ -67,14 +90,43 @@ impl Controller for PositionP {
     }
 
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
-        io.vel_cmd += self.params.kp_per_s * (io.reference[0] - io.load_pos);
+        let v = self.params.kp_per_s * (io.reference[0] - io.load_pos);
+        let v = match &mut self.filter {
+            Some(f) => {
+                let y = f.process(v);
+                if y.is_finite() {
+                    y
+                } else {
+                    f.settle(0.0);
+                    0.0
+                }
+            }
+            None if v.is_finite() => v,
+            None => 0.0,
+        };
+        io.vel_cmd += v;
     }
 
     fn snapshot(&self) -> ControllerState {
-        ControllerState::EMPTY
+        match &self.filter {
+            Some(f) => ControllerState::from_slice(&[f.state()]),
+            None => ControllerState::EMPTY,
+        }
     }
 
-    fn restore(&mut self, _state: &ControllerState) {}
+    fn restore(&mut self, state: &ControllerState) {
+        if let Some(f) = &mut self.filter {
+            let s = state.as_slice().first().copied().unwrap_or(0.0);
+            f.set_state(if s.is_finite() { s } else { 0.0 });
+        }
+    }
+
+    fn initialize_from(&mut self, last: &AxisSignals) {
+        if let Some(f) = &mut self.filter {
+            let v = self.params.kp_per_s * (last.reference[0] - last.load_pos);
+            f.settle(if v.is_finite() { v } else { 0.0 });
+        }
+    }
 }
 
 #[cfg(test)]
@@ -83,7 +135,11 @@ mod tests {
 
     #[test]
     fn velocity_command_is_gain_times_position_error() {
-        let mut c = PositionP::new(PositionPParams { kp_per_s: 40.0 });
+        let mut c = PositionP::new(PositionPParams {
+            kp_per_s: 40.0,
+            vel_filter_hz: None,
+            period_s: 1e-4,
+        });
         let mut io = AxisSignals {
             load_pos: 1.0,
             ..Default::default()
@@ -96,5 +152,52 @@ mod tests {
         };
         c.step(&ctx, &mut io);
         assert!((io.vel_cmd - 20.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn filtered_velocity_command_reaches_63_percent_after_one_time_constant() {
+        let t: toml::Table = "vel_filter_hz = 100".parse().unwrap();
+        let axis = crate::test_util::ballscrew_axis(1e-4);
+        let p = PositionPParams::from_table(&t, &axis, Path::new("j.toml")).unwrap();
+        assert_eq!(p.kp_per_s, 50.0);
+        let mut c = PositionP::new(p);
+        let ctx = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        // tau = 1 / (2 pi 100) = 1.59 ms = 15.9 cycles
+        let mut v = 0.0;
+        for _ in 0..16 {
+            let mut io = AxisSignals::default();
+            io.reference[0] = 0.02;
+            c.step(&ctx, &mut io);
+            v = io.vel_cmd;
+        }
+        let frac = v / (50.0 * 0.02);
+        assert!((frac - 0.63).abs() < 0.02, "{frac}");
+        assert_eq!(c.snapshot().len, 1);
+    }
+
+    #[test]
+    fn nan_load_position_gives_a_zero_velocity_command() {
+        let t: toml::Table = "vel_filter_hz = 100".parse().unwrap();
+        let axis = crate::test_util::ballscrew_axis(1e-4);
+        let mut c = PositionP::new(PositionPParams::from_table(&t, &axis, Path::new("j")).unwrap());
+        let ctx = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        let mut io = AxisSignals {
+            load_pos: f64::NAN,
+            ..Default::default()
+        };
+        c.step(&ctx, &mut io);
+        assert_eq!(io.vel_cmd, 0.0);
+        io.load_pos = 0.0;
+        io.reference[0] = 1.0;
+        c.step(&ctx, &mut io);
+        assert!(io.vel_cmd.is_finite() && io.vel_cmd > 0.0);
     }
 }

@@ -310,9 +310,13 @@ where
             }
             // Block on the peer's event; a stale notification only costs one extra turn.
             let left = Duration::from_nanos(deadline_ns - now).min(Duration::from_millis(100));
-            self.listener
-                .timed_wait(|_| {}, left)
-                .map_err(|e| IpcError::Receive(format!("{e:?}")))?;
+            match self.listener.timed_wait(|_| {}, left) {
+                Ok(_) => {}
+                // A signal (e.g. an operator stop) interrupted the wait: look again; the caller
+                // polls its stop flag between waits.
+                Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => {}
+                Err(e) => return Err(IpcError::Receive(format!("{e:?}"))),
+            }
         }
     }
 

@@ -175,6 +175,7 @@ pub fn run_plant<P: PlantDevice>(
     let mut applied = ActuatorCommand::empty(n as u32, tag);
     let mut end = PlantEnd::Completed;
     let mut silent_cycles = 0u64;
+    let mut prev_missed = false;
     let mut saturated_cycles = [0u64; crate::wire::MAX_AXES];
     let max_sat_cycles = cfg
         .safety
@@ -188,7 +189,12 @@ pub fn run_plant<P: PlantDevice>(
     };
     let mut t0 = now_ns() + 5_000_000;
     let mut k = 0u64;
-    while k < cfg.cycles || stopping.is_some_and(|left| left > 0) {
+    loop {
+        match stopping {
+            Some(0) => break,
+            None if k >= cfg.cycles => break,
+            _ => {}
+        }
         let mut cause: Option<StopCause> = None;
         if stopping.is_none() && stop.load(std::sync::atomic::Ordering::Relaxed) {
             cause = Some(StopCause::OperatorStop);
@@ -204,10 +210,14 @@ pub fn run_plant<P: PlantDevice>(
                 flags |= REC_OVERRUN;
             }
             if wake_late_ns > STALL_NS {
-                flags |= REC_STALL;
-                // The machine stopped: re-anchor the schedule at now instead of racing through
-                // the missed deadlines (the stall is reported, not smeared over later cycles).
+                // Re-anchor the schedule at now instead of racing through the missed deadlines.
                 t0 += wake_late_ns;
+                // A machine-wide stall, unless the lateness is our own: a timed-out blocking
+                // wait for a missing command can overshoot by a timer tick (socket timeouts have
+                // jiffy resolution), and must not excuse the silence from the watchdog.
+                if !prev_missed {
+                    flags |= REC_STALL;
+                }
             }
             cmd_deadline = (deadline + period_ns).max(now_ns() + period_ns);
         } else {
@@ -247,7 +257,8 @@ pub fn run_plant<P: PlantDevice>(
             }
             if latency_ns == u64::MAX {
                 flags |= REC_MISSED;
-                let on_time = flags & REC_OVERRUN == 0;
+                // Only a machine-wide stall excuses silence: a merely busy machine still counts.
+                let on_time = flags & REC_STALL == 0;
                 if cfg.mode == Mode::Lockstep {
                     silent_cycles = 1;
                     cause = cause.or(Some(StopCause::SchedulerLost {
@@ -275,6 +286,7 @@ pub fn run_plant<P: PlantDevice>(
                 );
             }
         }
+        prev_missed = flags & REC_MISSED != 0;
         if let Some(c) = cause {
             end = PlantEnd::Stopped {
                 cause: c,
@@ -300,7 +312,7 @@ pub fn run_plant<P: PlantDevice>(
                 };
                 applied.axes[i].torque = if t.is_finite() { t } else { 0.0 };
             }
-            *left -= 1;
+            *left = left.saturating_sub(1);
         }
 
         let c1 = now_ns();

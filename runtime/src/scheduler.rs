@@ -181,6 +181,15 @@ pub fn run_scheduler(
             continue;
         }
         if s.seq < next_seq {
+            if s.flags & FLAG_END != 0 {
+                // The plant's goodbye after an early stop (it repeats the last cycle number).
+                out.end = if stop_sent {
+                    SchedulerEnd::OperatorStop { cycle: s.seq }
+                } else {
+                    SchedulerEnd::PlantEnded { cycle: s.seq }
+                };
+                break;
+            }
             out.out_of_order += 1;
             continue;
         }

@@ -1,0 +1,185 @@
+//! `diagnose --auto`: the guided loop. Add the most significant candidate, refit, diagnose
+//! again, until nothing significant remains; record the error after each step.
+
+use serde_json::{json, Value};
+
+use super::data::AxisData;
+use super::diagnose::{diagnose, DiagOptions, Diagnosis};
+use super::effects::WbModel;
+use super::fit::{fit_with, Errors};
+use super::WorkbenchError;
+
+/// One step of the loop.
+#[derive(Debug, Clone)]
+pub struct Step {
+    /// What was added (effect ids or `refit <param>`); empty for the starting model.
+    pub added: Vec<String>,
+    /// Errors after the step.
+    pub errors: Errors,
+}
+
+/// Result of the loop.
+#[derive(Debug, Clone)]
+pub struct AutoResult {
+    /// The steps, the starting model first.
+    pub steps: Vec<Step>,
+    /// The final model.
+    pub model: WbModel,
+    /// The last diagnosis (nothing significant, or the step limit).
+    pub last: Diagnosis,
+}
+
+/// Runs the guided loop for at most `max_steps` additions.
+pub fn auto(
+    model: &WbModel,
+    d: &AxisData,
+    window_s: f64,
+    max_steps: usize,
+) -> Result<AutoResult, WorkbenchError> {
+    let mut m = model.clone();
+    let mut steps = vec![Step {
+        added: vec![],
+        errors: Errors::of(&m, d, window_s),
+    }];
+    let mut last = diagnose(&m, d, &DiagOptions::default());
+    for _ in 0..max_steps {
+        let Some(top) = last.candidates.iter().find(|c| c.significant).cloned() else {
+            break;
+        };
+        let res = if top.is_param {
+            let mut free = vec![top.effect.clone()];
+            for o in &top.same_as {
+                if last.candidates.iter().any(|c| &c.effect == o && c.is_param) {
+                    free.push(o.clone());
+                }
+            }
+            fit_with(&m, d, vec![], Some(&free), window_s)?
+        } else {
+            fit_with(&m, d, top.add.clone(), None, window_s)?
+        };
+        let better = match (res.before.equation_nrmse_pct, res.after.equation_nrmse_pct) {
+            (Some(b), Some(a)) => a < b,
+            _ => true,
+        };
+        if !better {
+            break;
+        }
+        let added = if top.is_param {
+            vec![format!("refit {}", top.effect)]
+        } else {
+            res.added.clone()
+        };
+        m = res.model;
+        steps.push(Step {
+            added,
+            errors: res.after,
+        });
+        last = diagnose(&m, d, &DiagOptions::default());
+    }
+    Ok(AutoResult {
+        steps,
+        model: m,
+        last,
+    })
+}
+
+impl AutoResult {
+    /// JSON of the loop.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "steps": self.steps.iter().enumerate().map(|(i, s)| json!({
+                "step": i,
+                "added": s.added,
+                "equation_nrmse_pct": s.errors.equation_nrmse_pct,
+                "relative_error_pct": s.errors.relative_error_pct,
+                "window_sim_nrmse_pct": s.errors.window_sim_nrmse_pct,
+            })).collect::<Vec<_>>(),
+            "verdict": self.last.verdict,
+            "candidates": self.last.to_json()["candidates"].clone(),
+        })
+    }
+
+    /// HTML table and plot of the error after each step ("watch the error fall").
+    pub fn html(&self) -> String {
+        let mut h = String::from("<h2>Watch the error fall</h2><table><tr><th>step</th><th>added</th><th>equation NRMSE %</th><th>windowed sim NRMSE %</th></tr>");
+        for (i, s) in self.steps.iter().enumerate() {
+            h.push_str(&format!(
+                "<tr><td>{i}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                if s.added.is_empty() {
+                    "(nominal model)".to_string()
+                } else {
+                    s.added.join(", ")
+                },
+                s.errors
+                    .equation_nrmse_pct
+                    .map(|v| format!("{v:.2}"))
+                    .unwrap_or_default(),
+                s.errors
+                    .window_sim_nrmse_pct
+                    .map(|v| format!("{v:.2}"))
+                    .unwrap_or_default()
+            ));
+        }
+        h.push_str("</table>");
+        let x: Vec<f64> = (0..self.steps.len()).map(|i| i as f64).collect();
+        let eq: Vec<f64> = self
+            .steps
+            .iter()
+            .map(|s| s.errors.equation_nrmse_pct.unwrap_or(f64::NAN))
+            .collect();
+        let ws: Vec<f64> = self
+            .steps
+            .iter()
+            .map(|s| s.errors.window_sim_nrmse_pct.unwrap_or(f64::NAN))
+            .collect();
+        h.push_str(&super::report::plot(
+            "Error after each step",
+            "step",
+            "NRMSE %",
+            &[
+                super::report::Series {
+                    name: "equation error",
+                    color: "#1f77b4",
+                    x: &x,
+                    y: &eq,
+                    dots: false,
+                },
+                super::report::Series {
+                    name: "windowed simulation",
+                    color: "#d62728",
+                    x: &x,
+                    y: &ws,
+                    dots: false,
+                },
+            ],
+            &[],
+            false,
+        ));
+        h.push_str(&format!(
+            "<p><b>Verdict:</b> {}</p>",
+            self.last.verdict.replace('<', "&lt;")
+        ));
+        h
+    }
+}
+
+/// HTML table of a diagnosis.
+pub fn diagnosis_html(d: &Diagnosis) -> String {
+    let mut h = String::from("<h2>Diagnosis</h2><table><tr><th>candidate</th><th>class</th><th>significant</th><th>error reduction %</th><th>evidence</th></tr>");
+    for c in &d.candidates {
+        h.push_str(&format!(
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td><td style=\"text-align:left\">{}</td></tr>",
+            c.effect,
+            c.class,
+            if c.significant { "yes" } else { "no" },
+            c.error_reduction_pct,
+            c.evidence.replace('<', "&lt;")
+        ));
+    }
+    h.push_str("</table>");
+    h.push_str(&format!(
+        "<p><b>Verdict:</b> {}</p>",
+        d.verdict.replace('<', "&lt;")
+    ));
+    h
+}

@@ -1,0 +1,247 @@
+//! One axis of a trace in the model's motor units, with zero-phase filtered derivatives.
+//!
+//! Positions are converted to motor units (a ball screw's table position in m times
+//! `2 pi gear_ratio / lead_m`), filtered with a zero-phase 4th-order Butterworth low-pass and
+//! differentiated by central differences, as the EMPS benchmark's authors do. The torque column
+//! goes through the same zero-phase filter by default (parallel filtering), so the equation error
+//! compares like with like.
+
+use std::path::{Path, PathBuf};
+
+use feedloop_runtime::model::{AxisKind, ModelFile};
+use feedloop_runtime::trace::Trace;
+
+use super::signal::{derivative, filtfilt_butter4};
+use super::WorkbenchError;
+
+/// How the trace is prepared.
+#[derive(Debug, Clone, Copy)]
+pub struct Prep {
+    /// Cut-off of the zero-phase filter applied to positions before differentiation, Hz
+    /// (`None`: `min(100 Hz, fs / 10)`).
+    pub cutoff_hz: Option<f64>,
+    /// Filter the torque column with the same zero-phase filter ("parallel filtering", so the
+    /// residual compares like with like and is not dominated by torque noise above the cut-off).
+    pub filter_torque: bool,
+}
+
+impl Default for Prep {
+    fn default() -> Self {
+        Self {
+            cutoff_hz: None,
+            filter_torque: true,
+        }
+    }
+}
+
+/// One axis of a trace, motor units, with derivatives.
+#[derive(Debug, Clone)]
+pub struct AxisData {
+    /// The trace file.
+    pub path: PathBuf,
+    /// Axis name.
+    pub axis: String,
+    /// Axis kind of the model.
+    pub kind: AxisKind,
+    /// Motor units per load unit (rad/m for a ball screw, else 1).
+    pub r: f64,
+    /// Sampling period, s.
+    pub dt: f64,
+    /// Time, s.
+    pub t: Vec<f64>,
+    /// Commanded position, motor units.
+    pub cmd: Vec<f64>,
+    /// Measured load position, load units (as in the trace).
+    pub load_raw: Vec<f64>,
+    /// Measured motor position, motor units, when the trace has `A.motor`.
+    pub motor_raw: Option<Vec<f64>>,
+    /// Torque (force) column, motor units, when present (filtered when `torque_filtered`).
+    pub torque: Option<Vec<f64>>,
+    /// The torque column as recorded.
+    pub torque_raw: Option<Vec<f64>>,
+    /// Filtered motor position (from `A.motor`, else the load position in motor units).
+    pub qm: Vec<f64>,
+    /// Its velocity.
+    pub vm: Vec<f64>,
+    /// Its acceleration.
+    pub am: Vec<f64>,
+    /// Filtered load position in motor units.
+    pub ql: Vec<f64>,
+    /// Its velocity.
+    pub vl: Vec<f64>,
+    /// Its acceleration.
+    pub al: Vec<f64>,
+    /// Cut-off used, Hz.
+    pub cutoff_hz: f64,
+    /// Whether the torque column was filtered (then nonlinear regressor columns are filtered
+    /// the same way after the nonlinearity).
+    pub torque_filtered: bool,
+    /// First and one-past-last sample used in fits (filter edges left out).
+    pub range: (usize, usize),
+}
+
+impl AxisData {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    /// Whether the trace is empty.
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    /// Whether a separate motor position was measured.
+    pub fn has_motor(&self) -> bool {
+        self.motor_raw.is_some()
+    }
+
+    /// The torque column or an error naming it and the method that needs it.
+    pub fn require_torque(
+        &self,
+        needed_for: &str,
+        trace: &Trace,
+    ) -> Result<&[f64], WorkbenchError> {
+        self.torque
+            .as_deref()
+            .ok_or_else(|| missing(trace, &format!("{}.torque", self.axis), needed_for))
+    }
+}
+
+fn missing(trace: &Trace, column: &str, needed_for: &str) -> WorkbenchError {
+    WorkbenchError::MissingColumn {
+        path: trace.path.clone(),
+        column: column.to_string(),
+        needed_for: needed_for.to_string(),
+        present: trace.columns.join(", "),
+    }
+}
+
+/// Chooses the axis of `trace` the model applies to: `axis` when given (it must exist), else the
+/// only axis of the trace.
+pub fn pick_axis(
+    trace: &Trace,
+    model_path: &Path,
+    axis: Option<&str>,
+) -> Result<String, WorkbenchError> {
+    let axes = trace.axes();
+    match axis {
+        Some(a) if axes.iter().any(|x| x == a) => Ok(a.to_string()),
+        Some(a) => Err(WorkbenchError::Mismatch {
+            trace: trace.path.clone(),
+            model: model_path.to_path_buf(),
+            reason: format!("the trace has no axis `{a}` (axes: {})", axes.join(", ")),
+        }),
+        None => match axes.len() {
+            1 => Ok(axes[0].clone()),
+            0 => Err(missing(
+                trace,
+                "A.cmd",
+                "every workbench command (no axis columns `A.cmd`/`A.load`)",
+            )),
+            _ => Err(WorkbenchError::Mismatch {
+                trace: trace.path.clone(),
+                model: model_path.to_path_buf(),
+                reason: format!(
+                    "the trace has {} axes ({}); choose the one the model describes with --axis",
+                    axes.len(),
+                    axes.join(", ")
+                ),
+            }),
+        },
+    }
+}
+
+/// Reads axis `axis` of `trace` in the units of `model` and prepares derivatives.
+pub fn load_axis(
+    trace: &Trace,
+    model: &ModelFile,
+    axis: &str,
+    prep: &Prep,
+) -> Result<AxisData, WorkbenchError> {
+    let kind = model.plant.kind();
+    let r = model.plant.motor_per_load();
+    let col = |name: &str, why: &str| -> Result<Vec<f64>, WorkbenchError> {
+        trace
+            .column(&format!("{axis}.{name}"))
+            .map(<[f64]>::to_vec)
+            .ok_or_else(|| missing(trace, &format!("{axis}.{name}"), why))
+    };
+    let cmd_raw = col("cmd", "the commanded position")?;
+    let load_raw = col("load", "the measured position")?;
+    let motor_raw = trace.column(&format!("{axis}.motor")).map(<[f64]>::to_vec);
+    let torque = trace.column(&format!("{axis}.torque")).map(<[f64]>::to_vec);
+    let n = trace.len();
+    if n < 50 {
+        return Err(WorkbenchError::Data {
+            path: trace.path.clone(),
+            reason: format!("only {n} samples; the workbench needs at least 50"),
+        });
+    }
+    let dt = trace.period_s();
+    let fs = 1.0 / dt;
+    // Units check: with a motor column the ratio of motor to load travel must match the model.
+    if let Some(m) = &motor_raw {
+        let travel = |x: &[f64]| {
+            let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            hi - lo
+        };
+        let (tm, tl) = (travel(m), travel(&load_raw));
+        if tl > 0.0 && tm > 0.0 {
+            let ratio = tm / tl;
+            if (ratio / r - 1.0).abs() > 0.2 {
+                return Err(WorkbenchError::Mismatch {
+                    trace: trace.path.clone(),
+                    model: model.path.clone(),
+                    reason: format!(
+                        "axis `{axis}`: motor travel / load travel = {ratio:.4} but the model ({} axis) implies {r:.4} motor units per load unit (check lead_m, gear_ratio, kind or the trace's units)",
+                        kind.id()
+                    ),
+                });
+            }
+        }
+    }
+    let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
+    let load_m: Vec<f64> = load_raw.iter().map(|x| x * r).collect();
+    let ql = filtfilt_butter4(&load_m, cutoff, fs);
+    let vl = derivative(&ql, dt);
+    let al = derivative(&vl, dt);
+    let (qm, vm, am) = match &motor_raw {
+        Some(m) => {
+            let q = filtfilt_butter4(m, cutoff, fs);
+            let v = derivative(&q, dt);
+            let a = derivative(&v, dt);
+            (q, v, a)
+        }
+        None => (ql.clone(), vl.clone(), al.clone()),
+    };
+    let torque_raw = torque.clone();
+    let torque = match torque {
+        Some(y) if prep.filter_torque => Some(filtfilt_butter4(&y, cutoff, fs)),
+        other => other,
+    };
+    let edge = ((fs / cutoff).ceil() as usize * 2).min(n / 10);
+    Ok(AxisData {
+        path: trace.path.clone(),
+        axis: axis.to_string(),
+        kind,
+        r,
+        dt,
+        t: trace.t().to_vec(),
+        cmd: cmd_raw.iter().map(|x| x * r).collect(),
+        load_raw,
+        motor_raw,
+        torque,
+        torque_raw,
+        qm,
+        vm,
+        am,
+        ql,
+        vl,
+        al,
+        cutoff_hz: cutoff,
+        torque_filtered: prep.filter_torque,
+        range: (edge, n - edge),
+    })
+}

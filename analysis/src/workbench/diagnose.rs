@@ -1,0 +1,773 @@
+//! `diagnose`: rank the candidate causes of the misfit.
+//!
+//! Candidates are every effect of the physics library plus a wrong value of each base
+//! parameter. The residual is the recorded (applied) torque minus the torque the model needs for
+//! the measured motion. Each candidate is refitted (linear least squares in its coefficients;
+//! a 1-D grid search for its nonlinear parameter: Stribeck velocity, cogging period, mode
+//! frequency, delay, lag, limit) and scored on data not used for the fit: blocked 5-fold
+//! cross-validation, contiguous blocks, so neighbouring correlated samples never sit on both
+//! sides. A base parameter is refitted alone. An effect is refitted together with all base
+//! parameters; it is significant only when it lowers the cross-validated error beyond what a
+//! base-parameter refit alone achieves, by at least 3 % of the model's error and in at least 4
+//! of 5 blocks, so noise never earns an effect and a wrong parameter is not mistaken for one.
+//! Scores are the cross-validated RMS reduction as a percentage of the model's RMS error: a
+//! significant effect is credited with everything adding it achieves (it is what lets the base
+//! parameters return to their true values), a non-significant one only with its extra.
+//! `viscous_friction` has the damping parameter's column and is scored like it. Candidates whose fitted contributions are nearly
+//! collinear (correlation above 0.95) cannot be told apart by the data and are reported together.
+//! `backlash` and `pitch_error` are tested on the deflection (motor minus load position), which
+//! needs both position columns.
+
+use std::collections::BTreeMap;
+
+use serde_json::{json, Value};
+
+use super::data::AxisData;
+use super::effects::{
+    base_class, base_column, base_keys, channel, Channel, Effect, Side, WbModel, EFFECT_IDS,
+};
+use super::lsq::{blocks, cross_validate, normals, Cv};
+use super::signal::{autocorrelation, mean, quantile, rms};
+use feedloop_runtime::model::AxisKind;
+
+/// Effects that may appear several times in a model file.
+const REPEATABLE: [&str; 4] = [
+    "viscous_friction",
+    "coulomb_friction",
+    "stribeck_friction",
+    "cogging",
+];
+
+/// Folds of the blocked cross-validation.
+pub const FOLDS: usize = 5;
+/// Smallest cross-validated error reduction that counts, % of the model's error.
+pub const MIN_REDUCTION_PCT: f64 = 3.0;
+/// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
+pub const MIN_FOLD_WINS: usize = 4;
+
+/// One candidate cause.
+#[derive(Debug, Clone)]
+pub struct Candidate {
+    /// Effect id, or a base-parameter key.
+    pub effect: String,
+    /// Whether it is a base parameter (not an effect).
+    pub is_param: bool,
+    /// Identifiability class.
+    pub class: String,
+    /// Significant under cross-validation.
+    pub significant: bool,
+    /// Cross-validated RMS reduction, % of the model's error.
+    pub error_reduction_pct: f64,
+    /// Fitted parameters (model-file keys).
+    pub params: BTreeMap<String, f64>,
+    /// One sentence of evidence.
+    pub evidence: String,
+    /// Other candidates the data cannot tell apart from this one.
+    pub same_as: Vec<String>,
+    /// Effects to add when accepting it (with fitted nonlinear parameters).
+    pub add: Vec<Effect>,
+    /// Fitted contribution (for the collinearity check), decimated.
+    contribution: Vec<f64>,
+    /// Channel it was scored on.
+    pub channel: &'static str,
+}
+
+/// A diagnosis.
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    /// Candidates sorted by error reduction (largest first).
+    pub candidates: Vec<Candidate>,
+    /// One-sentence verdict.
+    pub verdict: String,
+    /// Cross-validated RMS of the model's torque residual (nothing refitted).
+    pub model_rms: f64,
+    /// Cross-validated RMS after refitting the base parameters only.
+    pub base_refit_rms: f64,
+    /// Whether the residual after the base refit passed the whiteness test.
+    pub whiteness_passed: bool,
+    /// Effects that could not be tested on this trace, with the reason.
+    pub untested: Vec<(String, String)>,
+}
+
+fn corr(a: &[f64], b: &[f64]) -> f64 {
+    let (ma, mb) = (mean(a), mean(b));
+    let mut sab = 0.0;
+    let mut saa = 0.0;
+    let mut sbb = 0.0;
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    if saa <= 0.0 || sbb <= 0.0 {
+        return 0.0;
+    }
+    sab / (saa * sbb).sqrt()
+}
+
+/// Cross-validates `extra` columns together with `base` columns on target `y`.
+pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize)]) -> Cv {
+    let mut cols: Vec<&[f64]> = base.to_vec();
+    cols.extend_from_slice(extra);
+    cross_validate(&normals(&cols, y, bl))
+}
+
+fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
+    a.fold_mse
+        .iter()
+        .zip(reference)
+        .filter(|(x, r)| **x < **r * 0.999)
+        .count()
+}
+
+/// The grid of nonlinear parameters tried for effect `id`.
+pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
+    let (a, b) = d.range;
+    let vmax = quantile(
+        &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
+        0.99,
+    )
+    .max(1e-12);
+    let fs = 1.0 / d.dt;
+    let logspace = |lo: f64, hi: f64, n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+            .collect()
+    };
+    match id {
+        "stribeck_friction" => {
+            let mut g = Vec::new();
+            for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
+                for e in [1.0, 2.0] {
+                    g.push(vec![vs, e]);
+                }
+            }
+            g
+        }
+        "cogging" => match d.kind {
+            AxisKind::Rigid => logspace(1e-3, 0.1, 120)
+                .into_iter()
+                .map(|p| vec![p])
+                .collect(),
+            _ => (1..=120)
+                .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
+                .collect(),
+        },
+        "third_mass" => {
+            let mut g = Vec::new();
+            for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
+                for z in [0.02, 0.1, 0.3] {
+                    g.push(vec![f, z]);
+                }
+            }
+            g
+        }
+        "delay" => (1..=10).map(|k| vec![k as f64]).collect(),
+        "current_lag" => logspace(d.dt * 0.3, d.dt * 20.0, 16)
+            .into_iter()
+            .map(|t| vec![t])
+            .collect(),
+        "torque_saturation" => {
+            let Some(y) = &d.torque_raw else {
+                return vec![];
+            };
+            let ay: Vec<f64> = y[a..b].iter().map(|x| x.abs()).collect();
+            let (lo, hi) = (quantile(&ay, 0.3), quantile(&ay, 1.0));
+            (0..40)
+                .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
+                .collect()
+        }
+        "pitch_error" => {
+            let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
+            vec![vec![lead]]
+        }
+        _ => vec![vec![]],
+    }
+}
+
+fn default_side(kind: AxisKind) -> Side {
+    if kind == AxisKind::BallScrew {
+        Side::Load
+    } else {
+        Side::Motor
+    }
+}
+
+/// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
+/// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
+pub fn best_effect(
+    id: &str,
+    model: &WbModel,
+    d: &AxisData,
+    base: &[&[f64]],
+    y: &[f64],
+    bl: &[(usize, usize)],
+) -> Option<(Effect, Cv)> {
+    let side = default_side(d.kind);
+    let mut best: Option<(Effect, Cv)> = None;
+    for h in hyper_grid(id, d) {
+        let e = Effect::new(id, side, h);
+        let cv = match channel(id) {
+            Channel::TorquePath => {
+                let mut with = model.clone();
+                with.effects.push(e.clone());
+                let needed = model.torque_needed(d);
+                let t = with.applied(d)?;
+                let r: Vec<f64> = t.iter().zip(&needed).map(|(a, b)| a - b).collect();
+                cv_cols(base, &[], &r, bl)
+            }
+            _ => {
+                let cols = e.columns(d);
+                let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+                cv_cols(base, &refs, y, bl)
+            }
+        };
+        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
+        let nb = base.len();
+        if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
+            continue;
+        }
+        if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
+            let mut e = e;
+            let nb = base.len();
+            for (i, c) in e.coef.iter_mut().enumerate() {
+                *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+            }
+            best = Some((e, cv));
+        }
+    }
+    best
+}
+
+fn fmt(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e5).contains(&a) {
+        format!("{v:.3e}")
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else if a >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+fn reversals(d: &AxisData) -> usize {
+    let (a, b) = d.range;
+    let vmax = quantile(
+        &d.vm[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
+        0.99,
+    );
+    let th = 0.02 * vmax;
+    let mut last = 0.0;
+    let mut n = 0;
+    for &v in &d.vm[a..b] {
+        let s = if v > th {
+            1.0
+        } else if v < -th {
+            -1.0
+        } else {
+            0.0
+        };
+        if s != 0.0 {
+            if last != 0.0 && s != last {
+                n += 1;
+            }
+            last = s;
+        }
+    }
+    n
+}
+
+fn units(kind: AxisKind) -> (&'static str, &'static str) {
+    match kind {
+        AxisKind::Rotary => ("N m", "rad"),
+        AxisKind::BallScrew => ("N m", "rad"),
+        AxisKind::Rigid => ("N", "m"),
+    }
+}
+
+fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>) -> String {
+    let (tu, _) = units(d.kind);
+    let kind = d.kind;
+    let (fu, r) = if kind == AxisKind::BallScrew {
+        ("N", d.r)
+    } else {
+        (tu, 1.0)
+    };
+    match e.id.as_str() {
+        "coulomb_friction" => {
+            let fc = e.coef[0] * r;
+            format!(
+                "the residual steps by about 2 Fc = {} {fu} at each of {} velocity reversals",
+                fmt(2.0 * fc),
+                reversals(d)
+            )
+        }
+        "stribeck_friction" => format!(
+            "friction rises by {} {fu} above its sliding level {} {fu} below about {} of velocity",
+            fmt(e.coef[1] * r),
+            fmt(e.coef[0] * r),
+            fmt(e.hyper[0] / r)
+        ),
+        "viscous_friction" => format!("the residual grows in proportion to velocity ({} per unit of velocity)", fmt(e.coef[0])),
+        "constant_force" => format!("the residual has the same offset of {} {fu} in both directions of travel", fmt(e.coef[0] * r)),
+        "cogging" => format!(
+            "a ripple of {} {tu} repeating every {} {} of motor position",
+            fmt(e.coef[0].hypot(e.coef[1])),
+            fmt(e.hyper[0]),
+            if kind == AxisKind::Rigid { "m" } else { "rad" }
+        ),
+        "third_mass" => format!(
+            "the residual follows a mode near {} Hz (damping ratio {}) carrying {} of inertia",
+            fmt(e.hyper[0]),
+            e.hyper[1],
+            fmt(e.coef[0])
+        ),
+        "delay" => format!(
+            "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
+            e.hyper[0],
+            fmt(e.hyper[0] * d.dt * 1e3)
+        ),
+        "current_lag" => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
+        "torque_saturation" => format!(
+            "where the recorded torque exceeds about {} {tu} the motion shows less torque than recorded",
+            fmt(e.hyper[0])
+        ),
+        "backlash" => format!(
+            "motor minus load position steps by about {} at each of {} reversals",
+            params.get("gap_m").map(|g| format!("{} m", fmt(*g))).unwrap_or_else(|| format!("{} rad", fmt(2.0 * e.coef[0]))),
+            reversals(d)
+        ),
+        "pitch_error" => format!(
+            "motor minus load position varies with load position, period {} m, amplitude {} m",
+            fmt(e.hyper[0]),
+            fmt(params.get("amplitude_m").copied().unwrap_or(0.0))
+        ),
+        _ => String::new(),
+    }
+}
+
+fn class_of(id: &str) -> &'static str {
+    match id {
+        "viscous_friction" => "damping",
+        "coulomb_friction" | "stribeck_friction" => "friction",
+        "constant_force" => "offset",
+        "cogging" => "cogging",
+        "third_mass" => "mode",
+        "delay" | "current_lag" => "delay",
+        "torque_saturation" => "saturation",
+        "backlash" => "backlash",
+        "pitch_error" => "pitch",
+        _ => "other",
+    }
+}
+
+fn decimate(x: &[f64], a: usize, b: usize) -> Vec<f64> {
+    let step = ((b - a) / 20000).max(1);
+    x[a..b].iter().step_by(step).copied().collect()
+}
+
+/// Options of [`diagnose`].
+#[derive(Debug, Clone, Default)]
+pub struct DiagOptions {
+    /// Effect ids to leave out (e.g. those already in the model are still tested).
+    pub skip: Vec<String>,
+}
+
+/// Diagnoses `model` on `d` (which must carry torque).
+pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis {
+    let y = d
+        .torque
+        .as_ref()
+        .expect("diagnose needs the torque column (checked by the caller)");
+    let kind = d.kind;
+    let _ = y;
+    let y_app = model.applied(d).expect("checked above");
+    let needed = model.torque_needed(d);
+    let res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
+    let bl = blocks(d.range, FOLDS);
+    let (a, b) = d.range;
+    let keys = base_keys(kind);
+    // with one position column, motor and load columns coincide: keep one of each pair
+    let free_keys: Vec<&str> = keys
+        .iter()
+        .copied()
+        .filter(|k| d.has_motor() || !matches!(*k, "jl_kgm2" | "dl_nms_per_rad"))
+        .collect();
+    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
+    let cv0 = cv_cols(&[], &[], &res, &bl);
+    let e0 = cv0.rms.max(1e-300);
+    let cvb = cv_cols(&base_cols, &[], &res, &bl);
+    let mut cands = Vec::new();
+    // base parameters, one at a time
+    for k in &free_keys {
+        let col = base_column(k, d);
+        let cv = cv_cols(&[col], &[], &res, &bl);
+        let red = 100.0 * (e0 - cv.rms) / e0;
+        let wins = fold_wins(&cv, &cv0.fold_mse);
+        let delta = cv.theta[0];
+        let old = model.base_value(k);
+        let mut params = BTreeMap::new();
+        params.insert(k.to_string(), old + delta);
+        let contribution: Vec<f64> = decimate(col, a, b).iter().map(|x| x * delta).collect();
+        cands.push(Candidate {
+            effect: k.to_string(),
+            is_param: true,
+            class: base_class(k).to_string(),
+            significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+            error_reduction_pct: red,
+            evidence: format!(
+                "refitting {k} alone moves it from {} to {} ({:+.1} %)",
+                fmt(old),
+                fmt(old + delta),
+                if old != 0.0 {
+                    100.0 * delta / old
+                } else {
+                    f64::INFINITY
+                }
+            ),
+            params,
+            same_as: vec![],
+            add: vec![],
+            contribution,
+            channel: "torque",
+        });
+    }
+    let mut untested = Vec::new();
+    let defl = deflection(model, d);
+    for id in EFFECT_IDS {
+        if !REPEATABLE.contains(&id) && model.effects.iter().any(|e| e.id == id) {
+            untested.push((
+                id.to_string(),
+                "already in the model (it is not repeatable; refit it with `fit`)".to_string(),
+            ));
+            continue;
+        }
+        if matches!(id, "backlash" | "pitch_error") {
+            if kind == AxisKind::Rigid {
+                untested.push((id.to_string(), "not defined on a rigid axis".to_string()));
+                continue;
+            }
+            if kind == AxisKind::Rotary && id == "pitch_error" {
+                untested.push((id.to_string(), "ball-screw axes only".to_string()));
+                continue;
+            }
+            let Some((rd, dcols)) = &defl else {
+                untested.push((
+                    id.to_string(),
+                    format!("needs both `{0}.motor` and `{0}.load` (it shows in the deflection between them)", d.axis),
+                ));
+                continue;
+            };
+            let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
+            let d0 = cv_cols(&[], &[], rd, &bl);
+            let dbase = cv_cols(&dref, &[], rd, &bl);
+            if let Some((e, cv)) = best_effect(id, model, d, &dref, rd, &bl) {
+                let red = 100.0 * (dbase.rms - cv.rms) / d0.rms.max(1e-300);
+                let wins = fold_wins(&cv, &dbase.fold_mse);
+                let params = flat(&e.to_table(kind, d.r));
+                let contribution = decimate(&e.contribution(d), a, b);
+                cands.push(Candidate {
+                    effect: id.to_string(),
+                    is_param: false,
+                    class: class_of(id).into(),
+                    significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+                    error_reduction_pct: red,
+                    evidence: evidence(&e, d, &params),
+                    params,
+                    same_as: vec![],
+                    add: vec![e],
+                    contribution,
+                    channel: "deflection",
+                });
+            }
+            continue;
+        }
+        if id == "viscous_friction" {
+            // the same column as the damping parameter: scored the same way, one class
+            let e = Effect::new(id, default_side(kind), vec![]);
+            let cols = e.columns(d);
+            let cv = cv_cols(&[], &[&cols[0]], &res, &bl);
+            let mut e = e;
+            e.coef = vec![cv.theta[0]];
+            let red = 100.0 * (e0 - cv.rms) / e0;
+            let wins = fold_wins(&cv, &cv0.fold_mse);
+            let params = flat(&e.to_table(kind, d.r));
+            cands.push(Candidate {
+                effect: id.to_string(),
+                is_param: false,
+                class: "damping".into(),
+                significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+                error_reduction_pct: red,
+                evidence: evidence(&e, d, &params),
+                params,
+                same_as: vec![],
+                contribution: decimate(&e.contribution(d), a, b),
+                add: vec![e],
+                channel: "torque",
+            });
+            continue;
+        }
+        let Some((e, cv)) = best_effect(id, model, d, &base_cols, &res, &bl) else {
+            continue;
+        };
+        let mut add = vec![e.clone()];
+        let mut cv = cv;
+        let mut params = flat(&e.to_table(kind, d.r));
+        let mut ev = evidence(&e, d, &params);
+        if id == "coulomb_friction" {
+            // asymmetric Coulomb friction = Coulomb + a constant force while the axis moves:
+            // fit them together and report both.
+            let cols = e.columns(d);
+            let one = vec![1.0; d.len()];
+            let cv2 = cv_cols(&base_cols, &[&cols[0], &one], &res, &bl);
+            if cv2.rms <= cv.rms * 1.02 {
+                let nb = base_cols.len();
+                let mut ec = e.clone();
+                ec.coef = vec![cv2.theta[nb], 0.0];
+                let mut cf = Effect::new("constant_force", ec.side, vec![]);
+                cf.coef = vec![cv2.theta[nb + 1]];
+                params = flat(&ec.to_table(kind, d.r));
+                let off = cv2.theta[nb + 1]
+                    * if kind == AxisKind::BallScrew {
+                        d.r
+                    } else {
+                        1.0
+                    };
+                let key = if kind == AxisKind::Rotary {
+                    "offset_nm"
+                } else {
+                    "offset_n"
+                };
+                params.insert(key.into(), off);
+                ev = format!(
+                    "{}, with an offset of {} {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
+                    evidence(&ec, d, &params),
+                    fmt(off),
+                    if kind == AxisKind::Rotary { "N m" } else { "N" }
+                );
+                add = vec![ec, cf];
+                cv = cv2;
+            }
+        }
+        // credited with all it achieves (with the base refit) when it is significant beyond a
+        // base refit, else only with what it adds to the base refit
+        let extra = 100.0 * (cvb.rms - cv.rms) / e0;
+        let wins = fold_wins(&cv, &cvb.fold_mse);
+        let significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
+        let red = if significant {
+            (100.0 * (e0 - cv.rms) / e0).max(extra)
+        } else {
+            extra
+        };
+        let mut contribution = vec![0.0; d.len()];
+        for e in &add {
+            if channel(&e.id) == Channel::TorquePath {
+                let mut with = model.clone();
+                with.effects.push(e.clone());
+                let t = with.applied(d).unwrap_or_else(|| y_app.clone());
+                for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&y_app)) {
+                    *c += x - z;
+                }
+            } else {
+                for (c, x) in contribution.iter_mut().zip(e.contribution(d)) {
+                    *c += x;
+                }
+            }
+        }
+        cands.push(Candidate {
+            effect: id.to_string(),
+            is_param: false,
+            class: class_of(id).into(),
+            significant,
+            error_reduction_pct: red,
+            evidence: ev,
+            params,
+            same_as: vec![],
+            add,
+            contribution: decimate(&contribution, a, b),
+            channel: "torque",
+        });
+    }
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+    // candidates the data cannot tell apart
+    for i in 0..cands.len() {
+        let mut same = Vec::new();
+        for j in 0..cands.len() {
+            if i != j
+                && cands[i].channel == cands[j].channel
+                && cands[i].error_reduction_pct > 0.5
+                && cands[j].error_reduction_pct > 0.5
+                && (cands[i].error_reduction_pct - cands[j].error_reduction_pct).abs()
+                    <= 0.1
+                        * cands[i]
+                            .error_reduction_pct
+                            .abs()
+                            .max(cands[j].error_reduction_pct.abs())
+                && corr(&cands[i].contribution, &cands[j].contribution).abs() > 0.95
+            {
+                same.push(cands[j].effect.clone());
+            }
+        }
+        cands[i].same_as = same;
+    }
+    // a class shared by indistinguishable candidates: the first one's class
+    for i in 0..cands.len() {
+        let cls = cands[i].class.clone();
+        for other in cands[i].same_as.clone() {
+            if let Some(j) = cands.iter().position(|c| c.effect == other) {
+                if j > i && cands[j].class != cls {
+                    cands[j].class = cls.clone();
+                }
+            }
+        }
+    }
+    // whiteness of the residual after the base refit
+    let nb = base_cols.len();
+    let mut rb = res.clone();
+    for (k, c) in base_cols.iter().enumerate() {
+        let th = cvb.theta.get(k).copied().unwrap_or(0.0);
+        for (x, v) in rb.iter_mut().zip(c.iter()) {
+            *x -= th * v;
+        }
+    }
+    let _ = nb;
+    // decimated to the filter's correlation length, so that filtering alone does not colour it
+    let corr_len = (2.0 / (d.cutoff_hz * d.dt)).ceil() as usize;
+    let step = ((b - a) / 20000).max(corr_len).max(1);
+    let rb_d: Vec<f64> = rb[a..b].iter().step_by(step).copied().collect();
+    let ac = autocorrelation(&rb_d, 20);
+    let bound = 2.58 / (rb_d.len() as f64).sqrt();
+    let white = ac.iter().filter(|x| x.abs() > bound).count() <= 1;
+    let sig: Vec<&Candidate> = cands.iter().filter(|c| c.significant).collect();
+    let verdict = match sig.first() {
+        None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
+        None => format!(
+            "no missing effect found: no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more; the remaining misfit is coloured (whiteness test failed, lag-1 autocorrelation {:.2}) but no effect of the library explains it",
+            ac.first().copied().unwrap_or(0.0)
+        ),
+        Some(top) => {
+            let mut names = vec![top.effect.clone()];
+            names.extend(top.same_as.iter().cloned());
+            let what = if top.is_param { "a wrong base parameter" } else { "a missing effect" };
+            format!(
+                "{what}: {} (class {}) explains {:.0} % of the error ({}); {}",
+                names.join(" / "),
+                top.class,
+                top.error_reduction_pct,
+                top.evidence,
+                if top.is_param {
+                    format!("refit it with `feedloop fit --free {}`", top.effect)
+                } else {
+                    let ids: Vec<&str> = top.add.iter().map(|e| e.id.as_str()).collect();
+                    format!("add it with `feedloop fit --add {}`", ids.join(","))
+                }
+            )
+        }
+    };
+    let _ = rms(&res);
+    Diagnosis {
+        candidates: cands,
+        verdict,
+        model_rms: e0,
+        base_refit_rms: cvb.rms,
+        whiteness_passed: white,
+        untested,
+    }
+}
+
+/// Deflection channel: (residual, base columns) when both positions are measured.
+///
+/// The spring transmits what the motor does not keep: `KL (thM - thL) = T - JM aM - DM vM`
+/// (motor-side effects included), with `T` the applied torque when recorded (so load-side
+/// friction, which also deflects the spring, is not mistaken for a gap), else the load's
+/// model torque `JL aL + DL vL`. The residual is the measured deflection minus that over `KL`;
+/// the base columns (the transmitted torque and a constant) correct `1 / KL` and a zero offset.
+pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+    let t = model.file.plant.two_mass()?;
+    let _m = d.motor_raw.as_ref()?;
+    let transmitted: Vec<f64> = match &d.torque {
+        Some(y) => {
+            let _ = y;
+            let ya = model.applied(d).unwrap_or_default();
+            let mut motor_side = vec![0.0; d.len()];
+            for e in model
+                .effects
+                .iter()
+                .filter(|e| channel(&e.id) == Channel::Torque && e.side == Side::Motor)
+            {
+                for (x, c) in motor_side.iter_mut().zip(e.contribution(d)) {
+                    *x += c;
+                }
+            }
+            (0..d.len())
+                .map(|k| ya[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k] - motor_side[k])
+                .collect()
+        }
+        None => {
+            d.al.iter()
+                .zip(&d.vl)
+                .map(|(a, v)| t.jl_kgm2 * a + t.dl_nms_per_rad * v)
+                .collect()
+        }
+    };
+    let mut rd: Vec<f64> = (0..d.len())
+        .map(|k| (d.qm[k] - d.ql[k]) - transmitted[k] / t.kl_nm_per_rad)
+        .collect();
+    for e in model
+        .effects
+        .iter()
+        .filter(|e| channel(&e.id) == Channel::Deflection)
+    {
+        for (x, c) in rd.iter_mut().zip(e.contribution(d)) {
+            *x -= c;
+        }
+    }
+    let one = vec![1.0; d.len()];
+    Some((rd, vec![transmitted, one]))
+}
+
+/// Numeric entries of an effect table, flat.
+pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
+    t.iter()
+        .filter_map(|(k, v)| match v {
+            toml::Value::Float(f) => Some((k.clone(), *f)),
+            toml::Value::Integer(i) => Some((k.clone(), *i as f64)),
+            _ => None,
+        })
+        .collect()
+}
+
+impl Diagnosis {
+    /// The JSON printed by `diagnose --json`.
+    pub fn to_json(&self) -> Value {
+        let cands: Vec<Value> = self
+            .candidates
+            .iter()
+            .map(|c| {
+                json!({
+                    "effect": c.effect,
+                    "kind": if c.is_param { "parameter" } else { "effect" },
+                    "class": c.class,
+                    "significant": c.significant,
+                    "error_reduction_pct": (c.error_reduction_pct * 100.0).round() / 100.0,
+                    "params": c.params,
+                    "evidence": c.evidence,
+                    "same_class_as": c.same_as,
+                    "channel": c.channel,
+                })
+            })
+            .collect();
+        json!({
+            "candidates": cands,
+            "verdict": self.verdict,
+            "model_cv_rms": self.model_rms,
+            "base_refit_cv_rms": self.base_refit_rms,
+            "whiteness_passed": self.whiteness_passed,
+            "untested": self.untested.iter().map(|(k, r)| json!({"effect": k, "reason": r})).collect::<Vec<_>>(),
+        })
+    }
+}

@@ -1,0 +1,733 @@
+//! The workbench's own regressor form of the plant's base parameters and of every effect of the
+//! physics library, and the conversion between those forms and model-file keys.
+//!
+//! Each effect is written as "torque the motor needs for the measured motion" =
+//! `sum_i coef_i * column_i(hyper)`: linear in its coefficients once its nonlinear parameters
+//! (`hyper`: Stribeck velocity, cogging period, mode frequency, delay, lag, limit, gap) are fixed.
+//! Effects on the drive's torque path (`delay`, `current_lag`, `torque_saturation`) instead
+//! transform the recorded torque into the applied one. `backlash` and `pitch_error` act inside
+//! the transmission and are seen in the deflection (motor position minus load position), so they
+//! need both position columns. These forms are deliberately simple and generic: the diagnosis
+//! must not depend on the exact formula of any simulator.
+
+use std::f64::consts::PI;
+use std::path::Path;
+
+use feedloop_runtime::model::{AxisKind, ModelFile, PlantParams};
+use feedloop_runtime::params::{read_toml_file, ConfigError};
+
+use super::data::AxisData;
+use super::WorkbenchError;
+
+/// Every effect id of the physics library (the model file's `[effects.<id>]`).
+pub const EFFECT_IDS: [&str; 11] = [
+    "viscous_friction",
+    "coulomb_friction",
+    "stribeck_friction",
+    "backlash",
+    "pitch_error",
+    "cogging",
+    "constant_force",
+    "third_mass",
+    "delay",
+    "current_lag",
+    "torque_saturation",
+];
+
+/// Which body a friction effect acts on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    /// The motor.
+    Motor,
+    /// The load.
+    Load,
+}
+
+/// One effect in regressor form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Effect {
+    /// Effect id (one of [`EFFECT_IDS`]).
+    pub id: String,
+    /// Body it acts on (friction effects).
+    pub side: Side,
+    /// Nonlinear parameters (see the module doc of each id in [`columns`]).
+    pub hyper: Vec<f64>,
+    /// Linear coefficients, motor units.
+    pub coef: Vec<f64>,
+}
+
+/// Where an effect shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channel {
+    /// In the torque balance (inverse dynamics).
+    Torque,
+    /// On the drive's torque path: it changes the applied torque.
+    TorquePath,
+    /// In the transmission: motor minus load position.
+    Deflection,
+}
+
+/// Channel of effect `id`.
+pub fn channel(id: &str) -> Channel {
+    match id {
+        "delay" | "current_lag" | "torque_saturation" => Channel::TorquePath,
+        "backlash" | "pitch_error" => Channel::Deflection,
+        _ => Channel::Torque,
+    }
+}
+
+/// Velocity below which dry friction is taken as undetermined (sticking), motor units/s.
+pub fn dead_band(d: &AxisData, v: &[f64]) -> f64 {
+    let (a, b) = d.range;
+    let vmax = super::signal::quantile(&v[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(), 0.99);
+    1e-3 * vmax.max(1e-12)
+}
+
+fn sgn(v: f64, eps: f64) -> f64 {
+    if v > eps {
+        1.0
+    } else if v < -eps {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+impl Effect {
+    /// A new effect with zero coefficients of the right count.
+    pub fn new(id: &str, side: Side, hyper: Vec<f64>) -> Self {
+        let n = match id {
+            "viscous_friction" | "constant_force" | "third_mass" | "backlash" => 1,
+            "coulomb_friction" | "stribeck_friction" | "cogging" => 2,
+            "pitch_error" => 3,
+            _ => 0,
+        };
+        Self {
+            id: id.to_string(),
+            side,
+            hyper,
+            coef: vec![0.0; n],
+        }
+    }
+
+    /// Regressor columns (torque needed per unit coefficient, or deflection per unit for the
+    /// deflection effects). Empty for the torque-path effects.
+    ///
+    /// - `viscous_friction`: `[v]`;
+    /// - `coulomb_friction`: `[sign v, |sign v|]` (symmetric level, asymmetry);
+    /// - `stribeck_friction` (hyper `[vs, exponent]`): `[sign v, sign v exp(-(|v|/vs)^e)]`;
+    /// - `constant_force`: `[1]`;
+    /// - `cogging` (hyper `[period]`, motor units): `[sin(2 pi q / P), cos(2 pi q / P)]`;
+    /// - `third_mass` (hyper `[f_hz, zeta]`): `[x3'']` of a mass on a spring driven by the load;
+    /// - `backlash`: `[sign vm]` in the deflection (half gap);
+    /// - `pitch_error` (hyper `[period_m]`): `[sin, cos, x]` in the deflection.
+    pub fn columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
+        let cols = self.raw_columns(d);
+        if d.torque_filtered
+            && matches!(
+                self.id.as_str(),
+                "coulomb_friction" | "stribeck_friction" | "cogging"
+            )
+        {
+            let fs = 1.0 / d.dt;
+            cols.iter()
+                .map(|c| super::signal::filtfilt_butter4(c, d.cutoff_hz, fs))
+                .collect()
+        } else {
+            cols
+        }
+    }
+
+    fn raw_columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
+        let (q, v) = match self.side {
+            Side::Motor => (&d.qm, &d.vm),
+            Side::Load => (&d.ql, &d.vl),
+        };
+        match self.id.as_str() {
+            "viscous_friction" => vec![v.clone()],
+            "coulomb_friction" => {
+                let eps = dead_band(d, v);
+                let s: Vec<f64> = v.iter().map(|x| sgn(*x, eps)).collect();
+                let a: Vec<f64> = s.iter().map(|x| x.abs()).collect();
+                vec![s, a]
+            }
+            "stribeck_friction" => {
+                let eps = dead_band(d, v);
+                let (vs, e) = (self.hyper[0], self.hyper[1]);
+                let s: Vec<f64> = v.iter().map(|x| sgn(*x, eps)).collect();
+                let st: Vec<f64> = v
+                    .iter()
+                    .zip(&s)
+                    .map(|(x, s)| s * (-(x.abs() / vs).powf(e)).exp())
+                    .collect();
+                vec![s, st]
+            }
+            "constant_force" => vec![vec![1.0; d.len()]],
+            "cogging" => {
+                let w = 2.0 * PI / self.hyper[0];
+                vec![
+                    d.qm.iter().map(|x| (w * x).sin()).collect(),
+                    d.qm.iter().map(|x| (w * x).cos()).collect(),
+                ]
+            }
+            "third_mass" => vec![third_mass_accel(d, self.hyper[0], self.hyper[1])],
+            "backlash" => {
+                let eps = dead_band(d, &d.vm);
+                vec![d.vm.iter().map(|x| sgn(*x, eps)).collect()]
+            }
+            "pitch_error" => {
+                let w = 2.0 * PI / (self.hyper[0] * d.r);
+                vec![
+                    d.qm.iter().map(|x| (w * x).sin()).collect(),
+                    d.qm.iter().map(|x| (w * x).cos()).collect(),
+                    d.qm.clone(),
+                ]
+            }
+            _ => {
+                let _ = q;
+                vec![]
+            }
+        }
+    }
+
+    /// The contribution `sum coef_i column_i`.
+    pub fn contribution(&self, d: &AxisData) -> Vec<f64> {
+        let mut out = vec![0.0; d.len()];
+        for (c, col) in self.coef.iter().zip(self.columns(d)) {
+            for (o, x) in out.iter_mut().zip(&col) {
+                *o += c * x;
+            }
+        }
+        out
+    }
+
+    /// Applies a torque-path effect to the recorded torque `y` (identity for other effects).
+    pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
+        match self.id.as_str() {
+            "delay" => {
+                let k = self.hyper[0].round().max(0.0) as usize;
+                (0..y.len())
+                    .map(|i| if i >= k { y[i - k] } else { 0.0 })
+                    .collect()
+            }
+            "current_lag" => {
+                let a = (-dt / self.hyper[0].max(1e-12)).exp();
+                let mut s = y.first().copied().unwrap_or(0.0);
+                // the mean over each period of a first-order response to a held input
+                y.iter()
+                    .map(|&u| {
+                        let start = s;
+                        s = a * s + (1.0 - a) * u;
+                        let tau = self.hyper[0];
+                        u + (start - u) * tau / dt * (1.0 - a)
+                    })
+                    .collect()
+            }
+            "torque_saturation" => {
+                let l = self.hyper[0];
+                y.iter().map(|x| x.clamp(-l, l)).collect()
+            }
+            _ => y.to_vec(),
+        }
+    }
+
+    /// Model-file keys and values of this effect (SI, the units the plant library documents).
+    pub fn to_table(&self, kind: AxisKind, r: f64) -> toml::Table {
+        let mut t = toml::Table::new();
+        let put = |t: &mut toml::Table, k: &str, v: f64| {
+            t.insert(k.to_string(), toml::Value::Float(round_sig(v)));
+        };
+        let load_lin =
+            kind != AxisKind::Rotary && (self.side == Side::Load || kind == AxisKind::Rigid);
+        // factor from motor-unit torque to the key's unit, and from motor velocity
+        let (tf, vf, ts, vs, cs) = if load_lin {
+            let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
+            (rr, 1.0 / rr, "n", "m_per_s", "ns_per_m")
+        } else {
+            (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
+        };
+        let side = || {
+            toml::Value::String(
+                if self.side == Side::Load {
+                    "load"
+                } else {
+                    "motor"
+                }
+                .into(),
+            )
+        };
+        match self.id.as_str() {
+            "viscous_friction" => {
+                put(&mut t, &format!("c_{cs}"), self.coef[0] * tf / vf);
+            }
+            "coulomb_friction" => {
+                let (s, a) = (self.coef[0], self.coef[1]);
+                put(&mut t, &format!("fc_{ts}"), (s + a) * tf);
+                if a.abs() > 1e-12 * s.abs().max(1e-300) {
+                    put(&mut t, &format!("fc_neg_{ts}"), (s - a) * tf);
+                }
+            }
+            "stribeck_friction" => {
+                put(&mut t, &format!("fc_{ts}"), self.coef[0] * tf);
+                put(
+                    &mut t,
+                    &format!("fs_{ts}"),
+                    (self.coef[0] + self.coef[1].max(0.0)) * tf,
+                );
+                put(&mut t, &format!("vs_{vs}"), self.hyper[0] * vf);
+                put(&mut t, "exponent", self.hyper[1]);
+            }
+            "constant_force" => match kind {
+                AxisKind::Rotary => put(&mut t, "torque_nm", -self.coef[0]),
+                AxisKind::BallScrew => put(&mut t, "force_n", -self.coef[0] * r),
+                AxisKind::Rigid => put(&mut t, "force_n", -self.coef[0]),
+            },
+            "cogging" => {
+                let (a, b) = (self.coef[0], self.coef[1]);
+                let amp = a.hypot(b);
+                let phase = (-b).atan2(-a);
+                match kind {
+                    AxisKind::Rigid => {
+                        put(&mut t, "amplitude_n", amp);
+                        put(&mut t, "period_m", self.hyper[0]);
+                    }
+                    _ => {
+                        put(&mut t, "amplitude_nm", amp);
+                        t.insert(
+                            "periods_per_rev".into(),
+                            toml::Value::Integer((2.0 * PI / self.hyper[0]).round() as i64),
+                        );
+                    }
+                }
+                t.insert("phase_rad".into(), toml::Value::Float(round_sig(phase)));
+            }
+            "third_mass" => {
+                let w = 2.0 * PI * self.hyper[0];
+                let m = self.coef[0].max(0.0);
+                let (k1, k2, k3, f) = match kind {
+                    AxisKind::Rotary => (
+                        "inertia_kgm2",
+                        "stiffness_nm_per_rad",
+                        "damping_nms_per_rad",
+                        1.0,
+                    ),
+                    AxisKind::BallScrew => {
+                        ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r)
+                    }
+                    AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
+                };
+                put(&mut t, k1, m * f);
+                put(&mut t, k2, m * f * w * w);
+                put(&mut t, k3, 2.0 * self.hyper[1] * w * m * f);
+            }
+            "delay" => {
+                t.insert(
+                    "delay_cycles".into(),
+                    toml::Value::Integer(self.hyper[0].round() as i64),
+                );
+            }
+            "current_lag" => put(&mut t, "tau_s", self.hyper[0]),
+            "torque_saturation" => match kind {
+                AxisKind::Rigid => put(&mut t, "limit_n", self.hyper[0]),
+                _ => put(&mut t, "limit_nm", self.hyper[0]),
+            },
+            "backlash" => match kind {
+                AxisKind::BallScrew => put(&mut t, "gap_m", (2.0 * self.coef[0] / r).max(0.0)),
+                _ => put(&mut t, "gap_rad", (2.0 * self.coef[0]).max(0.0)),
+            },
+            "pitch_error" => {
+                let (a, b) = (self.coef[0], self.coef[1]);
+                put(&mut t, "amplitude_m", a.hypot(b) / r);
+                put(&mut t, "period_m", self.hyper[0]);
+                t.insert(
+                    "phase_rad".into(),
+                    toml::Value::Float(round_sig(b.atan2(a))),
+                );
+                put(&mut t, "slope_um_per_m", self.coef[2] * 1e6);
+            }
+            _ => {}
+        }
+        if matches!(
+            self.id.as_str(),
+            "viscous_friction" | "coulomb_friction" | "stribeck_friction"
+        ) && kind != AxisKind::Rigid
+        {
+            t.insert("side".into(), side());
+        }
+        t
+    }
+
+    /// Reads an effect table of a model file (keys as the plant library documents them).
+    pub fn from_table(
+        id: &str,
+        t: &toml::Table,
+        kind: AxisKind,
+        r: f64,
+        lead: f64,
+        file: &Path,
+        key: &str,
+    ) -> Result<Self, ConfigError> {
+        let num = |k: &str| -> Result<Option<f64>, ConfigError> {
+            match t.get(k) {
+                None => Ok(None),
+                Some(toml::Value::Float(f)) if f.is_finite() => Ok(Some(*f)),
+                Some(toml::Value::Integer(i)) => Ok(Some(*i as f64)),
+                Some(other) => Err(ConfigError::new(
+                    file,
+                    format!("{key}.{k}"),
+                    format!("must be a finite number, got {other}"),
+                )),
+            }
+        };
+        let need = |k: &str| -> Result<f64, ConfigError> {
+            num(k)?.ok_or_else(|| {
+                ConfigError::new(file, format!("{key}.{k}"), "is required but missing")
+            })
+        };
+        let side = match t.get("side").and_then(|v| v.as_str()) {
+            Some("load") => Side::Load,
+            _ if kind == AxisKind::Rigid => Side::Motor,
+            _ => Side::Motor,
+        };
+        let load_lin = kind != AxisKind::Rotary && (side == Side::Load || kind == AxisKind::Rigid);
+        let (tf, vf, ts, vs, cs) = if load_lin {
+            let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
+            (rr, 1.0 / rr, "n", "m_per_s", "ns_per_m")
+        } else {
+            (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
+        };
+        let mut e = Effect::new(id, side, vec![]);
+        match id {
+            "viscous_friction" => {
+                let c = need(&format!("c_{cs}"))?;
+                let cn = num(&format!("c_neg_{cs}"))?.unwrap_or(c);
+                e.coef = vec![0.5 * (c + cn) * vf / tf];
+            }
+            "coulomb_friction" => {
+                let fc = need(&format!("fc_{ts}"))?;
+                let fcn = num(&format!("fc_neg_{ts}"))?.unwrap_or(fc);
+                e.coef = vec![0.5 * (fc + fcn) / tf, 0.5 * (fc - fcn) / tf];
+            }
+            "stribeck_friction" => {
+                let fc = need(&format!("fc_{ts}"))?;
+                let fs = need(&format!("fs_{ts}"))?;
+                let v = need(&format!("vs_{vs}"))?;
+                e.hyper = vec![v / vf, num("exponent")?.unwrap_or(2.0)];
+                e.coef = vec![fc / tf, (fs - fc) / tf];
+            }
+            "constant_force" => {
+                e.coef = vec![match kind {
+                    AxisKind::Rotary => -need("torque_nm")?,
+                    AxisKind::BallScrew => -need("force_n")? / r,
+                    AxisKind::Rigid => -need("force_n")?,
+                }];
+            }
+            "cogging" => {
+                let (amp, period) = match kind {
+                    AxisKind::Rigid => (need("amplitude_n")?, need("period_m")?),
+                    _ => (need("amplitude_nm")?, 2.0 * PI / need("periods_per_rev")?),
+                };
+                let ph = num("phase_rad")?.unwrap_or(0.0);
+                e.hyper = vec![period];
+                e.coef = vec![-amp * ph.cos(), -amp * ph.sin()];
+            }
+            "third_mass" => {
+                let (k1, k2, k3, f) = match kind {
+                    AxisKind::Rotary => (
+                        "inertia_kgm2",
+                        "stiffness_nm_per_rad",
+                        "damping_nms_per_rad",
+                        1.0,
+                    ),
+                    AxisKind::BallScrew => {
+                        ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r)
+                    }
+                    AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
+                };
+                let m = need(k1)?;
+                let k = need(k2)?;
+                let c = num(k3)?.unwrap_or(0.0);
+                let w = (k / m).sqrt();
+                e.hyper = vec![w / (2.0 * PI), c / (2.0 * m * w)];
+                e.coef = vec![m / f];
+            }
+            "delay" => e.hyper = vec![need("delay_cycles")?],
+            "current_lag" => e.hyper = vec![need("tau_s")?],
+            "torque_saturation" => {
+                e.hyper = vec![match kind {
+                    AxisKind::Rigid => need("limit_n")?,
+                    _ => need("limit_nm")?,
+                }]
+            }
+            "backlash" => {
+                e.coef = vec![match kind {
+                    AxisKind::BallScrew => 0.5 * need("gap_m")? * r,
+                    _ => 0.5 * need("gap_rad")?,
+                }]
+            }
+            "pitch_error" => {
+                let a = need("amplitude_m")? * r;
+                let ph = num("phase_rad")?.unwrap_or(0.0);
+                e.hyper = vec![num("period_m")?.unwrap_or(lead)];
+                e.coef = vec![
+                    a * ph.cos(),
+                    a * ph.sin(),
+                    num("slope_um_per_m")?.unwrap_or(0.0) * 1e-6,
+                ];
+            }
+            other => {
+                return Err(ConfigError::new(
+                    file,
+                    key,
+                    format!(
+                        "unknown effect `{other}` (known: {})",
+                        EFFECT_IDS.join(", ")
+                    ),
+                ))
+            }
+        }
+        Ok(e)
+    }
+}
+
+/// Rounds to 7 significant digits (keeps written model files readable).
+pub fn round_sig(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let mag = v.abs().log10().floor() as i32;
+    let f = 10f64.powi(6 - mag);
+    if !f.is_finite() || f == 0.0 {
+        return v;
+    }
+    (v * f).round() / f
+}
+
+/// Acceleration of a third mass on a spring (natural frequency `f_hz`, damping ratio `zeta`)
+/// driven by the measured load motion: `x3'' = w^2 (xL - x3) + 2 zeta w (vL - v3)`.
+fn third_mass_accel(d: &AxisData, f_hz: f64, zeta: f64) -> Vec<f64> {
+    let w = 2.0 * PI * f_hz;
+    let n = d.len();
+    let sub = ((d.dt * w * 8.0).ceil() as usize).max(1);
+    let h = d.dt / sub as f64;
+    let mut x = d.ql[0];
+    let mut v = d.vl[0];
+    let mut out = Vec::with_capacity(n);
+    for k in 0..n {
+        let acc = |x: f64, v: f64, xl: f64, vl: f64| w * w * (xl - x) + 2.0 * zeta * w * (vl - v);
+        out.push(acc(x, v, d.ql[k], d.vl[k]));
+        if k + 1 < n {
+            for s in 0..sub {
+                let f = s as f64 / sub as f64;
+                let xl = d.ql[k] + f * (d.ql[k + 1] - d.ql[k]);
+                let vl = d.vl[k] + f * (d.vl[k + 1] - d.vl[k]);
+                // semi-implicit Euler
+                v += h * acc(x, v, xl, vl);
+                x += h * v;
+            }
+        }
+    }
+    out
+}
+
+/// The model as the workbench uses it: base parameters by key, and effects in regressor form.
+#[derive(Debug, Clone)]
+pub struct WbModel {
+    /// The parsed model file.
+    pub file: ModelFile,
+    /// The raw TOML table (kept to write a new file with everything else unchanged).
+    pub table: toml::Table,
+    /// Base parameters (model-file key, value) that enter the torque balance.
+    pub base: Vec<(String, f64)>,
+    /// Effects in regressor form.
+    pub effects: Vec<Effect>,
+}
+
+/// Keys of the base parameters in the torque balance for an axis kind.
+pub fn base_keys(kind: AxisKind) -> &'static [&'static str] {
+    match kind {
+        AxisKind::Rigid => &["mass_kg", "viscous_ns_per_m"],
+        _ => &["jm_kgm2", "jl_kgm2", "dm_nms_per_rad", "dl_nms_per_rad"],
+    }
+}
+
+/// Regressor column of base parameter `key` (torque needed per unit of the parameter).
+pub fn base_column<'a>(key: &str, d: &'a AxisData) -> &'a [f64] {
+    match key {
+        "mass_kg" | "jm_kgm2" => &d.am,
+        "jl_kgm2" => &d.al,
+        "viscous_ns_per_m" | "dm_nms_per_rad" => &d.vm,
+        _ => &d.vl,
+    }
+}
+
+/// Identifiability class of a base parameter.
+pub fn base_class(key: &str) -> &'static str {
+    match key {
+        "mass_kg" | "jm_kgm2" | "jl_kgm2" => "inertia",
+        _ => "damping",
+    }
+}
+
+impl WbModel {
+    /// Loads a model file.
+    pub fn load(path: &Path) -> Result<Self, WorkbenchError> {
+        let file = ModelFile::load(path)?;
+        let table = read_toml_file(path)?;
+        Self::from_parts(file, table)
+    }
+
+    /// Builds from a parsed model file and its table.
+    pub fn from_parts(file: ModelFile, table: toml::Table) -> Result<Self, WorkbenchError> {
+        let kind = file.plant.kind();
+        let base = match &file.plant {
+            PlantParams::Rigid(p) => vec![
+                ("mass_kg".to_string(), p.mass_kg),
+                ("viscous_ns_per_m".to_string(), p.viscous_ns_per_m),
+            ],
+            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
+                vec![
+                    ("jm_kgm2".to_string(), t.jm_kgm2),
+                    ("jl_kgm2".to_string(), t.jl_kgm2),
+                    ("dm_nms_per_rad".to_string(), t.dm_nms_per_rad),
+                    ("dl_nms_per_rad".to_string(), t.dl_nms_per_rad),
+                ]
+            }
+        };
+        let lead = match &file.plant {
+            PlantParams::BallScrew { lead_m, .. } => *lead_m,
+            _ => 1.0,
+        };
+        let r = file.plant.motor_per_load();
+        let mut effects = Vec::new();
+        for (id, v) in &file.effects {
+            let key = format!("effects.{id}");
+            let tables: Vec<&toml::Table> = match v {
+                toml::Value::Table(t) => vec![t],
+                toml::Value::Array(a) => a.iter().filter_map(|x| x.as_table()).collect(),
+                _ => {
+                    return Err(ConfigError::new(&file.path, key, "must be a table").into());
+                }
+            };
+            for t in tables {
+                effects.push(Effect::from_table(id, t, kind, r, lead, &file.path, &key)?);
+            }
+        }
+        Ok(Self {
+            file,
+            table,
+            base,
+            effects,
+        })
+    }
+
+    /// Axis kind.
+    pub fn kind(&self) -> AxisKind {
+        self.file.plant.kind()
+    }
+
+    /// Value of base parameter `key`.
+    pub fn base_value(&self, key: &str) -> f64 {
+        self.base
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| *v)
+            .unwrap_or(0.0)
+    }
+
+    /// The applied torque: the recorded torque through the model's torque-path effects.
+    ///
+    /// A command recorded at sample k is held over the following period (zero-order hold), so
+    /// the torque acting around sample k (where the central differences are centred) is the mean
+    /// of commands k-1 and k: that half-sample alignment comes first.
+    pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
+        // order of the drive: delay, saturation, lag
+        let mut out: Vec<f64> = (0..y.len())
+            .map(|k| {
+                if k == 0 {
+                    y[0]
+                } else {
+                    0.5 * (y[k - 1] + y[k])
+                }
+            })
+            .collect();
+        for id in ["delay", "torque_saturation", "current_lag"] {
+            for e in self.effects.iter().filter(|e| e.id == id) {
+                out = e.applied_torque(&out, dt);
+            }
+        }
+        out
+    }
+
+    /// The applied torque of the trace `d`: the recorded torque (as recorded, so that clamps and
+    /// delays act on the real signal) through the half-sample alignment and the torque-path
+    /// effects, then the same zero-phase filter as the positions when `d` filters its torque.
+    pub fn applied(&self, d: &AxisData) -> Option<Vec<f64>> {
+        let raw = d.torque_raw.as_ref()?;
+        let out = self.applied_torque(raw, d.dt);
+        Some(if d.torque_filtered {
+            super::signal::filtfilt_butter4(&out, d.cutoff_hz, 1.0 / d.dt)
+        } else {
+            out
+        })
+    }
+
+    /// Torque the model needs for the measured motion (inverse dynamics).
+    pub fn torque_needed(&self, d: &AxisData) -> Vec<f64> {
+        let mut out = vec![0.0; d.len()];
+        for (k, v) in &self.base {
+            let c = base_column(k, d);
+            for (o, x) in out.iter_mut().zip(c) {
+                *o += v * x;
+            }
+        }
+        for e in self
+            .effects
+            .iter()
+            .filter(|e| channel(&e.id) == Channel::Torque)
+        {
+            for (o, x) in out.iter_mut().zip(e.contribution(d)) {
+                *o += x;
+            }
+        }
+        out
+    }
+
+    /// Writes the model with the current base values and effects to `path`.
+    pub fn write(&self, path: &Path) -> Result<(), WorkbenchError> {
+        let mut t = self.table.clone();
+        for (k, v) in &self.base {
+            t.insert(k.clone(), toml::Value::Float(round_sig(*v)));
+        }
+        let kind = self.kind();
+        let r = self.file.plant.motor_per_load();
+        let mut eff = toml::Table::new();
+        for e in &self.effects {
+            let et = e.to_table(kind, r);
+            match eff.get_mut(&e.id) {
+                None => {
+                    eff.insert(e.id.clone(), toml::Value::Table(et));
+                }
+                Some(toml::Value::Table(prev)) => {
+                    let prev = prev.clone();
+                    eff.insert(
+                        e.id.clone(),
+                        toml::Value::Array(vec![toml::Value::Table(prev), toml::Value::Table(et)]),
+                    );
+                }
+                Some(toml::Value::Array(a)) => a.push(toml::Value::Table(et)),
+                Some(_) => {}
+            }
+        }
+        if eff.is_empty() {
+            t.remove("effects");
+        } else {
+            t.insert("effects".into(), toml::Value::Table(eff));
+        }
+        let text = format!(
+            "# written by `feedloop fit` (feedloop model workbench)\n{}",
+            toml::to_string_pretty(&t).unwrap_or_default()
+        );
+        std::fs::write(path, text).map_err(|e| WorkbenchError::io(path, e))
+    }
+}

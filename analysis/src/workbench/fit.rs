@@ -1,0 +1,346 @@
+//! `fit`: add effects, refit, write the new model, and measure the errors before and after.
+//!
+//! By default the plant's base parameters are refitted together with the added effects
+//! (ordinary least squares on the inverse-dynamics equation, one nonlinear parameter per effect
+//! chosen by cross-validated grid search); `free` narrows the refitted base parameters. Effects
+//! already in the model and the controller are taken as given.
+
+use std::collections::BTreeMap;
+
+use serde_json::{json, Value};
+
+use super::compare::equation_error;
+use super::data::AxisData;
+use super::diagnose::{best_effect, deflection, flat, FOLDS};
+use super::effects::{base_column, base_keys, channel, Channel, Effect, WbModel, EFFECT_IDS};
+use super::lsq::{blocks, cross_validate, normals};
+use super::window::window_sim;
+use super::WorkbenchError;
+
+/// Error figures of one model on one trace.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Errors {
+    /// Equation-error NRMSE, % (None without torque).
+    pub equation_nrmse_pct: Option<f64>,
+    /// Relative equation error `||e|| / ||y||`, %.
+    pub relative_error_pct: Option<f64>,
+    /// Windowed-simulation NRMSE of the headline channel, %.
+    pub window_sim_nrmse_pct: Option<f64>,
+}
+
+impl Errors {
+    /// Errors of `model` on `d`.
+    pub fn of(model: &WbModel, d: &AxisData, window_s: f64) -> Self {
+        let eq = d.torque.as_ref().map(|y| equation_error(model, d, y));
+        let ws = window_sim(model, d, window_s);
+        Self {
+            equation_nrmse_pct: eq.as_ref().map(|e| e.nrmse_pct),
+            relative_error_pct: eq.as_ref().map(|e| e.relative_error_pct),
+            window_sim_nrmse_pct: ws.headline_nrmse_pct(),
+        }
+    }
+
+    /// As JSON.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "equation_nrmse_pct": self.equation_nrmse_pct,
+            "relative_error_pct": self.relative_error_pct,
+            "window_sim_nrmse_pct": self.window_sim_nrmse_pct,
+        })
+    }
+}
+
+/// Result of [`fit`].
+#[derive(Debug, Clone)]
+pub struct FitResult {
+    /// The new model.
+    pub model: WbModel,
+    /// Effect ids added.
+    pub added: Vec<String>,
+    /// Every fitted parameter (base and effects) under the model file's keys.
+    pub params: BTreeMap<String, f64>,
+    /// Errors of the input model.
+    pub before: Errors,
+    /// Errors of the new model.
+    pub after: Errors,
+}
+
+impl FitResult {
+    /// The JSON printed by `fit --json`.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "added": self.added,
+            "params": self.params,
+            "error_before": self.before.to_json(),
+            "error_after": self.after.to_json(),
+        })
+    }
+}
+
+/// Checks effect ids given with `--add`.
+pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
+    let mut out = Vec::new();
+    for s in list
+        .iter()
+        .flat_map(|s| s.split(','))
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+    {
+        if !EFFECT_IDS.contains(&s) {
+            return Err(WorkbenchError::BadArgument {
+                arg: format!("--add {s}"),
+                reason: format!(
+                    "unknown effect (effects of the library: {})",
+                    EFFECT_IDS.join(", ")
+                ),
+            });
+        }
+        if !out.iter().any(|x| x == s) {
+            out.push(s.to_string());
+        }
+    }
+    Ok(out)
+}
+
+/// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits.
+pub fn fit(
+    model: &WbModel,
+    d: &AxisData,
+    add: &[String],
+    free: Option<&[String]>,
+    window_s: f64,
+) -> Result<FitResult, WorkbenchError> {
+    let kind = d.kind;
+    let free_keys = free_keys(model, d, free)?;
+    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
+    let bl = blocks(d.range, FOLDS);
+    let mut effects = Vec::new();
+    for id in add {
+        match channel(id) {
+            Channel::Deflection => {
+                let (rd, dcols) =
+                    deflection(model, d).ok_or_else(|| WorkbenchError::MissingColumn {
+                        path: d.path.clone(),
+                        column: format!("{}.motor", d.axis),
+                        needed_for: format!(
+                            "fitting `{id}` (it shows in motor minus load position)"
+                        ),
+                        present: String::new(),
+                    })?;
+                let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
+                if let Some((e, _)) = best_effect(id, model, d, &dref, &rd, &bl) {
+                    effects.push(e);
+                }
+            }
+            _ => {
+                let y = d
+                    .torque
+                    .as_ref()
+                    .ok_or_else(|| WorkbenchError::MissingColumn {
+                        path: d.path.clone(),
+                        column: format!("{}.torque", d.axis),
+                        needed_for: format!("fitting `{id}` by inverse dynamics"),
+                        present: String::new(),
+                    })?;
+                let res = residual(model, d, y);
+                if let Some((mut e, _)) = best_effect(id, model, d, &base_cols, &res, &bl) {
+                    if e.id == "coulomb_friction" {
+                        e.coef[1] = 0.0;
+                    }
+                    effects.push(e);
+                }
+            }
+        }
+    }
+    let _ = kind;
+    fit_with(model, d, effects, free, window_s)
+}
+
+fn residual(model: &WbModel, d: &AxisData, y: &[f64]) -> Vec<f64> {
+    let _ = y;
+    let y_app = model.applied(d).unwrap_or_default();
+    let n = model.torque_needed(d);
+    y_app.iter().zip(&n).map(|(a, b)| a - b).collect()
+}
+
+fn free_keys(
+    model: &WbModel,
+    d: &AxisData,
+    free: Option<&[String]>,
+) -> Result<Vec<String>, WorkbenchError> {
+    let keys = base_keys(model.kind());
+    match free {
+        None => Ok(keys
+            .iter()
+            .filter(|k| d.has_motor() || !matches!(**k, "jl_kgm2" | "dl_nms_per_rad"))
+            .map(|k| k.to_string())
+            .collect()),
+        Some(list) => {
+            let mut out = Vec::new();
+            for s in list
+                .iter()
+                .flat_map(|s| s.split(','))
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+            {
+                if !keys.contains(&s) {
+                    return Err(WorkbenchError::BadArgument {
+                        arg: format!("--free {s}"),
+                        reason: format!(
+                            "not a base parameter of a {} model (free parameters: {})",
+                            model.kind().id(),
+                            keys.join(", ")
+                        ),
+                    });
+                }
+                out.push(s.to_string());
+            }
+            Ok(out)
+        }
+    }
+}
+
+/// Adds the given effects (nonlinear parameters fixed as given, coefficients refitted) and
+/// refits the free base parameters jointly with them.
+pub fn fit_with(
+    model: &WbModel,
+    d: &AxisData,
+    effects: Vec<Effect>,
+    free: Option<&[String]>,
+    window_s: f64,
+) -> Result<FitResult, WorkbenchError> {
+    let before = Errors::of(model, d, window_s);
+    let free_keys = free_keys(model, d, free)?;
+    let mut new = model.clone();
+    // torque-path effects first: they change the target
+    for e in effects
+        .iter()
+        .filter(|e| channel(&e.id) == Channel::TorquePath)
+    {
+        new.effects.push(e.clone());
+    }
+    let mut params = BTreeMap::new();
+    if let Some(y) = d.torque.as_ref() {
+        let _ = y;
+        let y_app = new.applied(d).unwrap_or_default();
+        // target: the residual of the current model; base parameters are refitted as changes
+        // from their current values (a direction the data cannot see stays where it was)
+        let f = new.torque_needed(d);
+        let target: Vec<f64> = y_app.iter().zip(&f).map(|(a, b)| a - b).collect();
+        let mut ecols: Vec<Vec<f64>> = Vec::new();
+        let mut slots = Vec::new();
+        for (i, e) in effects
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| channel(&e.id) == Channel::Torque)
+        {
+            let c = e.columns(d);
+            let nfree =
+                if e.id == "coulomb_friction" && e.coef.get(1).copied().unwrap_or(0.0) == 0.0 {
+                    1
+                } else {
+                    c.len()
+                };
+            for (j, col) in c.into_iter().take(nfree).enumerate() {
+                slots.push((i, j));
+                ecols.push(col);
+            }
+        }
+        // active set: a base parameter whose refit leaves its valid range is held at its value
+        let mut keys = free_keys.clone();
+        let th = loop {
+            let mut refs: Vec<&[f64]> = keys.iter().map(|k| base_column(k, d)).collect();
+            refs.extend(ecols.iter().map(|c| c.as_slice()));
+            let th = cross_validate(&normals(&refs, &target, &blocks(d.range, 1))).theta;
+            let bad = keys.iter().enumerate().find(|(k, key)| {
+                let v = model.base_value(key) + th[*k];
+                let damping = key.as_str() == "viscous_ns_per_m" || key.starts_with('d');
+                if damping {
+                    v < 0.0
+                } else {
+                    v <= 0.0
+                }
+            });
+            match bad {
+                Some((k, _)) => {
+                    keys.remove(k);
+                }
+                None => break th,
+            }
+        };
+        for (k, key) in keys.iter().enumerate() {
+            let v = model.base_value(key) + th[k];
+            if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
+                b.1 = v;
+            }
+        }
+        for key in &free_keys {
+            params.insert(key.clone(), new.base_value(key));
+        }
+        let mut fitted = effects.clone();
+        for (s, (i, j)) in slots.iter().enumerate() {
+            fitted[*i].coef[*j] = th[keys.len() + s];
+        }
+        for e in fitted
+            .into_iter()
+            .filter(|e| channel(&e.id) == Channel::Torque)
+        {
+            new.effects.push(e);
+        }
+    } else {
+        for e in effects.iter().filter(|e| channel(&e.id) == Channel::Torque) {
+            new.effects.push(e.clone());
+        }
+    }
+    for e in effects
+        .iter()
+        .filter(|e| channel(&e.id) == Channel::Deflection)
+    {
+        new.effects.push(e.clone());
+    }
+    let kind = new.kind();
+    let r = new.file.plant.motor_per_load();
+    let added: Vec<String> = effects.iter().map(|e| e.id.clone()).collect();
+    for e in new.effects.iter().filter(|e| added.contains(&e.id)) {
+        for (k, v) in flat(&e.to_table(kind, r)) {
+            let key = if params.contains_key(&k) {
+                format!("effects.{}.{k}", e.id)
+            } else {
+                k
+            };
+            params.insert(key, v);
+        }
+    }
+    for (k, v) in &new.base {
+        if free_keys.contains(k) {
+            params.insert(k.clone(), *v);
+        }
+    }
+    // the parsed model file must reflect the new base values for the simulation
+    update_plant(&mut new);
+    let after = Errors::of(&new, d, window_s);
+    Ok(FitResult {
+        model: new,
+        added,
+        params,
+        before,
+        after,
+    })
+}
+
+fn update_plant(m: &mut WbModel) {
+    use feedloop_runtime::model::PlantParams;
+    let get = |k: &str| m.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
+    match &mut m.file.plant {
+        PlantParams::Rigid(p) => {
+            p.mass_kg = get("mass_kg").unwrap_or(p.mass_kg);
+            p.viscous_ns_per_m = get("viscous_ns_per_m").unwrap_or(p.viscous_ns_per_m);
+        }
+        PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
+            t.jm_kgm2 = get("jm_kgm2").unwrap_or(t.jm_kgm2);
+            t.jl_kgm2 = get("jl_kgm2").unwrap_or(t.jl_kgm2);
+            t.dm_nms_per_rad = get("dm_nms_per_rad").unwrap_or(t.dm_nms_per_rad);
+            t.dl_nms_per_rad = get("dl_nms_per_rad").unwrap_or(t.dl_nms_per_rad);
+        }
+    }
+}

@@ -1,0 +1,353 @@
+//! `trace import` (another tool's CSV export into trace format v1, with explicit scaling) and
+//! `model init` (a nominal starting model from a trace: base parameters by least squares).
+
+use std::path::Path;
+
+use feedloop_runtime::model::{AxisKind, ModelFile};
+use feedloop_runtime::trace::{check_column_name, Trace};
+
+use super::data::{load_axis, pick_axis, Prep};
+use super::effects::{round_sig, WbModel};
+use super::lsq::{blocks, cross_validate, normals};
+use super::WorkbenchError;
+
+/// One `target=expression` entry of `--map`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapEntry {
+    /// Column of the new trace (e.g. `x.cmd`).
+    pub target: String,
+    /// Source column.
+    pub source: String,
+    /// Factor applied to the source value.
+    pub scale: f64,
+    /// Offset added after scaling.
+    pub offset: f64,
+}
+
+/// Parses `--map "x.cmd=col_a*0.001,x.load=col_b/1000,x.torque=-col_c*2.5+0.1"`.
+///
+/// Each expression is a source column name, optionally negated, followed by any number of
+/// `*number`, `/number` and a final `+number` / `-number` offset.
+pub fn parse_map(map: &str) -> Result<Vec<MapEntry>, WorkbenchError> {
+    let bad = |item: &str, reason: String| WorkbenchError::BadArgument {
+        arg: format!("--map {item}"),
+        reason,
+    };
+    let mut out: Vec<MapEntry> = Vec::new();
+    for item in map.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let (target, expr) = item
+            .split_once('=')
+            .ok_or_else(|| bad(item, "expected `target=source_column[*factor]`".into()))?;
+        let target = target.trim().to_string();
+        check_column_name(&target)
+            .map_err(|r| bad(item, format!("target column `{target}`: {r}")))?;
+        if out.iter().any(|e| e.target == target) {
+            return Err(bad(
+                item,
+                format!("target column `{target}` is mapped twice"),
+            ));
+        }
+        let mut s = expr.trim();
+        let mut scale = 1.0;
+        if let Some(rest) = s.strip_prefix('-') {
+            scale = -1.0;
+            s = rest.trim_start();
+        }
+        let end = s.find(['*', '/', '+']).unwrap_or(s.len());
+        // a '-' after the name starts an offset (names may contain '-' only before any operator)
+        let (name, mut rest) = s.split_at(end);
+        let name = name.trim();
+        if name.is_empty() {
+            return Err(bad(item, "no source column named".into()));
+        }
+        let mut offset = 0.0;
+        while !rest.is_empty() {
+            let op = rest.as_bytes()[0] as char;
+            let tail = &rest[1..];
+            let stop = tail[1.min(tail.len())..]
+                .find(['*', '/', '+'])
+                .map(|i| i + 1.min(tail.len()))
+                .unwrap_or(tail.len());
+            let (num, next) = tail.split_at(stop);
+            let v: f64 = num
+                .trim()
+                .parse()
+                .map_err(|_| bad(item, format!("`{}` is not a number", num.trim())))?;
+            if !v.is_finite() {
+                return Err(bad(
+                    item,
+                    format!("`{}` is not a finite number", num.trim()),
+                ));
+            }
+            match op {
+                '*' => scale *= v,
+                '/' if v != 0.0 => scale /= v,
+                '/' => return Err(bad(item, "division by zero".into())),
+                _ => offset += v,
+            }
+            rest = next;
+        }
+        out.push(MapEntry {
+            target,
+            source: name.to_string(),
+            scale,
+            offset,
+        });
+    }
+    if out.is_empty() {
+        return Err(bad(map, "empty map".into()));
+    }
+    Ok(out)
+}
+
+/// Imports `from` (CSV with a header row; `,`, `;` or tab separated; `#` comment lines allowed)
+/// into a trace with the mapped columns. Time comes from a `t=...` entry, else from a source
+/// column named `t`, else from `period_s` (then `t = k * period_s`).
+pub fn import(
+    from: &Path,
+    map: &[MapEntry],
+    period_s: Option<f64>,
+    out: &Path,
+) -> Result<Trace, WorkbenchError> {
+    let text = std::fs::read_to_string(from).map_err(|e| WorkbenchError::io(from, e))?;
+    let data_err = |line: usize, reason: String| WorkbenchError::Data {
+        path: from.to_path_buf(),
+        reason: format!("line {line}: {reason}"),
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim_start().starts_with('#') && !l.trim().is_empty());
+    let (hline, header) = lines
+        .next()
+        .ok_or_else(|| data_err(1, "no header row".into()))?;
+    let sep = [',', ';', '\t']
+        .into_iter()
+        .max_by_key(|c| header.matches(*c).count())
+        .unwrap_or(',');
+    let names: Vec<String> = header
+        .split(sep)
+        .map(|s| s.trim().trim_matches('"').to_string())
+        .collect();
+    let mut idx = Vec::new();
+    for e in map {
+        let i = names.iter().position(|n| *n == e.source).ok_or_else(|| {
+            WorkbenchError::BadArgument {
+                arg: format!("--map {}={}", e.target, e.source),
+                reason: format!(
+                    "{}: line {}: no column `{}` (columns: {})",
+                    from.display(),
+                    hline + 1,
+                    e.source,
+                    names.join(", ")
+                ),
+            }
+        })?;
+        idx.push(i);
+    }
+    let t_src = if map.iter().any(|e| e.target == "t") {
+        None
+    } else {
+        names.iter().position(|n| n == "t")
+    };
+    if !map.iter().any(|e| e.target == "t") && t_src.is_none() && period_s.is_none() {
+        return Err(WorkbenchError::BadArgument {
+            arg: "--map".into(),
+            reason: format!(
+                "{}: no time: map a column to `t` (e.g. t=time_ms*0.001), or give --period-s",
+                from.display()
+            ),
+        });
+    }
+    let mut cols: Vec<Vec<f64>> = vec![Vec::new(); map.len()];
+    let mut t = Vec::new();
+    for (ln, line) in lines {
+        let cells: Vec<&str> = line.split(sep).collect();
+        if cells.len() != names.len() {
+            return Err(data_err(
+                ln + 1,
+                format!(
+                    "{} cells, but the header has {} columns",
+                    cells.len(),
+                    names.len()
+                ),
+            ));
+        }
+        let num = |i: usize| -> Result<f64, WorkbenchError> {
+            let c = cells[i].trim().trim_matches('"');
+            let v: f64 = c.parse().map_err(|_| {
+                data_err(
+                    ln + 1,
+                    format!("column `{}`: \"{c}\" is not a number", names[i]),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(data_err(
+                    ln + 1,
+                    format!("column `{}`: \"{c}\" is not finite", names[i]),
+                ));
+            }
+            Ok(v)
+        };
+        for (j, (e, &i)) in map.iter().zip(&idx).enumerate() {
+            cols[j].push(num(i)? * e.scale + e.offset);
+        }
+        if let Some(i) = t_src {
+            t.push(num(i)?);
+        }
+    }
+    let n = cols[0].len();
+    let mut columns = Vec::new();
+    let mut data = Vec::new();
+    if !map.iter().any(|e| e.target == "t") {
+        columns.push("t".to_string());
+        data.push(if t_src.is_some() {
+            t
+        } else {
+            let p = period_s.unwrap_or(1.0);
+            (0..n).map(|k| k as f64 * p).collect()
+        });
+    }
+    for (e, c) in map.iter().zip(cols) {
+        columns.push(e.target.clone());
+        data.push(c);
+    }
+    let meta = vec![(
+        "source".to_string(),
+        format!("feedloop trace import of {}", from.display()),
+    )];
+    let trace = Trace::from_columns(out, meta, columns, data)?;
+    trace.write(out).map_err(|e| WorkbenchError::io(out, e))?;
+    Ok(trace)
+}
+
+/// Builds a nominal model of `kind` for axis `axis` of `trace` by least squares on its torque
+/// (no effects, no controller), and writes it to `out`. For a ball screw the lead comes from
+/// `lead_m`, else from the motor/load travel ratio when the trace has a motor column.
+pub fn model_init(
+    trace: &Trace,
+    kind: &str,
+    axis: Option<&str>,
+    lead_m: Option<f64>,
+    out: &Path,
+) -> Result<WbModel, WorkbenchError> {
+    let axis = pick_axis(trace, out, axis)?;
+    let bad_kind = || WorkbenchError::BadArgument {
+        arg: format!("--kind {kind}"),
+        reason: "expected ballscrew or rigid".into(),
+    };
+    let lead = match kind {
+        "ballscrew" => Some(match lead_m {
+            Some(l) => l,
+            None => {
+                let m = trace.column(&format!("{axis}.motor")).ok_or_else(|| WorkbenchError::BadArgument {
+                    arg: "--lead-m".into(),
+                    reason: format!(
+                        "{}: a ball-screw model needs the screw lead: give --lead-m, or a trace with `{axis}.motor` to estimate it",
+                        trace.path.display()
+                    ),
+                })?;
+                let l = trace.require(&format!("{axis}.load"))?;
+                let span = |x: &[f64]| {
+                    x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                        - x.iter().cloned().fold(f64::INFINITY, f64::min)
+                };
+                2.0 * std::f64::consts::PI * span(l) / span(m).max(1e-300)
+            }
+        }),
+        "rigid" => None,
+        _ => return Err(bad_kind()),
+    };
+    // a provisional model to get units and derivatives
+    let text = match lead {
+        Some(l) => format!("kind = \"ballscrew\"\njm_kgm2 = 1.0\nkl_nm_per_rad = 1.0\njl_kgm2 = 1.0\nlead_m = {l}\n"),
+        None => "kind = \"rigid\"\nmass_kg = 1.0\n".to_string(),
+    };
+    let table: toml::Table = text.parse().map_err(|e| WorkbenchError::BadArgument {
+        arg: "--lead-m".into(),
+        reason: format!("{e}"),
+    })?;
+    let file = ModelFile::from_table(&table, out)?;
+    let d = load_axis(trace, &file, &axis, &Prep::default())?;
+    let y = d.require_torque("model init (least squares on the torque)", trace)?;
+    let bl = blocks(d.range, 1);
+    let mut t = toml::Table::new();
+    t.insert("kind".into(), toml::Value::String(kind.into()));
+    let pos = |v: f64, floor: f64| round_sig(v.max(floor));
+    match file.plant.kind() {
+        AxisKind::Rigid => {
+            let th = cross_validate(&normals(&[&d.am, &d.vm], y, &bl)).theta;
+            t.insert("mass_kg".into(), toml::Value::Float(pos(th[0], 1e-6)));
+            t.insert(
+                "viscous_ns_per_m".into(),
+                toml::Value::Float(pos(th[1], 0.0)),
+            );
+        }
+        _ => {
+            let (j, dmp) = if d.has_motor() {
+                let th = cross_validate(&normals(&[&d.am, &d.al, &d.vm, &d.vl], y, &bl)).theta;
+                ((th[0], th[1]), (th[2], th[3]))
+            } else {
+                let th = cross_validate(&normals(&[&d.am, &d.vm], y, &bl)).theta;
+                ((0.4 * th[0], 0.6 * th[0]), (0.5 * th[1], 0.5 * th[1]))
+            };
+            let jm = pos(j.0, 1e-9);
+            let jl = pos(j.1, 1e-9);
+            // stiffness from the deflection when both positions are measured, else a mode at 150 Hz
+            let mut kl = jl * (2.0 * std::f64::consts::PI * 150.0f64).powi(2) * (jm / (jm + jl));
+            if d.has_motor() {
+                let lt: Vec<f64> =
+                    d.al.iter()
+                        .zip(&d.vl)
+                        .map(|(a, v)| jl * a + dmp.1.max(0.0) * v)
+                        .collect();
+                let defl: Vec<f64> = d.qm.iter().zip(&d.ql).map(|(m, l)| m - l).collect();
+                let one = vec![1.0; d.len()];
+                let th = cross_validate(&normals(&[&defl, &one], &lt, &bl)).theta;
+                if th[0] > 0.0 && th[0].is_finite() {
+                    kl = th[0];
+                }
+            }
+            t.insert("jm_kgm2".into(), toml::Value::Float(jm));
+            t.insert("dm_nms_per_rad".into(), toml::Value::Float(pos(dmp.0, 0.0)));
+            t.insert("kl_nm_per_rad".into(), toml::Value::Float(round_sig(kl)));
+            t.insert("cl_nms_per_rad".into(), toml::Value::Float(0.0));
+            t.insert("jl_kgm2".into(), toml::Value::Float(jl));
+            t.insert("dl_nms_per_rad".into(), toml::Value::Float(pos(dmp.1, 0.0)));
+            t.insert(
+                "lead_m".into(),
+                toml::Value::Float(round_sig(lead.unwrap_or(0.01))),
+            );
+            t.insert("gear_ratio".into(), toml::Value::Float(1.0));
+        }
+    }
+    let file = ModelFile::from_table(&t, out)?;
+    let m = WbModel::from_parts(file, t.clone())?;
+    let text = format!(
+        "# nominal model from `feedloop model init` on {} (axis {axis}): base parameters by least squares, no effects\n{}",
+        trace.path.display(),
+        toml::to_string_pretty(&t).unwrap_or_default()
+    );
+    std::fs::write(out, text).map_err(|e| WorkbenchError::io(out, e))?;
+    Ok(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn map_expressions_parse_scale_sign_and_offset() {
+        let m = parse_map("x.cmd=pos_mm*0.001, x.load=-enc/1000, x.torque=i_a*2.5+0.1").unwrap();
+        assert_eq!(m[0].source, "pos_mm");
+        assert!((m[0].scale - 0.001).abs() < 1e-15);
+        assert!((m[1].scale + 0.001).abs() < 1e-15);
+        assert!((m[2].offset - 0.1).abs() < 1e-15 && (m[2].scale - 2.5).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_map_entry_without_equals_sign_is_refused_naming_it() {
+        let e = parse_map("x.cmd").unwrap_err();
+        assert!(e.to_string().contains("--map x.cmd"), "{e}");
+    }
+}

@@ -1,0 +1,331 @@
+//! Simulation error: the model driven as the machine was, over the whole trace (free run) and
+//! over short windows restarted from the measured state.
+//!
+//! Closed loop from the command when the model file has a controller (`[controller]` with
+//! `kp_per_s` and a velocity gain): position P on the load position, velocity PI on the motor
+//! velocity, output limit; the integrator of each window starts so that the first output equals
+//! the recorded torque (bumpless). Open loop from the recorded torque otherwise. The simulated
+//! body is the model seen from the motor as one rigid inertia (motor + load), with the torque
+//! balance effects; dry friction sticks at zero velocity while the other forces stay within its
+//! level. A free run of a system with backlash or stick-slip drifts in phase even when the model
+//! is right; windows (50 ms by default) restart from the measured state and measure the local
+//! fit.
+
+use super::data::AxisData;
+use super::effects::{dead_band, WbModel};
+use super::signal::{nrmse_pct, rms};
+
+/// Error of one simulated channel.
+#[derive(Debug, Clone)]
+pub struct SimChannel {
+    /// Channel name (`torque`, `following_error`, `velocity`).
+    pub name: String,
+    /// NRMSE of the windowed simulation, %.
+    pub window_nrmse_pct: f64,
+    /// RMS of the windowed simulation's error.
+    pub window_rms: f64,
+    /// NRMSE of the free run over the whole trace, %.
+    pub free_nrmse_pct: f64,
+}
+
+/// Result of the simulations.
+#[derive(Debug, Clone)]
+pub struct WindowSim {
+    /// `closed_loop`, `open_loop`, or `none` (no torque and no controller: nothing to drive).
+    pub mode: &'static str,
+    /// Window length, s.
+    pub window_s: f64,
+    /// Channels (the first is the headline).
+    pub channels: Vec<SimChannel>,
+    /// Measured headline channel.
+    pub measured: Vec<f64>,
+    /// Windowed simulation of the headline channel.
+    pub simulated: Vec<f64>,
+    /// `measured - simulated` of the headline channel.
+    pub residual: Vec<f64>,
+}
+
+impl WindowSim {
+    /// NRMSE of the headline channel's windowed simulation, % (None when not simulated).
+    pub fn headline_nrmse_pct(&self) -> Option<f64> {
+        self.channels.first().map(|c| c.window_nrmse_pct)
+    }
+
+    /// NRMSE of the headline channel's free run, %.
+    pub fn headline_free_nrmse_pct(&self) -> Option<f64> {
+        self.channels.first().map(|c| c.free_nrmse_pct)
+    }
+}
+
+/// The model as one rigid body seen from the motor.
+struct Body {
+    inertia: f64,
+    damping: f64,
+    /// dry friction: symmetric level, asymmetry, Stribeck extra, Stribeck velocity, exponent
+    fc: f64,
+    fasym: f64,
+    fs_extra: f64,
+    vs: f64,
+    ex: f64,
+    offset: f64,
+    cog: Vec<(f64, f64, f64)>,
+    eps: f64,
+    limit: f64,
+}
+
+impl Body {
+    fn new(model: &WbModel, d: &AxisData) -> Self {
+        let mut b = Body {
+            inertia: 0.0,
+            damping: 0.0,
+            fc: 0.0,
+            fasym: 0.0,
+            fs_extra: 0.0,
+            vs: 1.0,
+            ex: 2.0,
+            offset: 0.0,
+            cog: vec![],
+            eps: dead_band(d, &d.vm),
+            limit: f64::INFINITY,
+        };
+        for (k, v) in &model.base {
+            match k.as_str() {
+                "mass_kg" | "jm_kgm2" | "jl_kgm2" => b.inertia += v,
+                _ => b.damping += v,
+            }
+        }
+        for e in &model.effects {
+            match e.id.as_str() {
+                "viscous_friction" => b.damping += e.coef[0],
+                "coulomb_friction" => {
+                    b.fc += e.coef[0];
+                    b.fasym += e.coef[1];
+                }
+                "stribeck_friction" => {
+                    b.fc += e.coef[0];
+                    b.fs_extra += e.coef[1];
+                    b.vs = e.hyper[0];
+                    b.ex = e.hyper[1];
+                }
+                "constant_force" => b.offset += e.coef[0],
+                "cogging" => b.cog.push((
+                    2.0 * std::f64::consts::PI / e.hyper[0],
+                    e.coef[0],
+                    e.coef[1],
+                )),
+                "third_mass" => b.inertia += e.coef[0].max(0.0),
+                "torque_saturation" => b.limit = b.limit.min(e.hyper[0]),
+                _ => {}
+            }
+        }
+        b.inertia = b.inertia.max(1e-300);
+        b
+    }
+
+    /// Torque needed apart from inertia and dry friction.
+    fn smooth(&self, q: f64, v: f64) -> f64 {
+        let mut t = self.damping * v + self.offset;
+        for (w, a, c) in &self.cog {
+            t += a * (w * q).sin() + c * (w * q).cos();
+        }
+        t
+    }
+
+    fn dry(&self, v: f64) -> f64 {
+        let s = v.signum();
+        s * (self.fc + self.fs_extra * (-(v.abs() / self.vs).powf(self.ex)).exp()) + self.fasym
+    }
+
+    fn breakaway(&self) -> f64 {
+        (self.fc + self.fs_extra).abs() + self.fasym.abs()
+    }
+
+    /// Advances (q, v) by `h` under applied torque `u`.
+    fn step(&self, q: &mut f64, v: &mut f64, u: f64, h: f64) {
+        let u = u.clamp(-self.limit, self.limit);
+        let other = u - self.smooth(*q, *v);
+        let has_dry = self.breakaway() > 0.0;
+        if has_dry && v.abs() <= self.eps && other.abs() <= self.breakaway() {
+            *v = 0.0;
+            return;
+        }
+        let vdir = if v.abs() > self.eps { *v } else { other };
+        let a = (other - self.dry(vdir)) / self.inertia;
+        let vn = *v + h * a;
+        if has_dry && v.abs() > self.eps && vn * *v < 0.0 {
+            *v = 0.0;
+        } else {
+            *v = vn;
+        }
+        *q += h * *v;
+    }
+}
+
+/// Runs the windowed and free-run simulations.
+pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
+    let c = &model.file.controller;
+    let closed = c.kp_per_s.is_some() && c.kv.is_some();
+    let n = d.len();
+    let none = WindowSim {
+        mode: "none",
+        window_s,
+        channels: vec![],
+        measured: vec![],
+        simulated: vec![],
+        residual: vec![0.0; n],
+    };
+    let body = Body::new(model, d);
+    let wlen = ((window_s / d.dt).round() as usize).clamp(2, n);
+    let (a, b) = d.range;
+    if closed {
+        let Some(y) = d.torque.as_ref() else {
+            // closed loop without a recorded torque: compare the following error only
+            let (fe_w, _) = run_closed(model, &body, d, wlen, None);
+            let (fe_f, _) = run_closed(model, &body, d, n, None);
+            let meas: Vec<f64> = d.cmd.iter().zip(&d.ql).map(|(c, l)| c - l).collect();
+            return finish(
+                "closed_loop",
+                window_s,
+                d,
+                vec![("following_error", meas, fe_w, fe_f)],
+            );
+        };
+        let (fe_w, u_w) = run_closed(model, &body, d, wlen, Some(y));
+        let (fe_f, u_f) = run_closed(model, &body, d, n, Some(y));
+        let meas_fe: Vec<f64> = d.cmd.iter().zip(&d.ql).map(|(c, l)| c - l).collect();
+        let _ = (a, b);
+        return finish(
+            "closed_loop",
+            window_s,
+            d,
+            vec![
+                ("torque", y.clone(), u_w, u_f),
+                ("following_error", meas_fe, fe_w, fe_f),
+            ],
+        );
+    }
+    let Some(y) = d.torque.as_ref() else {
+        return none;
+    };
+    let applied = model.applied(d).unwrap_or_else(|| y.clone());
+    let v_w = run_open(&body, d, &applied, wlen);
+    let v_f = run_open(&body, d, &applied, n);
+    finish(
+        "open_loop",
+        window_s,
+        d,
+        vec![("velocity", d.vm.clone(), v_w, v_f)],
+    )
+}
+
+/// (channel name, measured, windowed simulation, free run).
+type SimSeries<'a> = (&'a str, Vec<f64>, Vec<f64>, Vec<f64>);
+
+fn finish(mode: &'static str, window_s: f64, d: &AxisData, ch: Vec<SimSeries<'_>>) -> WindowSim {
+    let (a, b) = d.range;
+    let mut channels = Vec::new();
+    let mut head: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = None;
+    for (name, meas, w, f) in ch {
+        let ew: Vec<f64> = meas.iter().zip(&w).map(|(m, s)| m - s).collect();
+        let ef: Vec<f64> = meas.iter().zip(&f).map(|(m, s)| m - s).collect();
+        channels.push(SimChannel {
+            name: name.to_string(),
+            window_nrmse_pct: nrmse_pct(&meas[a..b], &ew[a..b]),
+            window_rms: rms(&ew[a..b]),
+            free_nrmse_pct: nrmse_pct(&meas[a..b], &ef[a..b]),
+        });
+        if head.is_none() {
+            head = Some((meas, w, ew));
+        }
+    }
+    let (measured, simulated, residual) = head.unwrap_or_default();
+    WindowSim {
+        mode,
+        window_s,
+        channels,
+        measured,
+        simulated,
+        residual,
+    }
+}
+
+/// Open loop: velocity of the body driven by the applied torque, restarted every `wlen` samples.
+fn run_open(body: &Body, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
+    let n = d.len();
+    let sub = 4;
+    let h = d.dt / sub as f64;
+    let mut out = vec![0.0; n];
+    let (mut q, mut v) = (0.0, 0.0);
+    for k in 0..n {
+        if k % wlen == 0 {
+            q = d.qm[k];
+            v = d.vm[k];
+        }
+        out[k] = v;
+        for _ in 0..sub {
+            body.step(&mut q, &mut v, u[k], h);
+        }
+    }
+    out
+}
+
+/// Closed loop: (following error, torque) of the model under its controller, restarted every
+/// `wlen` samples from the measured state.
+fn run_closed(
+    model: &WbModel,
+    body: &Body,
+    d: &AxisData,
+    wlen: usize,
+    y: Option<&Vec<f64>>,
+) -> (Vec<f64>, Vec<f64>) {
+    let c = &model.file.controller;
+    let kp = c.kp_per_s.unwrap_or(0.0);
+    let kv = c.kv.unwrap_or(0.0);
+    let tv = c.tv_s.unwrap_or(0.0);
+    let lim = c.torque_limit.unwrap_or(f64::INFINITY);
+    let n = d.len();
+    let sub = 4;
+    let h = d.dt / sub as f64;
+    let mut fe = vec![0.0; n];
+    let mut tq = vec![0.0; n];
+    let (mut q, mut v, mut integ) = (0.0, 0.0, 0.0);
+    // torque-path delay of the model, in cycles
+    let delay = model
+        .effects
+        .iter()
+        .filter(|e| e.id == "delay")
+        .map(|e| e.hyper[0].round().max(0.0) as usize)
+        .sum::<usize>();
+    let mut hist: Vec<f64> = Vec::new();
+    for k in 0..n {
+        let restart = k % wlen == 0;
+        if restart {
+            q = d.ql[k];
+            v = d.vm[k];
+            hist.clear();
+        }
+        let e = kp * (d.cmd[k] - q) - v;
+        if restart {
+            integ = match (y, tv > 0.0) {
+                (Some(y), true) => (y[k] / kv - e) * tv,
+                _ => 0.0,
+            };
+        } else if tv > 0.0 {
+            integ += d.dt * e;
+        }
+        let raw = kv * (e + if tv > 0.0 { integ / tv } else { 0.0 });
+        let u = raw.clamp(-lim, lim);
+        fe[k] = d.cmd[k] - q;
+        tq[k] = u;
+        hist.push(u);
+        let applied = if hist.len() > delay {
+            hist[hist.len() - 1 - delay]
+        } else {
+            y.map(|y| y[k.saturating_sub(delay)]).unwrap_or(0.0)
+        };
+        for _ in 0..sub {
+            body.step(&mut q, &mut v, applied, h);
+        }
+    }
+    (fe, tq)
+}

@@ -1,0 +1,351 @@
+//! A corpus generated with the plant simulator: closed-loop traces of a varied command (moves
+//! with reversals, slow crawls, standstill holds, short fast jogs, a sine sweep) with sensor
+//! noise, each with one hidden effect, diagnosed against a nominal model without it; plus a trace
+//! with no hidden effect and traces where only a base parameter is wrong.
+
+use std::f64::consts::PI;
+use std::path::Path;
+
+use feedloop_analysis::workbench::{
+    data::{load_axis, AxisData, Prep},
+    diagnose::{diagnose, DiagOptions, Diagnosis},
+    effects::WbModel,
+    fit::fit_with,
+};
+use feedloop_plant::AxisPlant;
+use feedloop_plugins::Builtins;
+use feedloop_runtime::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
+use feedloop_runtime::model::ModelFile;
+use feedloop_runtime::trace::Trace;
+
+const DT: f64 = 5e-4;
+
+const BASE: &str = r#"
+kind = "ballscrew"
+jm_kgm2 = 2.0e-3
+dm_nms_per_rad = 1.0e-3
+kl_nm_per_rad = 3000.0
+cl_nms_per_rad = 0.02
+jl_kgm2 = 3.0e-3
+dl_nms_per_rad = 2.0e-3
+lead_m = 0.01
+[controller]
+kp_per_s = 50.0
+kv_nms_per_rad = 5.0
+tv_s = 0.005
+torque_limit_nm = 30.0
+"#;
+
+const SENSOR: &str = r#"
+[sensor]
+motor_counts_per_rev = 1048576
+load_resolution_m = 1.0e-8
+load_pos_noise_m = 2.0e-8
+motor_pos_noise_rad = 2.0e-6
+seed = 7
+"#;
+
+/// The varied command, load position in m.
+fn command() -> Vec<f64> {
+    let mut x = Vec::new();
+    let mut pos = 0.0;
+    let hold = |x: &mut Vec<f64>, pos: f64, s: f64| {
+        for _ in 0..(s / DT) as usize {
+            x.push(pos);
+        }
+    };
+    // smooth move of `dist` in `t` seconds (cosine velocity profile)
+    let mv = |x: &mut Vec<f64>, pos: &mut f64, dist: f64, t: f64| {
+        let n = (t / DT) as usize;
+        for k in 1..=n {
+            let u = k as f64 / n as f64;
+            x.push(*pos + dist * (u - (2.0 * PI * u).sin() / (2.0 * PI)));
+        }
+        *pos += dist;
+    };
+    hold(&mut x, pos, 0.1);
+    for (d, t) in [(0.05, 0.4), (-0.08, 0.5), (0.03, 0.3), (-0.02, 0.25)] {
+        mv(&mut x, &mut pos, d, t);
+        hold(&mut x, pos, 0.05);
+    }
+    // slow crawls both ways
+    mv(&mut x, &mut pos, 0.002, 1.0);
+    mv(&mut x, &mut pos, -0.002, 1.0);
+    hold(&mut x, pos, 0.3);
+    // short fast jogs
+    for d in [0.01, -0.01, 0.012, -0.012] {
+        mv(&mut x, &mut pos, d, 0.06);
+        hold(&mut x, pos, 0.08);
+    }
+    // sine sweep 1 .. 15 Hz, 3 mm
+    let n = (3.0 / DT) as usize;
+    let mut ph = 0.0;
+    for k in 0..n {
+        let f = 1.0 + 14.0 * k as f64 / n as f64;
+        ph += 2.0 * PI * f * DT;
+        x.push(pos + 0.003 * ph.sin());
+    }
+    hold(&mut x, pos, 0.1);
+    for (d, t) in [(0.04, 0.35), (-0.04, 0.35)] {
+        mv(&mut x, &mut pos, d, t);
+    }
+    hold(&mut x, pos, 0.1);
+    x
+}
+
+fn model_file(text: &str) -> ModelFile {
+    let t: toml::Table = text.parse().unwrap();
+    ModelFile::from_table(&t, Path::new("mem.toml")).unwrap()
+}
+
+/// Runs the plant in closed loop (position P on the scale, PI velocity on the motor).
+fn simulate(plant_text: &str) -> Trace {
+    let mf = model_file(plant_text);
+    let r = mf.plant.motor_per_load();
+    let mut plant = AxisPlant::new(&mf, DT).unwrap();
+    let cmd = command();
+    plant.set_initial_position(cmd[0]);
+    let ax = AxisContext {
+        name: "x".into(),
+        plant: mf.plant,
+        defaults: mf.controller,
+        period_s: DT,
+    };
+    let empty = toml::Table::new();
+    let mut pos = Builtins
+        .create("position_p", &empty, &ax, Path::new("mem"))
+        .unwrap();
+    let mut vel = Builtins
+        .create("pi_velocity", &empty, &ax, Path::new("mem"))
+        .unwrap();
+    let n = cmd.len();
+    let mut cols: Vec<Vec<f64>> = (0..6).map(|_| Vec::with_capacity(n)).collect();
+    for (k, &c) in cmd.iter().enumerate() {
+        let s = plant.sense_axis();
+        let ctx = CycleContext {
+            period_s: DT,
+            cycle: k as u64,
+            t_s: k as f64 * DT,
+        };
+        let mut io = AxisSignals {
+            load_pos: s.load_pos * r,
+            motor_pos: s.motor_pos,
+            motor_vel: s.motor_vel,
+            ..Default::default()
+        };
+        io.reference[0] = c * r;
+        pos.step(&ctx, &mut io);
+        vel.step(&ctx, &mut io);
+        for (j, v) in [
+            k as f64 * DT,
+            c,
+            s.load_pos,
+            s.motor_pos,
+            s.motor_vel,
+            io.torque,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            cols[j].push(v);
+        }
+        plant.step_axis(io.torque);
+    }
+    let names = ["t", "x.cmd", "x.load", "x.motor", "x.motor_vel", "x.torque"]
+        .map(String::from)
+        .to_vec();
+    Trace::from_columns(Path::new("corpus.csv"), vec![], names, cols).unwrap()
+}
+
+fn run(hidden: &str, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
+    let tr = simulate(&format!("{BASE}{hidden}{SENSOR}"));
+    let text = nominal.to_string();
+    let t: toml::Table = text.parse().unwrap();
+    let m = WbModel::from_parts(
+        ModelFile::from_table(&t, Path::new("nominal.toml")).unwrap(),
+        t,
+    )
+    .unwrap();
+    let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    (m, d, dg)
+}
+
+fn check_effect(hidden: &str, class: &str) {
+    let (m, d, dg) = run(hidden, BASE);
+    let top = &dg.candidates[0];
+    let table: Vec<String> = dg
+        .candidates
+        .iter()
+        .map(|c| {
+            format!(
+                "{} ({}) {:.1}% {}",
+                c.effect, c.class, c.error_reduction_pct, c.significant
+            )
+        })
+        .collect();
+    assert_eq!(top.class, class, "hidden {hidden}: ranking {table:#?}");
+    assert!(top.significant, "{table:#?}");
+    let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
+    let (b, a) = (
+        r.before.equation_nrmse_pct.unwrap(),
+        r.after.equation_nrmse_pct.unwrap(),
+    );
+    println!(
+        "{hidden:?}: top {} equation NRMSE {b:.2} -> {a:.2}; window {:?} -> {:?}",
+        top.effect, r.before.window_sim_nrmse_pct, r.after.window_sim_nrmse_pct
+    );
+    assert!(
+        a < 0.3 * b,
+        "hidden {hidden}: equation NRMSE {b} -> {a}; params {:?}",
+        r.params
+    );
+}
+
+#[test]
+fn hidden_coulomb_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect(
+        "[effects.coulomb_friction]\nside = \"load\"\nfc_n = 100.0\n",
+        "friction",
+    );
+}
+
+#[test]
+fn hidden_constant_force_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect("[effects.constant_force]\nforce_n = -300.0\n", "offset");
+}
+
+#[test]
+fn hidden_viscous_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect(
+        "[effects.viscous_friction]\nside = \"load\"\nc_ns_per_m = 3000.0\n",
+        "damping",
+    );
+}
+
+#[test]
+fn hidden_cogging_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect(
+        "[effects.cogging]\namplitude_nm = 0.2\nperiods_per_rev = 12\n",
+        "cogging",
+    );
+}
+
+#[test]
+fn hidden_delay_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect("[effects.delay]\ndelay_cycles = 3\n", "delay");
+}
+
+#[test]
+fn a_trace_without_hidden_effect_gives_no_significant_effect() {
+    let (_, _, dg) = run("", BASE);
+    let sig: Vec<&str> = dg
+        .candidates
+        .iter()
+        .filter(|c| c.significant)
+        .map(|c| c.effect.as_str())
+        .collect();
+    assert!(sig.is_empty(), "significant: {sig:?}; {}", dg.verdict);
+    assert!(
+        dg.verdict.starts_with("no missing effect found"),
+        "{}",
+        dg.verdict
+    );
+}
+
+#[test]
+fn a_wrong_load_inertia_is_named_as_a_parameter_not_an_effect() {
+    let nominal = BASE.replace("jl_kgm2 = 3.0e-3", "jl_kgm2 = 4.5e-3");
+    let (_, _, dg) = run("", &nominal);
+    let top = &dg.candidates[0];
+    assert!(top.is_param, "{}", dg.verdict);
+    assert_eq!(top.class, "inertia", "{}", dg.verdict);
+    assert!(
+        dg.candidates
+            .iter()
+            .filter(|c| !c.is_param)
+            .all(|c| !c.significant),
+        "{}",
+        dg.verdict
+    );
+    let jl = top.params.get("jl_kgm2").copied().unwrap_or(f64::NAN);
+    assert!((jl - 3.0e-3).abs() < 0.3e-3, "jl = {jl}");
+}
+
+#[test]
+fn hidden_stribeck_friction_is_ranked_first_and_its_levels_are_recovered() {
+    // Sticking phases (where dry friction takes any value up to its breakaway level) are not
+    // explained by a velocity-driven friction law, so the cut is about half, not 70 %.
+    let (m, d, dg) = run(
+        "[effects.stribeck_friction]\nside = \"load\"\nfc_n = 60.0\nfs_n = 150.0\nvs_m_per_s = 0.002\n",
+        BASE,
+    );
+    let top = &dg.candidates[0];
+    assert_eq!(top.class, "friction", "{}", dg.verdict);
+    let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
+    let (b, a) = (
+        r.before.equation_nrmse_pct.unwrap(),
+        r.after.equation_nrmse_pct.unwrap(),
+    );
+    assert!(a < 0.6 * b, "{b} -> {a}");
+    if top.effect == "stribeck_friction" {
+        assert!((r.params["fc_n"] - 60.0).abs() < 6.0, "{:?}", r.params);
+        assert!((r.params["fs_n"] - 150.0).abs() < 15.0, "{:?}", r.params);
+    }
+}
+
+#[test]
+fn hidden_third_mass_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect(
+        "[effects.third_mass]\nmass_kg = 30.0\nstiffness_n_per_m = 4.26e6\ndamping_ns_per_m = 1130.0\n",
+        "mode",
+    );
+}
+
+#[test]
+fn hidden_current_lag_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect("[effects.current_lag]\ntau_s = 0.0015\n", "delay");
+}
+
+#[test]
+fn hidden_torque_saturation_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
+    check_effect(
+        "[effects.torque_saturation]\nlimit_nm = 15.0\n",
+        "saturation",
+    );
+}
+
+#[test]
+#[ignore = "known gap: the impacts at the end of the gap excite the resonance and a 400 Hz third_mass outranks backlash on the torque channel"]
+fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
+    let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
+    let top = &dg.candidates[0];
+    assert_eq!(top.class, "backlash", "{}", dg.verdict);
+    let gap = top.params["gap_m"];
+    assert!((gap - 20e-6).abs() < 5e-6, "gap {gap}");
+}
+
+#[test]
+fn hidden_pitch_error_is_ranked_first_with_its_amplitude() {
+    let (_, _, dg) = run("[effects.pitch_error]\namplitude_m = 5.0e-6\n", BASE);
+    let top = &dg.candidates[0];
+    assert_eq!(top.class, "pitch", "{}", dg.verdict);
+    let a = top.params["amplitude_m"];
+    assert!((a - 5e-6).abs() < 1e-6, "amplitude {a}");
+}
+
+#[test]
+fn a_wrong_load_damping_is_named_as_a_damping_parameter() {
+    let nominal = BASE.replace("dl_nms_per_rad = 2.0e-3", "dl_nms_per_rad = 8.0e-3");
+    let (_, _, dg) = run("", &nominal);
+    let top = &dg.candidates[0];
+    assert_eq!(top.class, "damping", "{}", dg.verdict);
+    assert!(
+        dg.candidates
+            .iter()
+            .filter(|c| !c.is_param && c.class != "damping")
+            .all(|c| !c.significant),
+        "{}",
+        dg.verdict
+    );
+}

@@ -1,0 +1,100 @@
+//! `feedloop learn quadrant`: the learning passes of seed 004's quadrant compensator.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use serde_json::json;
+
+use feedloop_analysis::sim::run_records;
+use feedloop_plugins::quadrant_learn::{learn_quadrant, LearnOptions};
+use feedloop_plugins::Builtins;
+use feedloop_runtime::job::Job;
+
+/// Learning subcommands.
+#[derive(clap::Subcommand, Debug)]
+pub enum LearnCmd {
+    /// Learn the reversal pulses of a job's `quadrant_compensator` stage(s) over N passes.
+    Quadrant {
+        /// Job with a `quadrant_compensator` stage (its `table` key says where the table goes).
+        #[arg(long)]
+        job: PathBuf,
+        /// Learning passes after the uncompensated run.
+        #[arg(long, default_value_t = 2)]
+        passes: usize,
+        /// Write the table here instead of the job's `table` path.
+        #[arg(long)]
+        table: Option<PathBuf>,
+        /// Stop when every axis' spike is at or below this, load units (m or rad).
+        #[arg(long, default_value_t = 0.0)]
+        accept: f64,
+        /// Print JSON only.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Runs a learn subcommand.
+pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
+    let LearnCmd::Quadrant {
+        job,
+        passes,
+        table,
+        accept,
+        json,
+    } = cmd;
+    let job = Job::load(&job)?;
+    let options = LearnOptions {
+        table,
+        accept,
+        ..LearnOptions::default()
+    };
+    let mut runs = 0usize;
+    let report = learn_quadrant(&job, passes, &options, &mut |j: &Job| {
+        runs += 1;
+        if !json {
+            eprintln!("  run {runs}: simulating {}", j.name);
+        }
+        run_records(j, &Builtins).map_err(|e| e.to_string())
+    })
+    .context("learning the quadrant pulses")?;
+    let base: Vec<f64> = report
+        .passes
+        .first()
+        .map(|p| p.axes.iter().map(|a| a.spike).collect())
+        .unwrap_or_default();
+    let passes_json: Vec<_> = report
+        .passes
+        .iter()
+        .map(|p| {
+            json!({"pass": p.pass, "runs": p.runs, "axes": p.axes.iter().enumerate().map(|(i, a)| json!({
+                "axis": a.axis, "spike": a.spike, "reversals": a.reversals, "pulses": a.pulses,
+                "ratio_to_pass0": base.get(i).map(|b| if *b > 0.0 { a.spike / b } else { f64::NAN }),
+            })).collect::<Vec<_>>()})
+        })
+        .collect();
+    let v = json!({"table": report.table_path.display().to_string(), "passes": passes_json});
+    if json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        for p in &report.passes {
+            let cells: Vec<String> = p
+                .axes
+                .iter()
+                .enumerate()
+                .map(|(i, a)| {
+                    let r = base.get(i).map(|b| a.spike / b).unwrap_or(f64::NAN);
+                    format!(
+                        "{} spike {:.3} um ({:.2} of pass 0)",
+                        a.axis,
+                        a.spike * 1e6,
+                        r
+                    )
+                })
+                .collect();
+            println!("pass {}: {}", p.pass, cells.join(", "));
+        }
+        println!("wrote {}", report.table_path.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}

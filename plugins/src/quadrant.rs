@@ -1,0 +1,849 @@
+//! `quadrant_compensator`: learned reversal (quadrant-crossing) compensation by dynamic pulse
+//! models (seed 004, steps (2)-(3) and claims 2-3: compensation sequences generated with
+//! acceleration planning, the rise/fall split of each model allocated freely).
+//!
+//! At a reversal of the commanded velocity the axis lags: friction flips sign and the loop needs
+//! time to rebuild the torque. The following error e = th - thL (load units, m or rad) then shows
+//! a spike: it leaves zero at a start point, reaches a maximum and returns at an end point. Each
+//! learned pulse is a position offset delta(tau) (load units) over tau = t - t_r, the time since
+//! the reversal, made of two acceleration-planned models:
+//!
+//! - start -> max (rise, split a): delta = A s(u; a), u = (tau - t_s) / (t_m - t_s);
+//! - max -> end (fall, split b): delta = A (1 - s(u; b)), u = (tau - t_m) / (t_e - t_m);
+//! - s(u; a) = u^2 / a for u <= a, 1 - (1 - u)^2 / (1 - a) above: a velocity that rises with
+//!   constant acceleration until the split, then falls with constant deceleration to zero.
+//!
+//! The offset is fed forward like an extra reference the load must follow: the velocity command
+//! w = g (Kp delta + delta') and the torque g J delta'' (J = JM + JL, or the mass; converted to
+//! motor units), so with the loop following its references exactly the learned error is
+//! cancelled exactly (a linear plant; friction makes it only approximately so, hence the passes).
+//! With `inject = "torque"` the velocity part is turned into the torque the PI velocity loop
+//! would have produced from it, torque_ff += Kv (w + (1/Tv) int w dt).
+//! Pulses of every learning pass add up (see [`crate::quadrant_learn`], which finds the points
+//! and fits the models by least squares, the splits by bisection).
+//!
+//! Trigger: the sign change of the commanded velocity (`reference[1]`, |v| <= 1 nm/s counting as
+//! rest); the reversal instant t_r is interpolated between the two samples (`ReversalDetector`,
+//! shared with the learner so both use the same clock). A reversal to positive velocity plays the table's `to_positive` pulses,
+//! one to negative the `to_negative` pulses.
+//!
+//! Keys: `table` (path of the learned table, relative to the job file; required), `gain`
+//! (dimensionless, default 1), `kp_per_s` (1/s, default the model's), `inject` (`"velocity"`
+//! default, or `"torque"` with `kv_nms_per_rad` / `kv_ns_per_m` and `tv_s` defaulting to the
+//! model's `[controller]`), `inertia_kgm2` (`mass_kg` on a rigid axis; default the model's
+//! JM + JL or mass), `axis` (which axis entry of the table to play, default this axis' name). The table is TOML (format below, written by `QuadrantTable::to_toml`):
+//!
+//! ```toml
+//! format = "feedloop-quadrant-table-1"
+//! [[axes.x.to_positive]]
+//! pass = 1            # learning pass that added it
+//! start_s = 0.0       # model start, s after the reversal
+//! peak_s = 0.0041     # end of the rise model / start of the fall model, s
+//! end_s = 0.019       # end of the fall model, s
+//! rise_split = 0.31   # where the rise model's velocity peaks, fraction of its span
+//! fall_split = 0.22   # where the fall model's velocity peaks, fraction of its span
+//! amplitude = 2.1e-6  # offset at the peak, m (rad on a rotary axis)
+//! ```
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use feedloop_runtime::controller::{
+    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
+};
+use feedloop_runtime::params::{read_toml_file, ConfigError, Fields, Range};
+
+use crate::pi_velocity::key_names;
+
+/// The `format` value of a table file.
+pub const TABLE_FORMAT: &str = "feedloop-quadrant-table-1";
+
+/// Commanded velocities at or below this magnitude count as rest, load units/s (1 nm/s).
+pub const REST_VELOCITY: f64 = 1e-9;
+
+/// Most pulses per direction an axis may carry.
+pub const MAX_PULSES: usize = 64;
+
+/// Direction of the commanded velocity after a reversal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Direction {
+    /// Negative -> positive.
+    ToPositive,
+    /// Positive -> negative.
+    ToNegative,
+}
+
+impl Direction {
+    /// Both directions.
+    pub const ALL: [Direction; 2] = [Direction::ToPositive, Direction::ToNegative];
+
+    /// Name in table files.
+    pub fn id(self) -> &'static str {
+        match self {
+            Direction::ToPositive => "to_positive",
+            Direction::ToNegative => "to_negative",
+        }
+    }
+
+    /// 0 for `ToPositive`, 1 for `ToNegative`.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// A detected reversal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reversal {
+    /// Interpolated instant of the zero crossing, s.
+    pub t_s: f64,
+    /// New direction.
+    pub direction: Direction,
+}
+
+/// Finds sign changes of a sampled commanded velocity (load units/s). Samples with
+/// |v| <= [`REST_VELOCITY`] count as zero and keep the previous sign (so rounding noise of a
+/// command at rest is no reversal); a run that starts from rest has no reversal until the
+/// velocity changes sign.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ReversalDetector {
+    sign: i8,
+    last_v: f64,
+    last_t: f64,
+}
+
+impl ReversalDetector {
+    /// A detector that has seen nothing.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A detector whose last sample was `v` at `t_s`.
+    pub fn at(t_s: f64, v: f64) -> Self {
+        let mut d = Self::new();
+        d.update(t_s, v);
+        d
+    }
+
+    /// Feeds the sample `v` (velocity) at `t_s`; returns the reversal it completes, if any.
+    #[inline]
+    pub fn update(&mut self, t_s: f64, v: f64) -> Option<Reversal> {
+        if !(v.is_finite() && t_s.is_finite()) {
+            return None;
+        }
+        let s: i8 = if v > REST_VELOCITY {
+            1
+        } else if v < -REST_VELOCITY {
+            -1
+        } else {
+            0
+        };
+        let mut out = None;
+        if s != 0 {
+            if self.sign != 0 && s != self.sign {
+                let dv = self.last_v - v;
+                let frac = if dv != 0.0 {
+                    (self.last_v / dv).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let t_r = if self.last_t.is_finite() {
+                    self.last_t + frac * (t_s - self.last_t)
+                } else {
+                    t_s
+                };
+                out = Some(Reversal {
+                    t_s: t_r,
+                    direction: if s > 0 {
+                        Direction::ToPositive
+                    } else {
+                        Direction::ToNegative
+                    },
+                });
+            }
+            self.sign = s;
+        }
+        self.last_v = v;
+        self.last_t = t_s;
+        out
+    }
+}
+
+/// Normalised acceleration-planned rise s(u; split) on u in [0, 1], its slope ds/du and its
+/// curvature d2s/du2 (constant acceleration 2/split, then constant deceleration).
+#[inline]
+pub fn planned_rise(u: f64, split: f64) -> (f64, f64, f64) {
+    let u = u.clamp(0.0, 1.0);
+    if u <= split {
+        (u * u / split, 2.0 * u / split, 2.0 / split)
+    } else {
+        let w = 1.0 - u;
+        (
+            1.0 - w * w / (1.0 - split),
+            2.0 * w / (1.0 - split),
+            -2.0 / (1.0 - split),
+        )
+    }
+}
+
+/// One learned compensation pulse: a rise model and a fall model (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pulse {
+    /// Learning pass that added it (1-based).
+    pub pass: u32,
+    /// Start of the rise model, s after the reversal.
+    pub start_s: f64,
+    /// Peak: end of the rise, start of the fall, s.
+    pub peak_s: f64,
+    /// End of the fall model, s.
+    pub end_s: f64,
+    /// Velocity-peak position of the rise model, fraction of its span (0..1).
+    pub rise_split: f64,
+    /// Velocity-peak position of the fall model, fraction of its span (0..1).
+    pub fall_split: f64,
+    /// Offset at the peak, load units (m or rad).
+    pub amplitude: f64,
+}
+
+impl Pulse {
+    /// Shape (offset / amplitude) and its first and second time derivatives at `tau` s after
+    /// the reversal.
+    #[inline]
+    pub fn shape(&self, tau: f64) -> [f64; 3] {
+        if tau <= self.start_s || tau >= self.end_s {
+            return [0.0; 3];
+        }
+        if tau < self.peak_s {
+            let span = self.peak_s - self.start_s;
+            let (s, ds, dds) = planned_rise((tau - self.start_s) / span, self.rise_split);
+            [s, ds / span, dds / (span * span)]
+        } else {
+            let span = self.end_s - self.peak_s;
+            if span <= 0.0 {
+                return [0.0; 3];
+            }
+            let (s, ds, dds) = planned_rise((tau - self.peak_s) / span, self.fall_split);
+            [1.0 - s, -ds / span, -dds / (span * span)]
+        }
+    }
+
+    /// Offset (load units), its rate (load units/s) and acceleration (load units/s^2) at `tau`
+    /// s after the reversal.
+    #[inline]
+    pub fn eval(&self, tau: f64) -> [f64; 3] {
+        self.shape(tau).map(|x| self.amplitude * x)
+    }
+}
+
+/// The learned pulses of one axis, per reversal direction.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct AxisPulses {
+    /// Played after a reversal to positive velocity.
+    pub to_positive: Vec<Pulse>,
+    /// Played after a reversal to negative velocity.
+    pub to_negative: Vec<Pulse>,
+}
+
+impl AxisPulses {
+    /// Pulses of `dir`.
+    pub fn get(&self, dir: Direction) -> &Vec<Pulse> {
+        match dir {
+            Direction::ToPositive => &self.to_positive,
+            Direction::ToNegative => &self.to_negative,
+        }
+    }
+
+    /// Pulses of `dir`, mutable.
+    pub fn get_mut(&mut self, dir: Direction) -> &mut Vec<Pulse> {
+        match dir {
+            Direction::ToPositive => &mut self.to_positive,
+            Direction::ToNegative => &mut self.to_negative,
+        }
+    }
+}
+
+/// A learned quadrant table: pulses per axis name.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct QuadrantTable {
+    /// Pulses per axis.
+    pub axes: BTreeMap<String, AxisPulses>,
+}
+
+impl QuadrantTable {
+    /// Reads and validates a table file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let t = read_toml_file(path)?;
+        Self::from_table(&t, path)
+    }
+
+    /// Validates a parsed table (`path` for messages).
+    pub fn from_table(t: &toml::Table, path: &Path) -> Result<Self, ConfigError> {
+        let mut f = Fields::new(t, path, "");
+        let format = f.str("format")?;
+        if format != TABLE_FORMAT {
+            return Err(f.error(
+                "format",
+                format!("unknown table format `{format}` (expected `{TABLE_FORMAT}`)"),
+            ));
+        }
+        let mut table = QuadrantTable::default();
+        if let Some(axes) = f.opt_table("axes")? {
+            for (name, v) in axes {
+                let key = format!("axes.{name}");
+                let at = v
+                    .as_table()
+                    .ok_or_else(|| ConfigError::new(path, &key, "must be a table"))?;
+                let mut af = Fields::new(at, path, &key);
+                let mut pulses = AxisPulses::default();
+                for dir in Direction::ALL {
+                    let Some(arr) = af.raw(dir.id()) else {
+                        continue;
+                    };
+                    let dkey = format!("{key}.{}", dir.id());
+                    let arr = arr.as_array().ok_or_else(|| {
+                        ConfigError::new(path, &dkey, "must be an array of tables ([[...]])")
+                    })?;
+                    if arr.len() > MAX_PULSES {
+                        return Err(ConfigError::new(
+                            path,
+                            &dkey,
+                            format!("at most {MAX_PULSES} pulses, got {}", arr.len()),
+                        ));
+                    }
+                    for (i, p) in arr.iter().enumerate() {
+                        let pkey = format!("{dkey}[{i}]");
+                        let pt = p
+                            .as_table()
+                            .ok_or_else(|| ConfigError::new(path, &pkey, "must be a table"))?;
+                        pulses.get_mut(dir).push(parse_pulse(pt, path, &pkey)?);
+                    }
+                }
+                af.finish()?;
+                table.axes.insert(name.clone(), pulses);
+            }
+        }
+        f.finish()?;
+        Ok(table)
+    }
+
+    /// The table as commented TOML text.
+    pub fn to_toml(&self) -> String {
+        let mut s = String::new();
+        s.push_str("# Quadrant-crossing compensation table (feedloop `quadrant_compensator`).\n");
+        s.push_str("# Each pulse is a position offset after a reversal: an acceleration-planned rise from\n");
+        s.push_str(
+            "# start_s to peak_s and fall to end_s (s after the reversal), velocity peaking at\n",
+        );
+        s.push_str("# rise_split / fall_split of each span; amplitude in load units (m, or rad on a rotary axis).\n");
+        let _ = writeln!(s, "format = \"{TABLE_FORMAT}\"");
+        for (name, pulses) in &self.axes {
+            let _ = writeln!(s, "\n[axes.{name}]");
+            for dir in Direction::ALL {
+                for p in pulses.get(dir) {
+                    let _ = writeln!(s, "\n[[axes.{name}.{}]]", dir.id());
+                    let _ = writeln!(s, "pass = {}", p.pass);
+                    let _ = writeln!(s, "start_s = {:?}", p.start_s);
+                    let _ = writeln!(s, "peak_s = {:?}", p.peak_s);
+                    let _ = writeln!(s, "end_s = {:?}", p.end_s);
+                    let _ = writeln!(s, "rise_split = {:?}", p.rise_split);
+                    let _ = writeln!(s, "fall_split = {:?}", p.fall_split);
+                    let _ = writeln!(s, "amplitude = {:?}", p.amplitude);
+                }
+            }
+        }
+        s
+    }
+
+    /// Writes the table to `path`.
+    pub fn save(&self, path: &Path) -> std::io::Result<()> {
+        std::fs::write(path, self.to_toml())
+    }
+}
+
+fn parse_pulse(t: &toml::Table, path: &Path, key: &str) -> Result<Pulse, ConfigError> {
+    let mut f = Fields::new(t, path, key);
+    let pass = f.opt_i64("pass", 0, 1000)?.unwrap_or(1) as u32;
+    let start_s = f.f64("start_s", Range::Within(-10.0, 10.0))?;
+    let peak_s = f.f64("peak_s", Range::Within(-10.0, 10.0))?;
+    let end_s = f.f64("end_s", Range::Within(-10.0, 10.0))?;
+    let rise_split = f.f64("rise_split", Range::Within(1e-3, 1.0 - 1e-3))?;
+    let fall_split = f.f64("fall_split", Range::Within(1e-3, 1.0 - 1e-3))?;
+    let amplitude = f.f64("amplitude", Range::Within(-1e3, 1e3))?;
+    if peak_s < start_s {
+        return Err(f.error(
+            "peak_s",
+            format!("must be >= start_s = {start_s}, got {peak_s}"),
+        ));
+    }
+    if end_s < peak_s {
+        return Err(f.error(
+            "end_s",
+            format!("must be >= peak_s = {peak_s}, got {end_s}"),
+        ));
+    }
+    f.finish()?;
+    Ok(Pulse {
+        pass,
+        start_s,
+        peak_s,
+        end_s,
+        rise_split,
+        fall_split,
+        amplitude,
+    })
+}
+
+/// How the compensation enters the loop.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Injection {
+    /// Added to the velocity command.
+    Velocity,
+    /// Added to `torque_ff` as the PI velocity loop (gain `kv`, integral time `tv_s`) would turn
+    /// the same velocity into torque.
+    Torque {
+        /// Velocity loop gain, N m s/rad (N s/m).
+        kv: f64,
+        /// Integral time, s (0 = proportional).
+        tv_s: f64,
+    },
+}
+
+/// Parameters of [`QuadrantCompensator`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct QuadrantParams {
+    /// The table file (resolved against the job file's folder).
+    pub table_path: PathBuf,
+    /// The pulses played on this axis.
+    pub pulses: AxisPulses,
+    /// Injection gain, dimensionless.
+    pub gain: f64,
+    /// Position loop gain used to turn an offset into a velocity, 1/s.
+    pub kp_per_s: f64,
+    /// Motor units per load unit.
+    pub motor_per_load: f64,
+    /// Where it is injected.
+    pub inject: Injection,
+    /// Inertia (kg m^2) or mass (kg) the motor accelerates, for the torque J delta''.
+    pub inertia: f64,
+}
+
+impl QuadrantParams {
+    /// Reads the plugin keys and loads the table (`file` is the job file).
+    pub fn from_table(
+        params: &toml::Table,
+        axis: &AxisContext,
+        file: &Path,
+    ) -> Result<Self, ConfigError> {
+        let mut f = Fields::new(params, file, "");
+        let table_rel = f.str("table")?;
+        let gain = f.f64_or("gain", Range::Within(0.0, 10.0), 1.0)?;
+        let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
+        let which = f.opt_str("axis")?.unwrap_or(axis.name.as_str()).to_string();
+        let inject = f.opt_str("inject")?.unwrap_or("velocity");
+        let (kv_key, _) = key_names(axis.plant.kind());
+        let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
+        let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
+        let inertia_key = if axis.plant.kind() == feedloop_runtime::model::AxisKind::Rigid {
+            "mass_kg"
+        } else {
+            "inertia_kgm2"
+        };
+        let inertia = f.f64_or(
+            inertia_key,
+            Range::Within(0.0, 1e9),
+            axis.plant.total_inertia(),
+        )?;
+        let inject = match inject {
+            "velocity" => Injection::Velocity,
+            "torque" => Injection::Torque {
+                kv: kv.or(axis.defaults.kv).ok_or_else(|| {
+                    f.error(
+                        kv_key,
+                        "is required by `inject = \"torque\"` (not in the model either)",
+                    )
+                })?,
+                tv_s: tv.or(axis.defaults.tv_s).unwrap_or(0.0),
+            },
+            other => {
+                return Err(f.error(
+                    "inject",
+                    format!("unknown injection `{other}` (velocity, torque)"),
+                ))
+            }
+        };
+        f.finish()?;
+        let kp_per_s = kp.or(axis.defaults.kp_per_s).ok_or_else(|| {
+            ConfigError::new(
+                file,
+                "kp_per_s",
+                format!(
+                    "is required: give it in the plugin params or in the [controller] table of axis `{}`'s model",
+                    axis.name
+                ),
+            )
+        })?;
+        let dir = file.parent().unwrap_or(Path::new("."));
+        let table_path = dir.join(table_rel);
+        if !table_path.exists() {
+            return Err(ConfigError::new(
+                file,
+                "table",
+                format!(
+                    "table file {} does not exist (learn one with `feedloop learn quadrant`)",
+                    table_path.display()
+                ),
+            ));
+        }
+        let table = QuadrantTable::load(&table_path)?;
+        let pulses = table.axes.get(&which).cloned().unwrap_or_default();
+        Ok(Self {
+            table_path,
+            pulses,
+            gain,
+            kp_per_s,
+            motor_per_load: axis.plant.motor_per_load(),
+            inject,
+            inertia,
+        })
+    }
+}
+
+/// The quadrant compensator.
+#[derive(Debug, Clone)]
+pub struct QuadrantCompensator {
+    params: QuadrantParams,
+    /// Pulses per direction (index `Direction::index`).
+    pulses: [Vec<Pulse>; 2],
+    /// Latest end time per direction, s.
+    horizon: [f64; 2],
+    detector: ReversalDetector,
+    /// Reversal being played: (t_r, direction index).
+    active: Option<(f64, usize)>,
+    /// Integral of the injected velocity (torque injection), motor units.
+    integral: f64,
+}
+
+impl QuadrantCompensator {
+    /// Plugin id.
+    pub const ID: &'static str = "quadrant_compensator";
+
+    /// Builds the compensator.
+    pub fn new(params: QuadrantParams) -> Self {
+        let pulses = [
+            params.pulses.to_positive.clone(),
+            params.pulses.to_negative.clone(),
+        ];
+        let horizon = [0, 1].map(|i| pulses[i].iter().map(|p| p.end_s).fold(0.0, f64::max));
+        Self {
+            params,
+            pulses,
+            horizon,
+            detector: ReversalDetector::new(),
+            active: None,
+            integral: 0.0,
+        }
+    }
+
+    /// Parameters.
+    pub fn params(&self) -> &QuadrantParams {
+        &self.params
+    }
+
+    /// Offset (load units), rate and acceleration at `t_s`, given the active reversal.
+    #[inline]
+    fn offset(&self, t_s: f64) -> [f64; 3] {
+        let Some((t_r, d)) = self.active else {
+            return [0.0; 3];
+        };
+        let tau = t_s - t_r;
+        self.pulses[d]
+            .iter()
+            .map(|p| p.eval(tau))
+            .fold([0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+    }
+}
+
+impl Controller for QuadrantCompensator {
+    fn id(&self) -> &str {
+        Self::ID
+    }
+
+    fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
+        let v = io.reference[1] / self.params.motor_per_load;
+        if let Some(r) = self.detector.update(ctx.t_s, v) {
+            self.active = Some((r.t_s, r.direction.index()));
+        }
+        if let Some((t_r, d)) = self.active {
+            if ctx.t_s - t_r > self.horizon[d] {
+                self.active = None;
+            }
+        }
+        let [delta, rate, acc] = self.offset(ctx.t_s);
+        let p = &self.params;
+        let w = p.gain * (p.kp_per_s * delta + rate) * p.motor_per_load;
+        let tau = p.gain * p.inertia * acc * p.motor_per_load;
+        if !(w.is_finite() && tau.is_finite()) {
+            self.active = None;
+            return;
+        }
+        io.torque_ff += tau;
+        match p.inject {
+            Injection::Velocity => io.vel_cmd += w,
+            Injection::Torque { kv, tv_s } => {
+                let i_term = if tv_s > 0.0 {
+                    self.integral += ctx.period_s * w;
+                    if !self.integral.is_finite() {
+                        self.integral = 0.0;
+                    }
+                    self.integral / tv_s
+                } else {
+                    0.0
+                };
+                io.torque_ff += kv * (w + i_term);
+            }
+        }
+    }
+
+    /// Snapshot layout: [detector sign, last velocity, last time, active (0/1), t_r, direction,
+    /// torque-injection integral].
+    fn snapshot(&self) -> ControllerState {
+        let d = &self.detector;
+        let (act, t_r, dir) = match self.active {
+            Some((t, i)) => (1.0, t, i as f64),
+            None => (0.0, 0.0, 0.0),
+        };
+        ControllerState::from_slice(&[
+            d.sign as f64,
+            d.last_v,
+            d.last_t,
+            act,
+            t_r,
+            dir,
+            self.integral,
+        ])
+    }
+
+    fn restore(&mut self, state: &ControllerState) {
+        let v = state.as_slice();
+        let at = |i: usize| v.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0);
+        self.detector = ReversalDetector {
+            sign: at(0).signum() as i8 * (at(0) != 0.0) as i8,
+            last_v: at(1),
+            last_t: at(2),
+        };
+        self.active = (at(3) != 0.0).then(|| (at(4), (at(5) as usize).min(1)));
+        self.integral = at(6);
+    }
+
+    fn initialize_from(&mut self, last: &AxisSignals) {
+        // Knowing the last commanded velocity lets the first reversal after a switch count.
+        // (Its time is unknown here; the next step's sample completes it.)
+        self.detector = ReversalDetector::new();
+        if last.reference[1].is_finite() && last.reference[1] != 0.0 {
+            self.detector.sign = last.reference[1].signum() as i8;
+            self.detector.last_v = last.reference[1];
+            self.detector.last_t = f64::NAN;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pulse() -> Pulse {
+        Pulse {
+            pass: 1,
+            start_s: 0.001,
+            peak_s: 0.004,
+            end_s: 0.014,
+            rise_split: 0.3,
+            fall_split: 0.6,
+            amplitude: 2e-6,
+        }
+    }
+
+    #[test]
+    fn pulse_rises_to_its_amplitude_at_the_peak_and_returns_to_zero_with_zero_velocity() {
+        let p = pulse();
+        assert_eq!(p.eval(0.0005), [0.0; 3]);
+        let [d, r, _] = p.eval(0.004);
+        assert!((d - 2e-6).abs() < 1e-15 && r.abs() < 1e-12, "{d} {r}");
+        let [d, r, _] = p.eval(0.014 - 1e-9);
+        assert!(d.abs() < 1e-15 && r.abs() < 1e-9, "{d} {r}");
+        // the rise's velocity peaks at its split: 2 A / span, after an acceleration 2 A / (a span^2)
+        let [_, r, a] = p.eval(0.001 + 0.3 * 0.003 - 1e-9);
+        assert!((r - 2.0 * 2e-6 / 0.003).abs() < 1e-8, "{r}");
+        assert!((a - 2.0 * 2e-6 / (0.3 * 0.003 * 0.003)).abs() < 1e-6, "{a}");
+    }
+
+    #[test]
+    fn pulse_rate_and_acceleration_are_the_derivatives_of_its_offset() {
+        let p = pulse();
+        let h = 1e-7;
+        for k in 1..140 {
+            let t = k as f64 * 1e-4 + 3e-5;
+            let v = (p.eval(t + h)[0] - p.eval(t - h)[0]) / (2.0 * h);
+            assert!(
+                (v - p.eval(t)[1]).abs() < 1e-6,
+                "t {t}: {v} vs {:?}",
+                p.eval(t)
+            );
+            let a = (p.eval(t + h)[1] - p.eval(t - h)[1]) / (2.0 * h);
+            assert!(
+                (a - p.eval(t)[2]).abs() < 1e-6 * a.abs().max(1.0),
+                "t {t}: {a}"
+            );
+        }
+    }
+
+    #[test]
+    fn detector_interpolates_the_zero_crossing_and_names_the_new_direction() {
+        let mut d = ReversalDetector::new();
+        assert_eq!(d.update(0.0, 0.0), None);
+        assert_eq!(d.update(0.1, 2.0), None);
+        let r = d.update(0.2, -2.0).unwrap();
+        assert!((r.t_s - 0.15).abs() < 1e-12);
+        assert_eq!(r.direction, Direction::ToNegative);
+        assert_eq!(d.update(0.3, 0.0), None);
+        let r = d.update(0.4, 1.0).unwrap();
+        assert!((r.t_s - 0.3).abs() < 1e-12, "{}", r.t_s);
+        assert_eq!(r.direction, Direction::ToPositive);
+        assert_eq!(d.update(0.5, f64::NAN), None);
+        // rounding noise of a command at rest is no reversal
+        assert_eq!(d.update(0.6, -1e-17), None);
+        assert_eq!(d.update(0.7, 1e-17), None);
+    }
+
+    #[test]
+    fn table_survives_a_write_and_read_exactly() {
+        let mut t = QuadrantTable::default();
+        let mut ap = AxisPulses::default();
+        ap.to_positive.push(pulse());
+        ap.to_negative.push(Pulse {
+            amplitude: -1.234567890123e-6,
+            pass: 2,
+            ..pulse()
+        });
+        t.axes.insert("x".into(), ap);
+        t.axes.insert("y".into(), AxisPulses::default());
+        let text = t.to_toml();
+        let parsed: toml::Table = text.parse().unwrap();
+        let back = QuadrantTable::from_table(&parsed, Path::new("t.toml")).unwrap();
+        assert_eq!(back, t);
+    }
+
+    #[test]
+    fn table_with_end_before_peak_is_refused_naming_the_pulse() {
+        let text = format!(
+            "format = \"{TABLE_FORMAT}\"\n[[axes.x.to_positive]]\nstart_s = 0\npeak_s = 0.01\nend_s = 0.005\nrise_split = 0.5\nfall_split = 0.5\namplitude = 1e-6\n"
+        );
+        let parsed: toml::Table = text.parse().unwrap();
+        let e = QuadrantTable::from_table(&parsed, Path::new("t.toml")).unwrap_err();
+        assert_eq!(e.key, "axes.x.to_positive[0].end_s");
+    }
+
+    fn compensator(inject: Injection) -> QuadrantCompensator {
+        QuadrantCompensator::new(QuadrantParams {
+            table_path: PathBuf::new(),
+            pulses: AxisPulses {
+                to_positive: vec![pulse()],
+                to_negative: vec![Pulse {
+                    amplitude: -2e-6,
+                    ..pulse()
+                }],
+            },
+            gain: 1.0,
+            kp_per_s: 50.0,
+            motor_per_load: 100.0,
+            inject,
+            inertia: 0.0,
+        })
+    }
+
+    #[test]
+    fn reversal_to_positive_plays_kp_offset_plus_rate_in_motor_units() {
+        let mut c = compensator(Injection::Velocity);
+        let t = 1e-4;
+        let mut out = Vec::new();
+        for k in 0..300 {
+            let ts = k as f64 * t;
+            // velocity is zero at k = 100 and positive after: t_r = 10 ms
+            let mut io = AxisSignals::default();
+            io.reference[1] = (k as f64 - 100.0) * 1e-3 * 100.0;
+            c.step(
+                &CycleContext {
+                    period_s: t,
+                    cycle: k,
+                    t_s: ts,
+                },
+                &mut io,
+            );
+            out.push(io.vel_cmd);
+        }
+        assert!(out[..101].iter().all(|&v| v == 0.0));
+        let k = 140; // tau = 4 ms: the peak, zero rate
+        let expect = 50.0 * 2e-6 * 100.0;
+        assert!((out[k] - expect).abs() < 1e-9, "{} vs {expect}", out[k]);
+        assert!(out[101 + 141..].iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn torque_injection_equals_what_the_pi_would_make_of_the_velocity() {
+        let mut cv = compensator(Injection::Velocity);
+        let mut ct = compensator(Injection::Torque {
+            kv: 5.0,
+            tv_s: 0.005,
+        });
+        let mut pi = crate::PiVelocity::new(crate::PiVelocityParams {
+            kv: 5.0,
+            tv_s: 0.005,
+            torque_limit: 1e9,
+            filters: Default::default(),
+        });
+        let t = 1e-4;
+        let mut integ = 0.0;
+        for k in 0..300u64 {
+            let ctx = CycleContext {
+                period_s: t,
+                cycle: k,
+                t_s: k as f64 * t,
+            };
+            let mut a = AxisSignals::default();
+            a.reference[1] = 50.5 - k as f64;
+            let mut b = a;
+            cv.step(&ctx, &mut a);
+            pi.step(&ctx, &mut a);
+            ct.step(&ctx, &mut b);
+            integ += b.torque_ff;
+            assert!((a.torque - b.torque_ff).abs() < 1e-9, "k {k}");
+        }
+        assert!(integ != 0.0);
+    }
+
+    #[test]
+    fn snapshot_restores_a_reversal_in_progress() {
+        let mut a = compensator(Injection::Velocity);
+        let t = 1e-4;
+        let ctx = |k: u64| CycleContext {
+            period_s: t,
+            cycle: k,
+            t_s: k as f64 * t,
+        };
+        for k in 0..120 {
+            let mut io = AxisSignals::default();
+            io.reference[1] = 100.5 - k as f64;
+            a.step(&ctx(k), &mut io);
+        }
+        let mut b = compensator(Injection::Velocity);
+        b.restore(&a.snapshot());
+        for k in 120..200 {
+            let mut ia = AxisSignals::default();
+            ia.reference[1] = 100.5 - k as f64;
+            let mut ib = ia;
+            a.step(&ctx(k), &mut ia);
+            b.step(&ctx(k), &mut ib);
+            assert_eq!(ia.vel_cmd, ib.vel_cmd);
+        }
+    }
+}

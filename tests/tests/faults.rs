@@ -1,0 +1,309 @@
+//! Faults: killed processes, operator stops, drive-side limits, and a second publisher.
+//! Each test runs the real `feedloop` binary; kill trials are repeated at pseudo-random moments.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use feedloop_tests::{
+    describe, feedloop_bin, find_process, process_lock, read_json, repo_file, scratch, signal,
+    trace_rows,
+};
+
+const PERIOD: f64 = 0.0005;
+const WATCHDOG: u64 = 20;
+
+fn job(dir: &Path, name: &str, safety: &str, model_y: Option<&str>) -> PathBuf {
+    let models = repo_file("examples/models");
+    let y = model_y
+        .map(str::to_string)
+        .unwrap_or_else(|| format!("{}/xy-y.toml", models.display()));
+    let text = format!(
+        r#"name = "{name}"
+period_s = {PERIOD}
+[run]
+wait = "block"
+watchdog_cycles = {WATCHDOG}
+peer_timeout_s = 3.0
+[safety]
+{safety}
+[axes.x]
+model = "{m}/xy-x.toml"
+[axes.y]
+model = "{y}"
+[trajectory]
+kind = "circle"
+axes = ["x", "y"]
+center_m = [-0.004, 0.0]
+radius_m = 0.004
+feed_m_per_s = 0.02
+turns = 1.0
+ramp_s = 0.05
+"#,
+        m = models.display()
+    );
+    let p = dir.join(format!("{name}.toml"));
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn start_run(job: &Path, out: &Path, mode: &str, instance: &str) -> Child {
+    Command::new(feedloop_bin())
+        .args(["run"])
+        .arg(job)
+        .arg("--out")
+        .arg(out)
+        .args(["--mode", mode, "--wait", "block", "--instance", instance])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+fn wait_for_process(words: &[&str]) -> u32 {
+    let t = Instant::now();
+    loop {
+        if let Some(p) = find_process(words) {
+            return p;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "process {words:?} never appeared"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Rows must be one per cycle from 0 on, without gaps.
+fn assert_contiguous(trace: &Path) -> usize {
+    let rows = trace_rows(trace);
+    for (k, r) in rows.iter().enumerate() {
+        let t = k as f64 * PERIOD;
+        assert!(
+            (r[0] - t).abs() < 1e-9,
+            "row {k} has t = {} (expected {t})",
+            r[0]
+        );
+    }
+    rows.len()
+}
+
+fn trials() -> usize {
+    std::env::var("FEEDLOOP_KILL_TRIALS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20)
+}
+
+#[test]
+fn killed_scheduler_is_detected_within_the_watchdog_and_the_axes_are_stopped() {
+    let _g = process_lock();
+    let dir = scratch("killsched");
+    let job = job(&dir, "killsched", "", None);
+    let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+    let n = trials();
+    let mut detected = Vec::new();
+    for i in 0..n {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        let delay_ms = 60 + seed % 500;
+        let out = dir.join(format!("t{i}"));
+        let inst = format!("kill-{}-{i}", std::process::id());
+        let mut run = start_run(&job, &out, "realtime", &inst);
+        let sched = wait_for_process(&["scheduler", "--instance", &inst]);
+        std::thread::sleep(Duration::from_millis(delay_ms));
+        signal(sched, "KILL");
+        let st = run.wait().unwrap();
+        assert!(
+            !st.success(),
+            "trial {i}: run exited 0 after its scheduler was killed"
+        );
+        let sum = read_json(&out.join("summary.json"));
+        let end = &sum["end"];
+        // A kill late in the run may land after the last cycle: then the run completed.
+        if end["reason"] == "completed" {
+            continue;
+        }
+        assert_eq!(end["reason"], "scheduler_lost", "trial {i}: {sum}");
+        let after = end["detected_after_cycles"].as_u64().unwrap();
+        assert!(
+            after <= WATCHDOG,
+            "trial {i}: detected after {after} cycles"
+        );
+        assert_eq!(end["safe_stop"], "brake_ramp");
+        let rows = assert_contiguous(&out.join("trace.csv"));
+        let stop_cycle = end["cycle"].as_u64().unwrap() as usize;
+        assert!(
+            rows > stop_cycle,
+            "trial {i}: trace ends at {rows} rows before the stop at {stop_cycle}"
+        );
+        detected.push(after);
+    }
+    assert!(
+        detected.len() * 2 >= n,
+        "too few trials hit a running loop: {detected:?}"
+    );
+    eprintln!(
+        "{} kill trials, detected after {:?} cycles",
+        detected.len(),
+        detected
+    );
+    // The next run on a used instance name starts cleanly.
+    let out = dir.join("after");
+    let st = Command::new(feedloop_bin())
+        .args(["run"])
+        .arg(&job)
+        .arg("--out")
+        .arg(&out)
+        .args([
+            "--mode",
+            "lockstep",
+            "--wait",
+            "block",
+            "--instance",
+            &format!("kill-{}-0", std::process::id()),
+        ])
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", describe(&st));
+}
+
+#[test]
+fn killed_plant_is_reported_as_plant_lost_with_the_trace_kept() {
+    let _g = process_lock();
+    let dir = scratch("killplant");
+    let job = job(&dir, "killplant", "", None);
+    let out = dir.join("out");
+    let inst = format!("killplant-{}", std::process::id());
+    let mut run = start_run(&job, &out, "realtime", &inst);
+    let plant = wait_for_process(&["plant", "--instance", &inst]);
+    std::thread::sleep(Duration::from_millis(300));
+    signal(plant, "KILL");
+    let st = run.wait().unwrap();
+    assert!(!st.success());
+    let sum = read_json(&out.join("summary.json"));
+    assert_eq!(sum["end"]["reason"], "plant_lost", "{sum}");
+    assert_eq!(sum["scheduler"]["end"]["reason"], "plant_lost", "{sum}");
+    let rows = assert_contiguous(&out.join("trace.csv"));
+    assert!(rows > 0);
+}
+
+#[test]
+fn operator_stop_of_the_run_or_the_scheduler_brakes_and_exits_cleanly() {
+    let _g = process_lock();
+    let dir = scratch("opstop");
+    let job = job(&dir, "opstop", "", None);
+    for target in ["run", "scheduler"] {
+        let out = dir.join(target);
+        let inst = format!("opstop-{}-{target}", std::process::id());
+        let mut run = start_run(&job, &out, "realtime", &inst);
+        let sched = wait_for_process(&["scheduler", "--instance", &inst]);
+        std::thread::sleep(Duration::from_millis(300));
+        let pid = if target == "run" { run.id() } else { sched };
+        signal(pid, "TERM");
+        let st = run.wait().unwrap();
+        let sum = read_json(&out.join("summary.json"));
+        assert_eq!(sum["end"]["reason"], "operator_stop", "{target}: {sum}");
+        assert_eq!(sum["end"]["safe_stop"], "brake_ramp");
+        assert!(st.success(), "{target}: operator stop must exit 0");
+        let rows = trace_rows(&out.join("trace.csv"));
+        // Braked: the last motor velocities are near zero (x.motor_vel is column 4, y's 9).
+        let last = rows.last().unwrap();
+        assert!(
+            last[4].abs() < 0.5 && last[9].abs() < 0.5,
+            "{target}: still moving: {last:?}"
+        );
+    }
+}
+
+fn limit_stop(name: &str, safety: &str, model_y: Option<&str>, reason: &str) {
+    let dir = scratch(name);
+    let job = job(&dir, name, safety, model_y);
+    let out = dir.join("out");
+    let o = Command::new(feedloop_bin())
+        .args(["run"])
+        .arg(&job)
+        .arg("--out")
+        .arg(&out)
+        .args(["--mode", "lockstep", "--wait", "block"])
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success(),
+        "{name}: a limit stop must exit non-zero"
+    );
+    let sum = read_json(&out.join("summary.json"));
+    assert_eq!(sum["end"]["reason"], reason, "{sum}");
+    assert!(sum["end"]["axis"].is_string());
+}
+
+#[test]
+fn following_error_above_the_limit_stops_the_run() {
+    let _g = process_lock();
+    // The circle lags by v / Kp = 0.02 / 50 = 0.4 mm: a 0.1 mm alarm must trip.
+    limit_stop(
+        "fe",
+        "max_following_error_m = 1.0e-4",
+        None,
+        "following_error",
+    );
+}
+
+#[test]
+fn leaving_the_soft_travel_limits_stops_the_run() {
+    let _g = process_lock();
+    limit_stop(
+        "soft",
+        "soft_limits_m = { x = [-0.005, 0.005] }",
+        None,
+        "soft_limit",
+    );
+}
+
+#[test]
+fn torque_saturated_too_long_stops_the_run() {
+    let _g = process_lock();
+    let dir = scratch("satmodel");
+    let weak = dir.join("weak-y.toml");
+    let text = std::fs::read_to_string(repo_file("examples/models/xy-y.toml"))
+        .unwrap()
+        .replace("torque_limit_nm = 30.0", "torque_limit_nm = 0.02");
+    std::fs::write(&weak, text).unwrap();
+    limit_stop(
+        "sat",
+        "max_saturation_s = 0.02",
+        Some(weak.to_str().unwrap()),
+        "torque_saturation",
+    );
+}
+
+#[test]
+fn a_second_scheduler_cannot_attach_to_a_running_instance() {
+    let _g = process_lock();
+    let dir = scratch("second");
+    let job = job(&dir, "second", "", None);
+    let inst = format!("second-{}", std::process::id());
+    let out = dir.join("out");
+    let mut run = start_run(&job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
+    std::thread::sleep(Duration::from_millis(200));
+    let o = Command::new(feedloop_bin())
+        .args(["scheduler", "--instance", &inst, "--job"])
+        .arg(&job)
+        .arg("--out")
+        .arg(dir.join("intruder"))
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success(),
+        "a second scheduler attached: {}",
+        describe(&o)
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("publisher"), "{err}");
+    signal(run.id(), "TERM");
+    let _ = run.wait();
+    let sum = read_json(&out.join("summary.json"));
+    // The intruder did not disturb the loop: no bad sequence numbers reached the plant.
+    assert_eq!(sum["bad_sequence"], 0, "{sum}");
+}
