@@ -226,7 +226,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 StopCause::FollowingError { axis }
                 | StopCause::TorqueSaturation { axis }
                 | StopCause::SoftLimit { axis } => e["axis"] = json!(job.axes[axis].name),
-                StopCause::OperatorStop => {}
+                StopCause::OperatorStop | StopCause::PluginFault => {}
             }
             e
         }
@@ -305,6 +305,7 @@ pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
         &json!({"pid": std::process::id(), "commands": outcome.commands,
                 "out_of_order": outcome.out_of_order, "skipped": outcome.skipped, "missing": outcome.missing,
                 "nonfinite_faults": cycle.chain().nonfinite_faults,
+                "plugin_panics": cycle.chain().plugin_panics,
                 "dropped_records": outcome.dropped_records, "end": end,
                 "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes(),
                 "swaps": control.swaps}),

@@ -5,6 +5,7 @@
 //! never lets a non-finite torque through: a stage that produces NaN/inf yields zero torque
 //! for that cycle and the fault is counted.
 
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
 use crate::controller::{
@@ -32,6 +33,9 @@ pub struct Chain {
     signals: Vec<AxisSignals>,
     /// Cycles in which some axis produced a non-finite torque (forced to zero).
     pub nonfinite_faults: u64,
+    /// Plugin steps that panicked (caught at the plugin boundary; the scheduler then asks the
+    /// plant for a safe stop).
+    pub plugin_panics: u64,
 }
 
 /// Stages filled when a job gives none for an axis.
@@ -111,6 +115,7 @@ impl Chain {
             couplers,
             signals: vec![AxisSignals::default(); n],
             nonfinite_faults: 0,
+            plugin_panics: 0,
         })
     }
 
@@ -169,11 +174,16 @@ impl Chain {
             sig.torque_ff = 0.0;
             sig.torque = 0.0;
             for c in axis.stages[..Stage::Velocity.index()].iter_mut().flatten() {
-                c.step(ctx, sig);
+                if catch_unwind(AssertUnwindSafe(|| c.step(ctx, sig))).is_err() {
+                    self.plugin_panics += 1;
+                }
             }
         }
         for c in &mut self.couplers {
-            c.step(ctx, &mut self.signals);
+            let signals = &mut self.signals;
+            if catch_unwind(AssertUnwindSafe(|| c.step(ctx, signals))).is_err() {
+                self.plugin_panics += 1;
+            }
         }
         let mut fault = false;
         for (i, (axis, sig)) in self
@@ -183,11 +193,18 @@ impl Chain {
             .enumerate()
         {
             if let Some(c) = &mut axis.stages[Stage::Velocity.index()] {
-                c.step(ctx, sig);
+                if catch_unwind(AssertUnwindSafe(|| c.step(ctx, sig))).is_err() {
+                    self.plugin_panics += 1;
+                    sig.torque = 0.0;
+                }
             }
             if !sig.torque.is_finite() {
                 sig.torque = 0.0;
                 fault = true;
+            }
+            // Last line of defence: never command more than the axis' torque limit.
+            if let Some(lim) = axis.context.defaults.torque_limit {
+                sig.torque = sig.torque.clamp(-lim, lim);
             }
             cmd.axes[i].torque = sig.torque;
             cmd.axes[i].reference = refs[i][0];
@@ -211,4 +228,103 @@ fn prefix_key(mut e: ConfigError, key: &str) -> ConfigError {
         };
     }
     e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::controller::{AxisSignals, ControllerState};
+    use crate::wire::{ActuatorCommand, SensorSample};
+
+    /// Produces `value` as torque, or panics when `value` is NaN.
+    struct Fixed(f64);
+
+    impl Controller for Fixed {
+        fn id(&self) -> &str {
+            "fixed"
+        }
+        fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
+            if self.0.is_nan() {
+                panic!("plugin bug");
+            }
+            io.torque = self.0;
+        }
+        fn snapshot(&self) -> ControllerState {
+            ControllerState::EMPTY
+        }
+        fn restore(&mut self, _s: &ControllerState) {}
+    }
+
+    struct Reg(f64);
+
+    impl PluginRegistry for Reg {
+        fn ids(&self) -> Vec<(&'static str, Stage)> {
+            vec![("fixed", Stage::Velocity)]
+        }
+        fn create(
+            &self,
+            _id: &str,
+            _params: &toml::Table,
+            _axis: &AxisContext,
+            _file: &Path,
+        ) -> Result<Box<dyn Controller>, ConfigError> {
+            Ok(Box::new(Fixed(self.0)))
+        }
+    }
+
+    fn chain(torque: f64) -> Chain {
+        let dir =
+            std::env::temp_dir().join(format!("feedloop-chain-{}-{torque}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("m.toml"),
+            "kind = \"rigid\"\nmass_kg = 10\n[controller]\nforce_limit_n = 100\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("j.toml"),
+            "period_s = 0.001\n[axes.x]\nmodel = \"m.toml\"\n[[chain]]\naxis = \"x\"\nstage = \"velocity\"\nplugin = \"fixed\"\n[trajectory]\nkind = \"dwell\"\n",
+        )
+        .unwrap();
+        let job = Job::load(&dir.join("j.toml")).unwrap();
+        Chain::build(&job, &Reg(torque)).unwrap()
+    }
+
+    fn step(c: &mut Chain) -> f64 {
+        let ctx = CycleContext {
+            period_s: 0.001,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        let sample = SensorSample::empty(1, 0);
+        let mut cmd = ActuatorCommand::empty(1, 0);
+        c.step(&ctx, &[[0.0; 6]], &sample, &mut cmd);
+        cmd.axes[0].torque
+    }
+
+    #[test]
+    fn a_panicking_plugin_is_contained_and_yields_zero_torque() {
+        let prev = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        let mut c = chain(f64::NAN);
+        let t = step(&mut c);
+        std::panic::set_hook(prev);
+        assert_eq!(t, 0.0);
+        assert_eq!(c.plugin_panics, 1);
+    }
+
+    #[test]
+    fn torque_beyond_the_axis_limit_never_reaches_the_wire() {
+        let mut c = chain(1.0e6);
+        assert_eq!(step(&mut c), 100.0);
+        let mut c = chain(-1.0e6);
+        assert_eq!(step(&mut c), -100.0);
+    }
+
+    #[test]
+    fn infinite_torque_is_forced_to_zero_and_counted() {
+        let mut c = chain(f64::INFINITY);
+        assert_eq!(step(&mut c), 0.0);
+        assert_eq!(c.nonfinite_faults, 1);
+    }
 }

@@ -19,7 +19,7 @@ use crate::record::{
     AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_MISSED, REC_OVERRUN, REC_STALL,
 };
 use crate::wire::{
-    ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
+    ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
 };
 
 /// What the loop needs of the physics (implemented by the plant simulator, later by a drive bridge).
@@ -86,6 +86,8 @@ pub enum StopCause {
         /// Axis index.
         axis: usize,
     },
+    /// The scheduler reported a failed (panicked) controller plugin: `plugin_fault`.
+    PluginFault,
 }
 
 impl StopCause {
@@ -97,6 +99,7 @@ impl StopCause {
             StopCause::FollowingError { .. } => "following_error",
             StopCause::TorqueSaturation { .. } => "torque_saturation",
             StopCause::SoftLimit { .. } => "soft_limit",
+            StopCause::PluginFault => "plugin_fault",
         }
     }
 }
@@ -248,7 +251,9 @@ pub fn run_plant<P: PlantDevice>(
                     continue;
                 }
                 latency_ns = now_ns() - published;
-                if c.flags & FLAG_STOP != 0 {
+                if c.flags & FLAG_FAULT != 0 {
+                    cause = cause.or(Some(StopCause::PluginFault));
+                } else if c.flags & FLAG_STOP != 0 {
                     cause = cause.or(Some(StopCause::OperatorStop));
                 } else {
                     applied = c;

@@ -8,7 +8,7 @@ use crate::cycle::ControlCycle;
 use crate::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
 use crate::job::Mode;
 use crate::record::{Recorder, SchedRecord};
-use crate::wire::{ActuatorCommand, FLAG_END, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION};
+use crate::wire::{ActuatorCommand, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION};
 
 /// Settings of one scheduler run.
 #[derive(Debug, Clone)]
@@ -116,6 +116,7 @@ pub fn run_scheduler(
     };
     let t_start = now_ns();
     let mut stop_sent = false;
+    let mut fault_sent = false;
     loop {
         let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
         if stop_now && !started {
@@ -196,7 +197,7 @@ pub fn run_scheduler(
         if s.seq > next_seq + u64::from(skipped) {
             out.missing += s.seq - next_seq - u64::from(skipped);
         }
-        if s.flags & FLAG_END != 0 && (s.seq >= cycle.cycles() || stop_sent) {
+        if s.flags & FLAG_END != 0 && (s.seq >= cycle.cycles() || stop_sent || fault_sent) {
             out.end = if stop_sent {
                 SchedulerEnd::OperatorStop { cycle: s.seq }
             } else {
@@ -214,6 +215,11 @@ pub fn run_scheduler(
             stop_sent = true;
         } else {
             cmd.flags &= !FLAG_STOP;
+        }
+        if cycle.chain().plugin_panics > 0 {
+            // A plugin panicked: the chain's output can no longer be trusted.
+            cmd.flags |= FLAG_FAULT;
+            fault_sent = true;
         }
         let compute_ns = (now_ns() - c0).min(u32::MAX as u64) as u32;
         ep.send(cmd)?;

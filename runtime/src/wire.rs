@@ -20,6 +20,8 @@ pub const FLAG_HELLO: u32 = 1;
 pub const FLAG_END: u32 = 2;
 /// `ActuatorCommand::flags`: the scheduler asks the plant for a controlled stop (operator stop).
 pub const FLAG_STOP: u32 = 4;
+/// `ActuatorCommand::flags`: a controller plugin failed (panicked); the plant makes a safe stop.
+pub const FLAG_FAULT: u32 = 8;
 
 /// What the plant measured on one axis at the start of a cycle.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, Serialize, Deserialize)]
