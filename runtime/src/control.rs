@@ -608,9 +608,14 @@ fn build_one(
     job_path: &Path,
 ) -> Result<Box<dyn Controller>, String> {
     if let Some(lib) = &job.lib {
-        return Err(format!(
-            "shared-library plugins are not supported by this build (asked to load {lib})"
-        ));
+        let c = crate::abi::LibController::load(
+            Path::new(lib),
+            &job.plugin,
+            job.params.as_deref().unwrap_or(""),
+            &contexts[job.axis],
+        )
+        .map_err(|e| e.to_string())?;
+        return Ok(Box::new(c));
     }
     let src = Path::new("<swap --params>");
     let (cur_id, cur_params) = &current[job.axis][job.stage.index()];

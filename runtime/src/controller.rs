@@ -14,8 +14,10 @@ use crate::params::ConfigError;
 /// Number of reference derivatives carried (position and its 1st..5th time derivatives).
 pub const REF_DERIVS: usize = 6;
 
-/// Signals of one axis in one cycle.
+/// Signals of one axis in one cycle. `#[repr(C)]`: shared-library plugins receive a pointer to it
+/// (see [`crate::abi`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[repr(C)]
 pub struct AxisSignals {
     /// Commanded position and its time derivatives 1..5 (motor units per s^n).
     pub reference: [f64; REF_DERIVS],
@@ -82,8 +84,9 @@ impl fmt::Display for Stage {
     }
 }
 
-/// Timing of the current cycle.
+/// Timing of the current cycle. `#[repr(C)]`: passed to shared-library plugins.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C)]
 pub struct CycleContext {
     /// Control period, s.
     pub period_s: f64,

@@ -7,6 +7,7 @@
 //! - [`trace`]: trace format v1.
 #![warn(missing_docs)]
 
+pub mod abi;
 pub mod chain;
 pub mod clock;
 pub mod control;

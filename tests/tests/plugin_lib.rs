@@ -1,0 +1,151 @@
+//! Third-party plugins as shared libraries: the out-of-tree example in
+//! `examples/plugins/pi-velocity-c/` is built here, loaded into a running loop and swapped in and
+//! out alternately with the built-in PI; a library of another ABI version and a library without the
+//! plugin symbols are refused with a reason.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use feedloop_tests::{
+    feedloop, feedloop_bin, find_process, process_lock, read_json, repo_file, scratch, signal,
+};
+
+fn build_example(target: &Path, wrong_abi: bool) -> PathBuf {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args(["build", "--release", "--offline", "--manifest-path"])
+        .arg(repo_file("examples/plugins/pi-velocity-c/Cargo.toml"))
+        .arg("--target-dir")
+        .arg(target);
+    if wrong_abi {
+        cmd.args(["--features", "wrong-abi"]);
+    }
+    let st = cmd.status().expect("running cargo for the example plugin");
+    assert!(st.success(), "building the example plugin failed");
+    target.join("release/libfeedloop_plugin_pi_velocity_c.so")
+}
+
+#[test]
+fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_are_refused() {
+    let _g = process_lock();
+    let dir = scratch("plugin-lib");
+    let good = build_example(&dir.join("t-good"), false);
+    let wrong = build_example(&dir.join("t-wrong"), true);
+    let models = repo_file("examples/models");
+    let job = dir.join("lib.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "name = \"lib\"\nperiod_s = 0.0005\nduration_s = 30.0\n[run]\nwait = \"block\"\n\
+             [axes.x]\nmodel = \"{m}/xy-x.toml\"\n[axes.y]\nmodel = \"{m}/xy-y.toml\"\n\
+             [trajectory]\nkind = \"circle\"\naxes = [\"x\", \"y\"]\ncenter_m = [-0.01, 0.0]\n\
+             radius_m = 0.01\nfeed_m_per_s = 0.0333\nturns = 100.0\nramp_s = 0.1\n",
+            m = models.display()
+        ),
+    )
+    .unwrap();
+    let params = dir.join("p.toml");
+    std::fs::write(&params, "kv_nms_per_rad = 5.5\n").unwrap();
+    let inst = format!("lib-{}", std::process::id());
+    let out = dir.join("out");
+    let mut run = Command::new(feedloop_bin())
+        .arg("run")
+        .arg(&job)
+        .arg("--out")
+        .arg(&out)
+        .args(["--mode", "realtime", "--wait", "block", "--instance", &inst])
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while find_process(&["scheduler", "--instance", &inst]).is_none() {
+        assert!(t.elapsed() < Duration::from_secs(10));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let swap = |extra: &[String]| {
+        let mut a: Vec<String> = [
+            "swap",
+            "--instance",
+            &inst,
+            "--axis",
+            "x",
+            "--stage",
+            "velocity",
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect();
+        a.extend_from_slice(extra);
+        let refs: Vec<&str> = a.iter().map(String::as_str).collect();
+        feedloop(&refs)
+    };
+    let lib_args = vec![
+        "--plugin".to_string(),
+        "pi_velocity_c".into(),
+        "--lib".into(),
+        s(&good),
+    ];
+    let builtin_args = vec![
+        "--plugin".to_string(),
+        "pi_velocity".into(),
+        "--params".into(),
+        s(&params),
+    ];
+    for i in 0..10 {
+        let o = swap(if i % 2 == 0 { &lib_args } else { &builtin_args });
+        assert!(
+            o.status.success(),
+            "swap {i}: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+    }
+    let o = swap(&[
+        "--plugin".into(),
+        "pi_velocity_c".into(),
+        "--lib".into(),
+        s(&wrong),
+    ]);
+    assert!(!o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("ABI version 999"), "{text}");
+    let libm = [
+        "/lib/x86_64-linux-gnu/libm.so.6",
+        "/usr/lib/x86_64-linux-gnu/libm.so.6",
+        "/lib64/libm.so.6",
+    ]
+    .into_iter()
+    .find(|p| Path::new(p).exists());
+    if let Some(libm) = libm {
+        let o = swap(&["--plugin".into(), "x".into(), "--lib".into(), libm.into()]);
+        assert!(!o.status.success());
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            text.contains("lacks the symbol `feedloop_plugin_abi_version`"),
+            "{text}"
+        );
+    }
+    signal(run.id(), "TERM");
+    assert!(run.wait().unwrap().success());
+    let sum = read_json(&out.join("summary.json"));
+    let swaps = sum["swaps"].as_array().unwrap();
+    assert_eq!(swaps.len(), 10, "{sum}");
+    for (i, w) in swaps.iter().enumerate() {
+        assert_eq!(w["rolled_back"], false, "swap {i}: {w}");
+        let (step, allowed) = (
+            w["torque_step"].as_f64().unwrap(),
+            w["allowed_step"].as_f64().unwrap(),
+        );
+        assert!(step <= allowed, "swap {i}: {step} > {allowed}: {w}");
+        assert_eq!(
+            w["to"],
+            if i % 2 == 0 {
+                "pi_velocity_c"
+            } else {
+                "pi_velocity"
+            }
+        );
+    }
+}
