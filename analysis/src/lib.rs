@@ -2,5 +2,6 @@
 //! workbench (compare, diagnose, fit).
 #![warn(missing_docs)]
 
+pub mod identify;
 pub mod sim;
 pub mod workbench;

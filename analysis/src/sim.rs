@@ -15,7 +15,7 @@ use feedloop_runtime::export::{row_values, trace_columns};
 use feedloop_runtime::job::Job;
 use feedloop_runtime::params::ConfigError;
 use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::summary::Tracking;
+use feedloop_runtime::summary::{ContourMode, Tracking};
 use feedloop_runtime::trace::TraceWriter;
 use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
 
@@ -129,8 +129,12 @@ pub struct SimReport {
     pub tracking: Tracking,
 }
 
-/// The two axes whose contour is judged: the first two axes the trajectory drives.
-pub fn contour_axes(job: &Job, cycle: &ControlCycle) -> Option<(usize, usize)> {
+/// How a job's contour is judged: by the trajectory's own contour (circle, path, X-C profile),
+/// else, with two or more driven axes, by the distance to the commanded path of the first two.
+pub fn contour_mode(job: &Job, cycle: &ControlCycle) -> ContourMode {
+    if cycle.trajectory().contour().is_some() {
+        return ContourMode::Given;
+    }
     let names = job.axis_names();
     let driven: Vec<usize> = cycle
         .trajectory()
@@ -138,7 +142,24 @@ pub fn contour_axes(job: &Job, cycle: &ControlCycle) -> Option<(usize, usize)> {
         .iter()
         .filter_map(|a| names.iter().position(|n| n == a))
         .collect();
-    (driven.len() >= 2).then(|| (driven[0], driven[1]))
+    if driven.len() >= 2 {
+        ContourMode::Polyline(driven[0], driven[1])
+    } else {
+        ContourMode::None
+    }
+}
+
+/// The contour error of one trace row (`t_s`, measured load positions in `rows`), when the
+/// trajectory defines one.
+#[inline]
+pub fn row_contour_error(cycle: &ControlCycle, t_s: f64, rows: &[AxisRecord]) -> Option<f64> {
+    let mut loads = [0.0; MAX_AXES];
+    for (l, r) in loads.iter_mut().zip(rows) {
+        *l = r.load;
+    }
+    cycle
+        .trajectory()
+        .contour_error_m(t_s, &loads[..rows.len()])
 }
 
 /// Runs a whole job; writes `trace` (trace format v1) when given. `progress` is called now and
@@ -153,7 +174,8 @@ pub fn simulate(
     let names = job.axis_names();
     let n = names.len();
     let total = sim.cycles();
-    let mut tracking = Tracking::new(&names, contour_axes(job, &sim.cycle));
+    let mode = contour_mode(job, &sim.cycle);
+    let mut tracking = Tracking::new(&names, mode);
     let io_err = |p: &Path, e: std::io::Error| SimError::Io {
         path: p.display().to_string(),
         source: e,
@@ -188,7 +210,13 @@ pub fn simulate(
         compute += t0.elapsed();
         let t1 = std::time::Instant::now();
         for (j, rows) in batch.iter().take(m).enumerate() {
-            tracking.push(&rows[..n]);
+            let seq = first + j as u64;
+            let ce = if mode == ContourMode::Given {
+                row_contour_error(&sim.cycle, sim.cycle.time_of(seq), &rows[..n])
+            } else {
+                None
+            };
+            tracking.push(&rows[..n], ce);
             if let Some((_, w)) = writer.as_mut() {
                 row_values(first + j as u64, period, &rows[..n], &mut row);
                 w.write_row(&row).map_err(|e| io_err(trace.unwrap(), e))?;

@@ -6,6 +6,7 @@
 
 mod bench;
 mod control;
+mod identify_cmd;
 mod learn;
 mod processes;
 mod signals;
@@ -106,6 +107,13 @@ enum Command {
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
     },
+    /// Identification of seeds 000/001: load inertia, screw stiffness.
+    #[command(subcommand)]
+    Identify(identify_cmd::IdentifyCmd),
+    /// Grid search of control parameters on the ramp test of seed 001.
+    Tune(identify_cmd::TuneArgs),
+    /// Write an excitation command (seed 001) as a trace a job can play.
+    Excite(identify_cmd::ExciteArgs),
     /// Learning compensators (seed 004's quadrant compensator).
     #[command(subcommand)]
     Learn(learn::LearnCmd),
@@ -149,6 +157,9 @@ fn main() -> ExitCode {
         Command::Scheduler { args } => processes::scheduler(&args),
         Command::Bench(cmd) => bench::run(cmd),
         Command::Learn(cmd) => learn::run(cmd),
+        Command::Identify(c) => identify_cmd::identify(c),
+        Command::Tune(a) => identify_cmd::tune(a),
+        Command::Excite(a) => identify_cmd::excite(a),
         Command::Swap {
             instance,
             axis,

@@ -112,6 +112,18 @@ pub struct ContourFigures {
     pub rms_error: f64,
 }
 
+/// How the contour error of a run is judged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ContourMode {
+    /// No contour (single-axis jobs).
+    None,
+    /// The trajectory knows its contour (circle, path, X-C profile) and the caller passes each
+    /// row's error to [`Tracking::push`].
+    Given,
+    /// Distance from the measured point to the commanded polyline of these two axes.
+    Polyline(usize, usize),
+}
+
 /// Streams trace rows and accumulates the tracking figures.
 #[derive(Debug, Clone)]
 pub struct Tracking {
@@ -119,33 +131,43 @@ pub struct Tracking {
     sum_sq: Vec<f64>,
     max_abs: Vec<f64>,
     rows: u64,
-    contour_axes: Option<(usize, usize)>,
+    mode: ContourMode,
     path: Vec<[f64; 4]>,
+    given: Vec<f64>,
 }
 
 impl Tracking {
-    /// For axes `names` (job order); `contour_axes` picks the two axes whose contour is judged.
-    pub fn new(names: &[String], contour_axes: Option<(usize, usize)>) -> Self {
+    /// For axes `names` (job order), judging the contour as `mode` says.
+    pub fn new(names: &[String], mode: ContourMode) -> Self {
         Self {
             names: names.to_vec(),
             sum_sq: vec![0.0; names.len()],
             max_abs: vec![0.0; names.len()],
             rows: 0,
-            contour_axes,
+            mode,
             path: Vec::new(),
+            given: Vec::new(),
         }
     }
 
-    /// Adds one cycle's rows.
-    pub fn push(&mut self, axes: &[AxisRecord]) {
+    /// Adds one cycle's rows; `contour_error` is the row's contour error in [`ContourMode::Given`].
+    pub fn push(&mut self, axes: &[AxisRecord], contour_error: Option<f64>) {
         for (i, a) in axes.iter().enumerate().take(self.names.len()) {
             let e = a.cmd - a.load;
             self.sum_sq[i] += e * e;
             self.max_abs[i] = self.max_abs[i].max(e.abs());
         }
-        if let Some((x, y)) = self.contour_axes {
-            self.path
-                .push([axes[x].cmd, axes[y].cmd, axes[x].load, axes[y].load]);
+        match self.mode {
+            ContourMode::Polyline(x, y) => {
+                self.path
+                    .push([axes[x].cmd, axes[y].cmd, axes[x].load, axes[y].load]);
+            }
+            ContourMode::Given => {
+                if let Some(e) = contour_error {
+                    self.given.push(e.abs());
+                }
+            }
+            ContourMode::None => {}
         }
         self.rows += 1;
     }
@@ -170,8 +192,11 @@ impl Tracking {
 
     /// Contour figures, when two axes were named.
     pub fn contour(&self) -> Option<ContourFigures> {
-        self.contour_axes?;
-        let d = contour_distances(&self.path);
+        let d = match self.mode {
+            ContourMode::None => return None,
+            ContourMode::Given => self.given.clone(),
+            ContourMode::Polyline(..) => contour_distances(&self.path),
+        };
         if d.is_empty() {
             return None;
         }

@@ -1,0 +1,109 @@
+//! Frequency response by Welch averaging: Hann windows, 50 % overlap, H1 estimate and
+//! coherence, or the indirect estimate with an instrument (the command when the loop is closed).
+
+use rustfft::num_complex::Complex64;
+use rustfft::FftPlanner;
+
+use super::IdentifyError;
+
+/// A frequency response on a uniform frequency grid.
+#[derive(Debug, Clone)]
+pub struct Frf {
+    /// Frequencies, Hz.
+    pub f_hz: Vec<f64>,
+    /// Complex response output / input.
+    pub h: Vec<Complex64>,
+    /// Ordinary coherence between input and output, 0..1.
+    pub coherence: Vec<f64>,
+    /// Number of averaged segments.
+    pub segments: usize,
+}
+
+/// Welch cross spectra of `u` (input), `y` (output) and optionally `r` (instrument).
+/// `nseg` is the segment length (samples), `dt` the sample time. With `r`, the response is
+/// `S_ry / S_ru` (unbiased by noise on `u` and by feedback); without, `S_uy / S_uu` (H1).
+pub fn welch_frf(
+    u: &[f64],
+    y: &[f64],
+    r: Option<&[f64]>,
+    dt: f64,
+    nseg: usize,
+) -> Result<Frf, IdentifyError> {
+    let n = u.len().min(y.len());
+    if nseg < 16 || n < nseg {
+        return Err(IdentifyError::Invalid(format!(
+            "the record holds {n} samples, fewer than one FFT segment of {nseg}; record longer or \
+             lower the resolution"
+        )));
+    }
+    let hop = nseg / 2;
+    let window: Vec<f64> = (0..nseg)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / nseg as f64).cos())
+        .collect();
+    let fft = FftPlanner::<f64>::new().plan_fft_forward(nseg);
+    let nf = nseg / 2 + 1;
+    let mut suu = vec![0.0; nf];
+    let mut syy = vec![0.0; nf];
+    let mut suy = vec![Complex64::new(0.0, 0.0); nf];
+    let mut sru = vec![Complex64::new(0.0, 0.0); nf];
+    let mut sry = vec![Complex64::new(0.0, 0.0); nf];
+    let mut segments = 0;
+    let seg_fft = |x: &[f64]| -> Vec<Complex64> {
+        let mean = x.iter().sum::<f64>() / x.len() as f64;
+        let mut buf: Vec<Complex64> = x
+            .iter()
+            .zip(&window)
+            .map(|(v, w)| Complex64::new((v - mean) * w, 0.0))
+            .collect();
+        fft.process(&mut buf);
+        buf
+    };
+    let mut start = 0;
+    while start + nseg <= n {
+        let fu = seg_fft(&u[start..start + nseg]);
+        let fy = seg_fft(&y[start..start + nseg]);
+        let fr = r.map(|r| seg_fft(&r[start..start + nseg]));
+        for k in 0..nf {
+            suu[k] += fu[k].norm_sqr();
+            syy[k] += fy[k].norm_sqr();
+            suy[k] += fu[k].conj() * fy[k];
+            if let Some(fr) = &fr {
+                sru[k] += fr[k].conj() * fu[k];
+                sry[k] += fr[k].conj() * fy[k];
+            }
+        }
+        segments += 1;
+        start += hop;
+    }
+    let df = 1.0 / (nseg as f64 * dt);
+    let mut f_hz = Vec::with_capacity(nf);
+    let mut h = Vec::with_capacity(nf);
+    let mut coherence = Vec::with_capacity(nf);
+    for k in 0..nf {
+        f_hz.push(k as f64 * df);
+        let hk = if r.is_some() {
+            if sru[k].norm() > 0.0 {
+                sry[k] / sru[k]
+            } else {
+                Complex64::new(0.0, 0.0)
+            }
+        } else if suu[k] > 0.0 {
+            suy[k] / suu[k]
+        } else {
+            Complex64::new(0.0, 0.0)
+        };
+        h.push(hk);
+        let c = if suu[k] > 0.0 && syy[k] > 0.0 {
+            suy[k].norm_sqr() / (suu[k] * syy[k])
+        } else {
+            0.0
+        };
+        coherence.push(c);
+    }
+    Ok(Frf {
+        f_hz,
+        h,
+        coherence,
+        segments,
+    })
+}

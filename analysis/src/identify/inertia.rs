@@ -1,0 +1,322 @@
+//! Load inertia estimation (seed 000).
+//!
+//! The deviation `th - thL` (motor position in load units minus load position) at a load
+//! position is read by a least-squares line `dev = a + b (thL - at)` through the samples of the
+//! first pass within `+- half_window_m` of `at`; its value `a` at `at` is the deviation. One
+//! sample would carry the sensors' noise and quantisation whole; the line averages it.
+//!
+//! - Method 1 (`sim-match`): simulate the job (same command, controller and feedforward, the
+//!   feedforward keeping the inertia it ran with) on the model with a candidate `jl_kgm2`, and
+//!   adjust it by the secant method until the simulated deviation equals the measured one
+//!   (the deviation is linear in JL, so 3 to 5 moves suffice).
+//! - Method 2 (`linear`): interpolate JL linearly between a no-load and a known-load run.
+
+use feedloop_plugins::inverse_feedforward::TwoMassModel;
+use feedloop_plugins::Builtins;
+use feedloop_runtime::job::Job;
+use feedloop_runtime::model::PlantParams;
+use feedloop_runtime::record::AxisRecord;
+use feedloop_runtime::trace::Trace;
+use feedloop_runtime::wire::MAX_AXES;
+use serde::Serialize;
+
+use super::IdentifyError;
+use crate::sim::Simulation;
+
+/// Plugin id of the inverse-model feedforward.
+pub const FEEDFORWARD: &str = "inverse_feedforward";
+
+/// Where and how the deviation is read.
+#[derive(Debug, Clone, Copy)]
+pub struct Probe {
+    /// Load position, m (or rad).
+    pub at: f64,
+    /// Half width of the least-squares window, load units.
+    pub half_window: f64,
+}
+
+/// Reads the deviation `motor / motor_per_load - load` at `probe` from aligned records.
+pub fn deviation(
+    load: &[f64],
+    motor: &[f64],
+    motor_per_load: f64,
+    probe: Probe,
+) -> Result<f64, IdentifyError> {
+    let n = load.len().min(motor.len());
+    if n < 3 {
+        return Err(IdentifyError::Invalid(
+            "the record is too short to read a deviation".into(),
+        ));
+    }
+    let at = probe.at;
+    let s0 = (load[0] - at).signum();
+    let lo = load[..n].iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = load[..n].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let k = (1..n).find(|&k| (load[k] - at).signum() != s0 && s0 != 0.0);
+    let Some(k) = k else {
+        return Err(IdentifyError::Invalid(format!(
+            "position {at} is outside the move (the load travels {lo:.6} .. {hi:.6}); pick a \
+             position the load passes while accelerating or braking"
+        )));
+    };
+    let inside = |j: usize| (load[j] - at).abs() <= probe.half_window;
+    let mut a = k;
+    while a > 0 && inside(a - 1) {
+        a -= 1;
+    }
+    let mut b = k;
+    while b + 1 < n && inside(b + 1) {
+        b += 1;
+    }
+    let (mut sx, mut sy, mut sxx, mut sxy, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for j in a..=b {
+        let x = load[j] - at;
+        let y = motor[j] / motor_per_load - load[j];
+        sx += x;
+        sy += y;
+        sxx += x * x;
+        sxy += x * y;
+        m += 1.0;
+    }
+    let den = m * sxx - sx * sx;
+    if m < 3.0 || den.abs() < 1e-300 {
+        // Too few samples for a line: the mean (or the single crossing sample).
+        return Ok(sy / m);
+    }
+    let slope = (m * sxy - sx * sy) / den;
+    Ok((sy - slope * sx) / m)
+}
+
+/// The deviation of `axis` in a trace (columns `A.load`, `A.motor`).
+pub fn trace_deviation(
+    trace: &Trace,
+    axis: &str,
+    motor_per_load: f64,
+    probe: Probe,
+) -> Result<f64, IdentifyError> {
+    let load = trace.require(&format!("{axis}.load"))?;
+    let motor = trace.require(&format!("{axis}.motor"))?;
+    deviation(load, motor, motor_per_load, probe)
+}
+
+/// Index of `axis` in the job.
+pub fn axis_index(job: &Job, axis: Option<&str>) -> Result<usize, IdentifyError> {
+    match axis {
+        None => Ok(0),
+        Some(a) => job.axes.iter().position(|x| x.name == a).ok_or_else(|| {
+            IdentifyError::Invalid(format!(
+                "the job has no axis `{a}` (axes: {})",
+                job.axis_names().join(", ")
+            ))
+        }),
+    }
+}
+
+/// The inertia the job's feedforward of axis `i` uses (its `jl_kgm2`, else the model's).
+pub fn feedforward_jl(job: &Job, i: usize) -> Option<f64> {
+    let model_jl = job.axes[i].model.plant.two_mass()?.jl_kgm2;
+    Some(
+        job.chain
+            .iter()
+            .find(|c| c.axis == i && c.plugin == FEEDFORWARD)
+            .and_then(|c| c.params.get("jl_kgm2").and_then(|v| v.as_float()))
+            .unwrap_or(model_jl),
+    )
+}
+
+/// A copy of `job` whose axis `i` plant has load inertia `plant_jl` and whose feedforward (if
+/// any) uses `ff_jl`.
+pub fn job_with_jl(job: &Job, i: usize, plant_jl: f64, ff_jl: f64) -> Result<Job, IdentifyError> {
+    let mut j = job.clone();
+    match &mut j.axes[i].model.plant {
+        PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
+            two_mass.jl_kgm2 = plant_jl;
+        }
+        PlantParams::Rigid(_) => {
+            return Err(IdentifyError::Invalid(format!(
+                "axis `{}` is rigid: it has no load inertia behind a spring",
+                job.axes[i].name
+            )))
+        }
+    }
+    for c in j
+        .chain
+        .iter_mut()
+        .filter(|c| c.axis == i && c.plugin == FEEDFORWARD)
+    {
+        c.params.insert("jl_kgm2".into(), toml::Value::Float(ff_jl));
+    }
+    Ok(j)
+}
+
+/// Runs `job` and returns the records of axis `i`.
+pub fn run_axis(job: &Job, i: usize) -> Result<Vec<AxisRecord>, IdentifyError> {
+    let mut sim =
+        Simulation::new(job, &Builtins).map_err(|e| IdentifyError::Invalid(e.to_string()))?;
+    let n = job.axes.len();
+    let mut rows = [AxisRecord::default(); MAX_AXES];
+    let mut out = Vec::with_capacity(sim.cycles() as usize);
+    for _ in 0..sim.cycles() {
+        sim.step(&mut rows[..n]);
+        out.push(rows[i]);
+    }
+    Ok(out)
+}
+
+/// The deviation of a simulated run.
+pub fn simulated_deviation(
+    job: &Job,
+    i: usize,
+    plant_jl: f64,
+    ff_jl: f64,
+    probe: Probe,
+) -> Result<f64, IdentifyError> {
+    let j = job_with_jl(job, i, plant_jl, ff_jl)?;
+    let rec = run_axis(&j, i)?;
+    if let Some(lim) = job.axes[i].model.controller.torque_limit {
+        if let Some(k) = rec.iter().position(|r| r.torque.abs() >= 0.999 * lim) {
+            return Err(IdentifyError::Invalid(format!(
+                "the model saturates its torque limit {lim} at cycle {k} with jl_kgm2 = \
+                 {plant_jl:.4e}: the deviation is no longer linear in the inertia; use a \
+                 gentler move"
+            )));
+        }
+    }
+    let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
+    let motor: Vec<f64> = rec.iter().map(|r| r.motor).collect();
+    deviation(
+        &load,
+        &motor,
+        job.axes[i].model.plant.motor_per_load(),
+        probe,
+    )
+}
+
+/// Result of an inertia estimate.
+#[derive(Debug, Clone, Serialize)]
+pub struct InertiaEstimate {
+    /// Estimated load inertia, kg m^2.
+    pub jl_kgm2: f64,
+    /// `sim-match` or `linear`.
+    pub method: &'static str,
+    /// Simulated moves (sim-match) or 0.
+    pub iterations: usize,
+    /// Measured deviation, load units.
+    pub deviation_measured_m: f64,
+    /// Deviation of the model at the estimate, load units.
+    pub deviation_model_m: f64,
+}
+
+/// Method 1: adjusts the model's `jl_kgm2` until the simulated deviation at `probe` equals
+/// `measured`. Secant on the (linear) deviation characteristic, started at the job's inertia
+/// and 1.5 times it; at most 20 moves.
+pub fn sim_match(
+    job: &Job,
+    i: usize,
+    measured: f64,
+    probe: Probe,
+) -> Result<InertiaEstimate, IdentifyError> {
+    let jl0 = job.axes[i]
+        .model
+        .plant
+        .two_mass()
+        .ok_or_else(|| IdentifyError::Invalid("a rigid axis has no load inertia".into()))?
+        .jl_kgm2;
+    let ff = feedforward_jl(job, i).unwrap_or(jl0);
+    let f = |jl: f64| simulated_deviation(job, i, jl, ff, probe).map(|d| d - measured);
+    let (mut xa, mut xb) = (jl0, 1.5 * jl0);
+    let (mut fa, mut fb) = (f(xa)?, f(xb)?);
+    let mut iterations = 2;
+    let tol = 1e-5 * measured.abs().max(1e-12);
+    while fb.abs() > tol && iterations < 20 {
+        let slope = (fb - fa) / (xb - xa);
+        if !(slope.is_finite() && slope != 0.0) {
+            return Err(IdentifyError::Invalid(format!(
+                "the deviation at {} does not change with the load inertia: pick a position \
+                 where the axis accelerates",
+                probe.at
+            )));
+        }
+        let xn = (xb - fb / slope).max(1e-3 * jl0);
+        xa = xb;
+        fa = fb;
+        xb = xn;
+        fb = f(xb)?;
+        iterations += 1;
+        if (xb - xa).abs() < 1e-9 * xb {
+            break;
+        }
+    }
+    if fb.abs() > 1e-3 * measured.abs().max(1e-9) {
+        return Err(IdentifyError::Invalid(format!(
+            "no load inertia reproduces the measured deviation {measured:.4e} (best {xb:.4e} kg m^2 \
+             leaves {fb:.3e}); check the model's KL, JM and controller"
+        )));
+    }
+    Ok(InertiaEstimate {
+        jl_kgm2: xb,
+        method: "sim-match",
+        iterations,
+        deviation_measured_m: measured,
+        deviation_model_m: fb + measured,
+    })
+}
+
+/// Method 2: JL from the linear deviation characteristic through a no-load run (`dev0` at
+/// `jl0`) and a known-load run (`dev1` at `jl1`).
+pub fn linear(
+    dev0: f64,
+    jl0: f64,
+    dev1: f64,
+    jl1: f64,
+    measured: f64,
+) -> Result<InertiaEstimate, IdentifyError> {
+    if (dev1 - dev0).abs() <= 1e-12 || (jl1 - jl0).abs() <= 0.0 {
+        return Err(IdentifyError::Invalid(format!(
+            "the no-load and loaded runs give the same deviation ({dev0:.4e} / {dev1:.4e}) or \
+             inertia: no characteristic to interpolate"
+        )));
+    }
+    let jl = jl0 + (measured - dev0) / (dev1 - dev0) * (jl1 - jl0);
+    if jl.is_nan() || jl <= 0.0 {
+        return Err(IdentifyError::Invalid(format!(
+            "the characteristic gives a non-positive inertia {jl:.4e} kg m^2"
+        )));
+    }
+    Ok(InertiaEstimate {
+        jl_kgm2: jl,
+        method: "linear",
+        iterations: 0,
+        deviation_measured_m: measured,
+        deviation_model_m: measured,
+    })
+}
+
+/// The model file of axis `i` with `jl_kgm2` set to `jl` (TOML text), and the feedforward
+/// coefficients a1..a5 the new inertia gives with the model's Kv, Tv.
+pub fn applied_model(job: &Job, i: usize, jl: f64) -> Result<(String, [f64; 5]), IdentifyError> {
+    let m = &job.axes[i].model;
+    let text = std::fs::read_to_string(&m.path)
+        .map_err(|e| IdentifyError::Invalid(format!("reading {}: {e}", m.path.display())))?;
+    let mut t: toml::Table = text
+        .parse()
+        .map_err(|e| IdentifyError::Invalid(format!("{}: {e}", m.path.display())))?;
+    t.insert("jl_kgm2".into(), toml::Value::Float(jl));
+    let mut plant = m.plant;
+    if let PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } = &mut plant {
+        two_mass.jl_kgm2 = jl;
+    }
+    let kv = m.controller.kv.unwrap_or(5.0);
+    let tv = m.controller.tv_s.unwrap_or(0.0);
+    let a = TwoMassModel::of_plant(&plant).coefficients_a(kv, tv);
+    let out = format!(
+        "# {} with jl_kgm2 identified by feedloop identify inertia (feedforward a3..a5 = {:.6e}, \
+         {:.6e}, {:.6e})\n{}",
+        m.path.display(),
+        a[2],
+        a[3],
+        a[4],
+        toml::to_string(&t).map_err(|e| IdentifyError::Invalid(e.to_string()))?
+    );
+    Ok((out, a))
+}

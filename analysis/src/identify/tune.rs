@@ -1,0 +1,402 @@
+//! Control-parameter optimisation by a ramp test (seed 001): run the job for each parameter set
+//! of a grid (in parallel), score `E = l1 RMS(x err) + l2 RMS(v err) + l3 RMS(a err)` over the
+//! steady-state part, reject sets that saturate the torque or whose loops (from the model) have
+//! less than 30 deg phase margin or 6 dB gain margin.
+
+use std::f64::consts::PI;
+
+use feedloop_runtime::job::Job;
+use feedloop_runtime::model::PlantParams;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex64;
+use serde::Serialize;
+
+use super::inertia::run_axis;
+use super::IdentifyError;
+
+/// Tunable parameters, in grid order.
+pub const PARAMS: [&str; 3] = ["kp_per_s", "kv_nms_per_rad", "tv_s"];
+
+/// One grid axis `name = lo:hi:n`.
+#[derive(Debug, Clone)]
+pub struct GridAxis {
+    /// Parameter name (one of [`PARAMS`]).
+    pub name: String,
+    /// Values.
+    pub values: Vec<f64>,
+}
+
+/// Parses `name=lo:hi:n,name=lo:hi:n,...`.
+pub fn parse_grid(s: &str) -> Result<Vec<GridAxis>, IdentifyError> {
+    let bad = |m: String| IdentifyError::Invalid(m);
+    let mut out = Vec::new();
+    for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (name, range) = part
+            .split_once('=')
+            .ok_or_else(|| bad(format!("grid `{part}`: expected name=lo:hi:n")))?;
+        if !PARAMS.contains(&name) {
+            return Err(bad(format!(
+                "grid `{part}`: unknown parameter `{name}` (expected {})",
+                PARAMS.join(", ")
+            )));
+        }
+        let v: Vec<&str> = range.split(':').collect();
+        let (lo, hi, n) = match v.as_slice() {
+            [lo, hi, n] => (
+                lo.parse::<f64>()
+                    .map_err(|e| bad(format!("grid `{part}`: {e}")))?,
+                hi.parse::<f64>()
+                    .map_err(|e| bad(format!("grid `{part}`: {e}")))?,
+                n.parse::<usize>()
+                    .map_err(|e| bad(format!("grid `{part}`: {e}")))?,
+            ),
+            _ => return Err(bad(format!("grid `{part}`: expected name=lo:hi:n"))),
+        };
+        if n == 0 || !(lo.is_finite() && hi.is_finite()) || hi < lo || lo < 0.0 {
+            return Err(bad(format!(
+                "grid `{part}`: needs 0 <= lo <= hi and n >= 1 points (empty grid)"
+            )));
+        }
+        let values = (0..n)
+            .map(|k| {
+                if n == 1 {
+                    lo
+                } else {
+                    lo + (hi - lo) * k as f64 / (n - 1) as f64
+                }
+            })
+            .collect();
+        out.push(GridAxis {
+            name: name.to_string(),
+            values,
+        });
+    }
+    if out.is_empty() {
+        return Err(bad("empty grid: give e.g. kp_per_s=20:120:11".into()));
+    }
+    Ok(out)
+}
+
+/// Controller parameters of one evaluation.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct Gains {
+    /// Position gain, 1/s.
+    pub kp_per_s: f64,
+    /// Velocity gain, N m s/rad.
+    pub kv_nms_per_rad: f64,
+    /// Integral time, s.
+    pub tv_s: f64,
+}
+
+impl Gains {
+    fn set(&mut self, name: &str, v: f64) {
+        match name {
+            "kp_per_s" => self.kp_per_s = v,
+            "kv_nms_per_rad" => self.kv_nms_per_rad = v,
+            _ => self.tv_s = v,
+        }
+    }
+}
+
+/// The job's gains for axis `i` (chain params first, then the model's controller).
+pub fn job_gains(job: &Job, i: usize) -> Gains {
+    let c = &job.axes[i].model.controller;
+    let mut g = Gains {
+        kp_per_s: c.kp_per_s.unwrap_or(50.0),
+        kv_nms_per_rad: c.kv.unwrap_or(5.0),
+        tv_s: c.tv_s.unwrap_or(0.005),
+    };
+    for e in job.chain.iter().filter(|e| e.axis == i) {
+        for k in PARAMS {
+            if let Some(v) = e.params.get(k).and_then(|v| v.as_float()) {
+                g.set(k, v);
+            }
+        }
+    }
+    g
+}
+
+/// A copy of `job` with the gains of axis `i` set.
+pub fn job_with_gains(job: &Job, i: usize, g: Gains) -> Job {
+    let mut j = job.clone();
+    let c = &mut j.axes[i].model.controller;
+    c.kp_per_s = Some(g.kp_per_s);
+    c.kv = Some(g.kv_nms_per_rad);
+    c.tv_s = Some(g.tv_s);
+    for e in j.chain.iter_mut().filter(|e| e.axis == i) {
+        for (k, v) in [
+            ("kp_per_s", g.kp_per_s),
+            ("kv_nms_per_rad", g.kv_nms_per_rad),
+            ("tv_s", g.tv_s),
+        ] {
+            if e.params.contains_key(k) {
+                e.params.insert(k.into(), toml::Value::Float(v));
+            }
+        }
+    }
+    j
+}
+
+/// Phase and gain margins (deg, dB) of the velocity loop and of the position loop around it,
+/// from the 2-mass model (continuous time, no sampling delay); the worse of the two loops. The
+/// phase margin is the smallest distance of the phase from -180 deg at any gain crossover; the
+/// gain margin the smallest -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
+pub fn margins(plant: &PlantParams, g: Gains) -> Option<(f64, f64)> {
+    let t = plant.two_mass()?;
+    let (jm, dm, kl, cl, jl, dl) = (
+        t.jm_kgm2,
+        t.dm_nms_per_rad,
+        t.kl_nm_per_rad,
+        t.cl_nms_per_rad,
+        t.jl_kgm2,
+        t.dl_nms_per_rad,
+    );
+    let n = 4000;
+    let mut lv = Vec::with_capacity(n);
+    let mut lp = Vec::with_capacity(n);
+    for k in 0..n {
+        let f = 0.1 * (1e5f64).powf(k as f64 / (n - 1) as f64);
+        let s = Complex64::new(0.0, 2.0 * PI * f);
+        let ks = kl + cl * s;
+        let a = jm * s * s + dm * s + ks;
+        let b = jl * s * s + dl * s + ks;
+        let d = a * b - ks * ks;
+        let cv = if g.tv_s > 0.0 {
+            g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
+        } else {
+            Complex64::new(g.kv_nms_per_rad, 0.0)
+        };
+        let l_v = cv * s * b / d;
+        lv.push((f, l_v));
+        let th_l_over_v = cv * ks / (d + cv * s * b);
+        lp.push((f, g.kp_per_s * th_l_over_v));
+    }
+    let m = |l: &[(f64, Complex64)]| -> (f64, f64) {
+        let mut pm = f64::INFINITY;
+        let mut gm = f64::INFINITY;
+        let mut prev_phase = l[0].1.arg();
+        let mut phase = prev_phase;
+        for w in l.windows(2) {
+            let p = w[1].1.arg();
+            let mut dp = p - prev_phase;
+            while dp > PI {
+                dp -= 2.0 * PI;
+            }
+            while dp < -PI {
+                dp += 2.0 * PI;
+            }
+            let ph0 = phase;
+            phase += dp;
+            prev_phase = p;
+            let (m0, m1) = (w[0].1.norm(), w[1].1.norm());
+            if (m0 - 1.0) * (m1 - 1.0) <= 0.0 {
+                let p = w[1].1.arg().to_degrees();
+                pm = pm.min(180.0 - p.abs());
+            }
+            let c0 = ((ph0 + PI) / (2.0 * PI)).floor();
+            let c1 = ((phase + PI) / (2.0 * PI)).floor();
+            if c0 != c1 {
+                gm = gm.min(-20.0 * m1.log10());
+            }
+        }
+        (pm, gm)
+    };
+    let (pv, gv) = m(&lv);
+    let (pp, gp) = m(&lp);
+    Some((pv.min(pp), gv.min(gp)))
+}
+
+/// Score of one evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct Evaluation {
+    /// Gains.
+    pub gains: Gains,
+    /// E, or None when rejected.
+    pub e: Option<f64>,
+    /// Why rejected.
+    pub rejected: Option<String>,
+}
+
+/// E of a run of axis `i`: RMS of position, velocity and acceleration errors (central
+/// differences) over the steady-state part, i.e. where the command acceleration is ~0 and the
+/// velocity is not, after the first 30 % of that part.
+pub fn ramp_error(job: &Job, i: usize, weights: [f64; 3]) -> Result<(f64, f64), IdentifyError> {
+    let rec = run_axis(job, i)?;
+    let h = job.period_s;
+    let n = rec.len();
+    if n < 10 {
+        return Err(IdentifyError::Invalid(
+            "the run is too short for a ramp test".into(),
+        ));
+    }
+    let cmd: Vec<f64> = rec.iter().map(|r| r.cmd).collect();
+    let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
+    let tmax = rec.iter().map(|r| r.torque.abs()).fold(0.0, f64::max);
+    let vmax = (1..n - 1)
+        .map(|k| ((cmd[k + 1] - cmd[k - 1]) / (2.0 * h)).abs())
+        .fold(0.0, f64::max);
+    let steady: Vec<usize> = (2..n - 2)
+        .filter(|&k| {
+            let v = (cmd[k + 1] - cmd[k - 1]) / (2.0 * h);
+            let a = (cmd[k + 2] - 2.0 * cmd[k] + cmd[k - 2]) / (4.0 * h * h);
+            v.abs() > 0.5 * vmax && a.abs() < 1e-6 * vmax / h
+        })
+        .collect();
+    if steady.len() < 10 {
+        return Err(IdentifyError::Invalid(
+            "the job's command has no constant-velocity (ramp) part to score".into(),
+        ));
+    }
+    let part = &steady[(3 * steady.len()) / 10..];
+    let (mut sx, mut sv, mut sa) = (0.0, 0.0, 0.0);
+    for &k in part {
+        let e = |j: usize| cmd[j] - load[j];
+        sx += e(k).powi(2);
+        sv += ((e(k + 1) - e(k - 1)) / (2.0 * h)).powi(2);
+        sa += ((e(k + 1) - 2.0 * e(k) + e(k - 1)) / (h * h)).powi(2);
+    }
+    let m = part.len() as f64;
+    let e =
+        weights[0] * (sx / m).sqrt() + weights[1] * (sv / m).sqrt() + weights[2] * (sa / m).sqrt();
+    Ok((e, tmax))
+}
+
+/// Evaluates one gain set.
+pub fn evaluate(job: &Job, i: usize, g: Gains, weights: [f64; 3]) -> Evaluation {
+    let reject = |why: String| Evaluation {
+        gains: g,
+        e: None,
+        rejected: Some(why),
+    };
+    if let Some((pm, gm)) = margins(&job.axes[i].model.plant, g) {
+        if pm < 30.0 || gm < 6.0 {
+            return reject(format!("margins {pm:.1} deg / {gm:.1} dB"));
+        }
+    }
+    let j = job_with_gains(job, i, g);
+    match ramp_error(&j, i, weights) {
+        Ok((e, tmax)) => {
+            let lim = job.axes[i]
+                .model
+                .controller
+                .torque_limit
+                .unwrap_or(f64::INFINITY);
+            if tmax >= 0.999 * lim {
+                reject(format!("torque saturates ({tmax:.1} N m)"))
+            } else if !e.is_finite() {
+                reject("unstable".into())
+            } else {
+                Evaluation {
+                    gains: g,
+                    e: Some(e),
+                    rejected: None,
+                }
+            }
+        }
+        Err(e) => reject(e.to_string()),
+    }
+}
+
+/// Result of [`tune`].
+#[derive(Debug, Clone, Serialize)]
+pub struct TuneResult {
+    /// Best gains.
+    pub best: Gains,
+    /// E of the best.
+    pub e_best: f64,
+    /// E of the job's own gains.
+    pub e_default: f64,
+    /// Sets evaluated.
+    pub evaluated: usize,
+    /// Sets rejected.
+    pub rejected: usize,
+    /// All evaluations, grid order (last axis fastest).
+    #[serde(skip)]
+    pub all: Vec<Evaluation>,
+}
+
+/// Runs the grid in parallel; `progress` is called from worker threads after each set.
+pub fn tune(
+    job: &Job,
+    i: usize,
+    grid: &[GridAxis],
+    weights: [f64; 3],
+    refine: bool,
+    progress: &(dyn Fn() + Sync),
+) -> Result<TuneResult, IdentifyError> {
+    let base = job_gains(job, i);
+    let mut sets = vec![base];
+    for ax in grid {
+        sets = sets
+            .iter()
+            .flat_map(|g| {
+                ax.values.iter().map(move |v| {
+                    let mut g = *g;
+                    g.set(&ax.name, *v);
+                    g
+                })
+            })
+            .collect();
+    }
+    if sets.is_empty() {
+        return Err(IdentifyError::Invalid("empty grid".into()));
+    }
+    let all: Vec<Evaluation> = sets
+        .par_iter()
+        .map(|g| {
+            let e = evaluate(job, i, *g, weights);
+            progress();
+            e
+        })
+        .collect();
+    let e_default = evaluate(job, i, base, weights).e.unwrap_or(f64::NAN);
+    let best = all
+        .iter()
+        .filter_map(|e| e.e.map(|v| (v, e.gains)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .ok_or_else(|| {
+            IdentifyError::Invalid(format!(
+                "all {} parameter sets were rejected (first reason: {})",
+                all.len(),
+                all[0].rejected.clone().unwrap_or_default()
+            ))
+        })?;
+    let (mut e_best, mut g_best) = best;
+    if refine {
+        // Coordinate search with shrinking relative steps.
+        let mut step = 0.1;
+        while step > 0.005 {
+            let mut improved = false;
+            for name in grid.iter().map(|a| a.name.clone()) {
+                for s in [1.0 + step, 1.0 - step] {
+                    let mut g = g_best;
+                    let v = match name.as_str() {
+                        "kp_per_s" => g.kp_per_s,
+                        "kv_nms_per_rad" => g.kv_nms_per_rad,
+                        _ => g.tv_s,
+                    };
+                    g.set(&name, v * s);
+                    if let Some(e) = evaluate(job, i, g, weights).e {
+                        if e < e_best {
+                            e_best = e;
+                            g_best = g;
+                            improved = true;
+                        }
+                    }
+                }
+            }
+            if !improved {
+                step *= 0.5;
+            }
+        }
+    }
+    let rejected = all.iter().filter(|e| e.e.is_none()).count();
+    Ok(TuneResult {
+        best: g_best,
+        e_best,
+        e_default,
+        evaluated: all.len(),
+        rejected,
+        all,
+    })
+}

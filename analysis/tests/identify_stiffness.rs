@@ -1,0 +1,177 @@
+//! Stiffness identification (seed 001) on simulated closed-loop data.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use feedloop_analysis::identify::stiffness::{
+    identify_stiffness, Estimator, FrfKind, StiffnessOptions,
+};
+use feedloop_analysis::identify::IdentifyError;
+use feedloop_analysis::sim::simulate;
+use feedloop_plugins::Builtins;
+use feedloop_runtime::job::Job;
+use feedloop_runtime::trace::Trace;
+
+static NEXT: AtomicUsize = AtomicUsize::new(0);
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "feedloop-id-{tag}-{}-{}",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::SeqCst)
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const MODEL: &str = r#"
+kind = "ballscrew"
+jm_kgm2 = 2.0e-3
+dm_nms_per_rad = 1.0e-3
+kl_nm_per_rad = 3000.0
+cl_nms_per_rad = 0.02
+jl_kgm2 = 3.0e-3
+dl_nms_per_rad = 2.0e-3
+lead_m = 0.01
+[controller]
+kp_per_s = 50.0
+kv_nms_per_rad = 5.0
+tv_s = 0.005
+torque_limit_nm = 30.0
+[sensor]
+motor_counts_per_rev = 1048576
+velocity_estimate = "difference"
+torque_noise_nm = 0.02
+load_resolution_m = 1e-8
+seed = 3
+"#;
+
+const JOB: &str = r#"
+name = "identify-stiffness"
+period_s = 1.0e-4
+[axes.x]
+model = "model.toml"
+[trajectory]
+kind = "random_segments"
+velocity_m_per_s = { x = 0.02 }
+max_travel_m = { x = 0.01 }
+min_segment_s = 0.001
+max_segment_s = 0.003
+transition_s = 0.0005
+duration_s = 12.0
+seed = 7
+"#;
+
+/// Simulates the excitation job on `model` and reads the trace back.
+fn excite(tag: &str, model: &str) -> Trace {
+    let dir = temp_dir(tag);
+    std::fs::write(dir.join("model.toml"), model).unwrap();
+    std::fs::write(dir.join("job.toml"), JOB).unwrap();
+    let job = Job::load(&dir.join("job.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let path = dir.join("trace.csv");
+    simulate(&job, &Builtins, Some(&path), &mut |_, _| {}).unwrap();
+    Trace::read(Path::new(&path)).unwrap()
+}
+
+#[test]
+fn closed_loop_data_with_a_20_bit_encoder_gives_kl_3000_and_jl_3e_3_within_1_percent() {
+    let trace = excite("two-mass", MODEL);
+    let r = identify_stiffness(&trace, "x", &StiffnessOptions::new(2.0e-3)).unwrap();
+    let e_kl = r.kl_nm_per_rad / 3000.0 - 1.0;
+    let e_jl = r.jl_kgm2 / 3.0e-3 - 1.0;
+    println!(
+        "wa {:.2} Hz (159.15), wr {:.2} Hz (251.64), KL {:.1} ({:+.3} %), JL {:.4e} ({:+.3} %), coherence_min {:.3}, {} segments, {}",
+        r.antiresonance_hz,
+        r.resonance_hz,
+        r.kl_nm_per_rad,
+        100.0 * e_kl,
+        r.jl_kgm2,
+        100.0 * e_jl,
+        r.coherence_min,
+        r.segments,
+        r.estimator
+    );
+    assert_eq!(r.estimator, "instrument");
+    assert!(e_kl.abs() < 0.01, "KL error {e_kl}");
+    assert!(e_jl.abs() < 0.01, "JL error {e_jl}");
+    println!(
+        "second pair (noise above the velocity loop): {:?}",
+        r.second
+    );
+}
+
+#[test]
+fn with_a_third_mass_the_first_pair_is_picked_and_the_second_reported() {
+    // 100 kg on 5e7 N/m behind the table: reflected 2.53e-4 kg m^2 on 126.7 N m/rad.
+    let model = MODEL.replace(
+        "[sensor]",
+        "[effects.third_mass]\nmass_kg = 100.0\nstiffness_n_per_m = 1.0e9\ndamping_ns_per_m = 200.0\n[sensor]",
+    );
+    let trace = excite("three-mass", &model);
+    let mut opts = StiffnessOptions::new(2.0e-3);
+    opts.f_max_hz = Some(3000.0);
+    let r = identify_stiffness(&trace, "x", &opts).unwrap();
+    println!(
+        "picked {:.2} / {:.2} Hz, second {:?}",
+        r.antiresonance_hz, r.resonance_hz, r.second
+    );
+    let (fa, fr) = three_mass_pairs();
+    println!(
+        "predicted first pair {:.2} / {:.2} Hz, second {:.2} / {:.2} Hz",
+        fa[0], fr[0], fa[1], fr[1]
+    );
+    assert!((r.antiresonance_hz / fa[0] - 1.0).abs() < 0.01);
+    assert!((r.resonance_hz / fr[0] - 1.0).abs() < 0.01);
+    let s = r.second.expect("the second pair is reported");
+    assert!((s.antiresonance_hz / fa[1] - 1.0).abs() < 0.02, "{s:?}");
+    assert!((s.resonance_hz / fr[1] - 1.0).abs() < 0.02, "{s:?}");
+}
+
+/// Undamped anti-resonances (motor held) and resonances (free) of the 3-mass chain, Hz.
+fn three_mass_pairs() -> ([f64; 2], [f64; 2]) {
+    let r2 = (0.01 / (2.0 * std::f64::consts::PI)).powi(2);
+    let (jm, kl, jl, j3, k3) = (2.0e-3, 3000.0, 3.0e-3, 100.0 * r2, 1.0e9 * r2);
+    let eig = |m: Vec<f64>, k: nalgebra::DMatrix<f64>| -> Vec<f64> {
+        let n = m.len();
+        let s = nalgebra::DMatrix::from_fn(n, n, |i, j| k[(i, j)] / (m[i] * m[j]).sqrt());
+        let mut e: Vec<f64> = s.symmetric_eigen().eigenvalues.iter().copied().collect();
+        e.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        e.iter()
+            .filter(|v| **v > 1.0)
+            .map(|v| v.sqrt() / (2.0 * std::f64::consts::PI))
+            .collect()
+    };
+    let held = eig(
+        vec![jl, j3],
+        nalgebra::DMatrix::from_row_slice(2, 2, &[kl + k3, -k3, -k3, k3]),
+    );
+    let free = eig(
+        vec![jm, jl, j3],
+        nalgebra::DMatrix::from_row_slice(3, 3, &[kl, -kl, 0.0, -kl, kl + k3, -k3, 0.0, -k3, k3]),
+    );
+    ([held[0], held[1]], [free[0], free[1]])
+}
+
+#[test]
+fn the_closed_loop_command_to_table_frf_is_refused_with_the_reason() {
+    let trace = excite("refuse", MODEL);
+    let mut opts = StiffnessOptions::new(2.0e-3);
+    opts.frf = FrfKind::CommandToTable;
+    let e = identify_stiffness(&trace, "x", &opts).unwrap_err();
+    assert!(e.to_string().contains("negative inertia"), "{e}");
+}
+
+#[test]
+fn a_band_without_a_resonance_and_a_missing_column_are_clear_errors() {
+    let trace = excite("band", MODEL);
+    let mut opts = StiffnessOptions::new(2.0e-3);
+    opts.f_min_hz = 5.0;
+    opts.f_max_hz = Some(100.0);
+    let e = identify_stiffness(&trace, "x", &opts).unwrap_err();
+    assert!(matches!(e, IdentifyError::NoResonance { .. }), "{e}");
+    println!("{e}");
+    opts.f_max_hz = None;
+    opts.estimator = Estimator::H1;
+    let e = identify_stiffness(&trace, "y", &opts).unwrap_err();
+    assert!(e.to_string().contains("y.torque"), "{e}");
+}

@@ -1,0 +1,538 @@
+//! `feedloop identify inertia|stiffness`, `feedloop excite`, `feedloop tune`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context};
+use feedloop_analysis::identify::inertia::{self, Probe};
+use feedloop_analysis::identify::stiffness::{
+    identify_stiffness, Estimator, FrfKind, StiffnessOptions,
+};
+use feedloop_analysis::identify::svg::bode_svg;
+use feedloop_runtime::job::Job;
+use feedloop_runtime::trace::Trace;
+use feedloop_runtime::trajectory::{build_at, excitation::write_excitation_csv};
+
+/// `feedloop identify ...`.
+#[derive(clap::Subcommand, Debug)]
+pub enum IdentifyCmd {
+    /// Load inertia from the deviation th - thL at a load position (seed 000).
+    Inertia(InertiaArgs),
+    /// Stiffness and load inertia from the torque -> motor velocity FRF (seed 001).
+    Stiffness(StiffnessArgs),
+}
+
+/// `feedloop identify inertia`.
+#[derive(clap::Args, Debug)]
+pub struct InertiaArgs {
+    /// sim-match (method 1) | linear (method 2).
+    #[arg(long, default_value = "sim-match")]
+    pub method: String,
+    /// The measured trace (columns A.load, A.motor).
+    #[arg(long)]
+    pub trace: PathBuf,
+    /// sim-match: the job that produced the trace (its axis model is the one adjusted; the
+    /// feedforward keeps the inertia it ran with).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// linear: trace of the run without workpiece.
+    #[arg(long)]
+    pub no_load: Option<PathBuf>,
+    /// linear: trace of the run with a known load.
+    #[arg(long)]
+    pub loaded: Option<PathBuf>,
+    /// linear: inertia of the loaded run, kg m^2.
+    #[arg(long)]
+    pub loaded_jl_kgm2: Option<f64>,
+    /// linear: inertia of the no-load run, kg m^2 (default: the --model job's jl_kgm2).
+    #[arg(long)]
+    pub no_load_jl_kgm2: Option<f64>,
+    /// Load position where the deviation is read, m (or rad), passed while accelerating.
+    #[arg(long)]
+    pub at: f64,
+    /// Half width of the least-squares window around --at, load units.
+    #[arg(long, default_value_t = 5e-4)]
+    pub window: f64,
+    /// Axis (default: the first).
+    #[arg(long)]
+    pub axis: Option<String>,
+    /// Write the axis model with the estimated jl_kgm2 here (the feedforward's a3..a5 follow).
+    #[arg(long)]
+    pub apply: Option<PathBuf>,
+    /// Print JSON only.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `feedloop identify stiffness`.
+#[derive(clap::Args, Debug)]
+pub struct StiffnessArgs {
+    /// Trace of an excitation run (columns A.torque, A.motor_vel, and A.cmd as instrument).
+    #[arg(long)]
+    pub trace: PathBuf,
+    /// Motor inertia JM from the data sheet, kg m^2.
+    #[arg(long)]
+    pub jm_kgm2: f64,
+    /// Axis (default: the trace's first).
+    #[arg(long)]
+    pub axis: Option<String>,
+    /// Band start, Hz.
+    #[arg(long, default_value_t = 5.0)]
+    pub f_min_hz: f64,
+    /// Band end, Hz (default 0.4 x sample rate).
+    #[arg(long)]
+    pub f_max_hz: Option<f64>,
+    /// Frequency resolution, Hz.
+    #[arg(long, default_value_t = 0.3)]
+    pub resolution_hz: f64,
+    /// auto | h1 | instrument.
+    #[arg(long, default_value = "auto")]
+    pub estimator: String,
+    /// torque-velocity | command-table (the latter is refused, with the reason).
+    #[arg(long, default_value = "torque-velocity")]
+    pub frf: String,
+    /// Bode plot (SVG) with the picked points.
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
+    /// Print JSON only.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `feedloop excite`.
+#[derive(clap::Args, Debug)]
+pub struct ExciteArgs {
+    /// random-segments | prbs | multisine.
+    #[arg(long)]
+    pub kind: String,
+    /// Axis name.
+    #[arg(long, default_value = "x")]
+    pub axis: String,
+    /// Sample period, s.
+    #[arg(long, default_value_t = 1e-4)]
+    pub period_s: f64,
+    /// Extra keys of the kind (see docs/trajectories.md), `key=value` (TOML value), repeatable;
+    /// they override the defaults.
+    #[arg(long = "set")]
+    pub set: Vec<String>,
+    /// Output trace (t, A.cmd, A.cmd_vel, A.cmd_acc), playable with `kind = "trace"`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print JSON only.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `feedloop tune`.
+#[derive(clap::Args, Debug)]
+pub struct TuneArgs {
+    /// The job whose ramp test is run.
+    #[arg(long)]
+    pub job: PathBuf,
+    /// Grid, `name=lo:hi:n,...` over kp_per_s, kv_nms_per_rad, tv_s.
+    #[arg(long)]
+    pub grid: String,
+    /// l1,l2,l3 of E = l1 RMS(x err) + l2 RMS(v err) + l3 RMS(a err).
+    #[arg(long, default_value = "1,0.1,0.01")]
+    pub weights: String,
+    /// Refine the best grid point with a local optimiser.
+    #[arg(long)]
+    pub refine: bool,
+    /// Heat map of E (SVG).
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
+    /// Write the tuned job here.
+    #[arg(long)]
+    pub apply: Option<PathBuf>,
+    /// Print JSON only.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `feedloop identify ...`.
+pub fn identify(cmd: IdentifyCmd) -> anyhow::Result<ExitCode> {
+    match cmd {
+        IdentifyCmd::Inertia(a) => inertia_cmd(a),
+        IdentifyCmd::Stiffness(a) => stiffness_cmd(a),
+    }
+}
+
+fn read_trace(p: &Path) -> anyhow::Result<Trace> {
+    Ok(Trace::read(p)?)
+}
+
+fn trace_axis(t: &Trace, axis: Option<&str>) -> anyhow::Result<String> {
+    match axis {
+        Some(a) => Ok(a.to_string()),
+        None => t
+            .axes()
+            .into_iter()
+            .next()
+            .context("the trace has no axis columns (A.torque, A.motor_vel, ...)"),
+    }
+}
+
+fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
+    let probe = Probe {
+        at: a.at,
+        half_window: a.window,
+    };
+    let job = match &a.model {
+        Some(p) => Some(Job::load(p)?),
+        None => None,
+    };
+    let i = match &job {
+        Some(j) => inertia::axis_index(j, a.axis.as_deref())?,
+        None => 0,
+    };
+    let mpl = job.as_ref().map(|j| j.axes[i].model.plant.motor_per_load());
+    let trace = read_trace(&a.trace)?;
+    let axis = match &job {
+        Some(j) => j.axes[i].name.clone(),
+        None => trace_axis(&trace, a.axis.as_deref())?,
+    };
+    let est = match a.method.as_str() {
+        "sim-match" => {
+            let job = job
+                .as_ref()
+                .context("--method sim-match needs --model JOB")?;
+            let measured = inertia::trace_deviation(&trace, &axis, mpl.unwrap(), probe)?;
+            inertia::sim_match(job, i, measured, probe)?
+        }
+        "linear" => {
+            let (Some(n0), Some(n1), Some(j1)) = (&a.no_load, &a.loaded, a.loaded_jl_kgm2) else {
+                bail!("--method linear needs --no-load T0 --loaded T1 --loaded-jl-kgm2 J1");
+            };
+            let j0 = match (a.no_load_jl_kgm2, &job) {
+                (Some(v), _) => v,
+                (None, Some(j)) => {
+                    inertia::feedforward_jl(j, i).context("the --model axis has no load inertia")?
+                }
+                (None, None) => bail!(
+                    "--method linear needs the no-load inertia: --no-load-jl-kgm2 J0 or --model JOB"
+                ),
+            };
+            let mpl = match mpl {
+                Some(m) => m,
+                None => bail!(
+                    "--method linear needs --model JOB for the screw lead (motor rad per load m)"
+                ),
+            };
+            let d0 = inertia::trace_deviation(&read_trace(n0)?, &axis, mpl, probe)?;
+            let d1 = inertia::trace_deviation(&read_trace(n1)?, &axis, mpl, probe)?;
+            let d = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
+            inertia::linear(d0, j0, d1, j1, d)?
+        }
+        other => bail!("unknown method `{other}` (expected sim-match or linear)"),
+    };
+    if let Some(out) = &a.apply {
+        let job = job
+            .as_ref()
+            .context("--apply needs --model JOB (its axis model is rewritten)")?;
+        let (text, coef) = inertia::applied_model(job, i, est.jl_kgm2)?;
+        std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))?;
+        if !a.json {
+            eprintln!(
+                "wrote {} (feedforward a3 {:.6e}, a4 {:.6e}, a5 {:.6e})",
+                out.display(),
+                coef[2],
+                coef[3],
+                coef[4]
+            );
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&est)?);
+    } else {
+        println!(
+            "jl_kgm2 = {:.6e} ({}, {} simulated moves; deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+            est.jl_kgm2,
+            est.method,
+            est.iterations,
+            a.at,
+            1e6 * est.deviation_measured_m,
+            1e6 * est.deviation_model_m,
+            a.window
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
+    let mut opts = StiffnessOptions::new(a.jm_kgm2);
+    opts.f_min_hz = a.f_min_hz;
+    opts.f_max_hz = a.f_max_hz;
+    opts.resolution_hz = a.resolution_hz;
+    opts.estimator = match a.estimator.as_str() {
+        "auto" => Estimator::Auto,
+        "h1" => Estimator::H1,
+        "instrument" => Estimator::Instrument,
+        o => bail!("unknown estimator `{o}` (expected auto, h1 or instrument)"),
+    };
+    opts.frf = match a.frf.as_str() {
+        "torque-velocity" => FrfKind::TorqueToVelocity,
+        "command-table" => FrfKind::CommandToTable,
+        o => bail!("unknown FRF `{o}` (expected torque-velocity or command-table)"),
+    };
+    let trace = read_trace(&a.trace)?;
+    let axis = trace_axis(&trace, a.axis.as_deref())?;
+    let r = identify_stiffness(&trace, &axis, &opts)?;
+    if let (Some(p), Some(frf)) = (&a.svg, &r.frf) {
+        let f_hi = a.f_max_hz.unwrap_or(0.4 / trace.period_s());
+        let mut marks = vec![
+            ("anti-resonance", r.antiresonance_hz),
+            ("resonance", r.resonance_hz),
+        ];
+        if let Some(s) = r.second {
+            marks.push(("2nd anti-res.", s.antiresonance_hz));
+            marks.push(("2nd res.", s.resonance_hz));
+        }
+        std::fs::write(p, bode_svg(frf, a.f_min_hz, f_hi, &marks))
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+    } else {
+        println!(
+            "KL = {:.2} N m/rad, JL = {:.5e} kg m^2 (anti-resonance {:.2} Hz, resonance {:.2} Hz, coherence >= {:.3}, {} segments, {})",
+            r.kl_nm_per_rad,
+            r.jl_kgm2,
+            r.antiresonance_hz,
+            r.resonance_hz,
+            r.coherence_min,
+            r.segments,
+            r.estimator
+        );
+        if let Some(s) = r.second {
+            println!(
+                "second pair: anti-resonance {:.2} Hz, resonance {:.2} Hz (another mass behind the load?)",
+                s.antiresonance_hz, s.resonance_hz
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `feedloop excite`.
+pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
+    let ax = &a.axis;
+    let defaults: &[(&str, &str)] = match a.kind.as_str() {
+        "random-segments" => &[
+            ("kind", "\"random_segments\""),
+            ("velocity_m_per_s", "0.02"),
+            ("max_travel_m", "0.01"),
+            ("min_segment_s", "0.001"),
+            ("max_segment_s", "0.003"),
+            ("transition_s", "0.0005"),
+            ("duration_s", "12.0"),
+        ],
+        "prbs" => &[
+            ("kind", "\"prbs\""),
+            ("amplitude_m_per_s", "0.01"),
+            ("order", "11"),
+            ("bit_s", "0.002"),
+            ("periods", "3"),
+        ],
+        "multisine" => &[
+            ("kind", "\"multisine\""),
+            ("amplitude_m_per_s", "0.02"),
+            ("signal_period_s", "2.0"),
+            ("f_min_hz", "1.0"),
+            ("f_max_hz", "1000.0"),
+            ("periods", "4"),
+        ],
+        o => bail!("unknown excitation `{o}` (expected random-segments, prbs or multisine)"),
+    };
+    let mut text = String::new();
+    let mut set: Vec<(String, String)> = defaults
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    for s in &a.set {
+        let (k, v) = s
+            .split_once('=')
+            .with_context(|| format!("--set `{s}`: expected key=value"))?;
+        let k = k.trim().to_string();
+        match set.iter_mut().find(|(x, _)| *x == k) {
+            Some(e) => e.1 = v.trim().to_string(),
+            None => set.push((k, v.trim().to_string())),
+        }
+    }
+    for (k, v) in &set {
+        text.push_str(&format!("{k} = {v}\n"));
+    }
+    let table: toml::Table = text
+        .parse()
+        .with_context(|| format!("excitation keys:\n{text}"))?;
+    let traj = build_at(
+        &table,
+        Path::new("<feedloop excite>"),
+        "excite",
+        std::slice::from_ref(ax),
+        a.period_s,
+    )?;
+    let f =
+        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let meta: Vec<(String, String)> = vec![];
+    write_excitation_csv(traj.as_ref(), a.period_s, &meta, std::io::BufWriter::new(f))
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    let rows = (traj.duration_s() / a.period_s).round() as u64 + 1;
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({"out": a.out.display().to_string(), "kind": a.kind, "duration_s": traj.duration_s(), "rows": rows})
+        );
+    } else {
+        println!(
+            "wrote {} ({} excitation, {:.3} s, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
+            a.out.display(),
+            a.kind,
+            traj.duration_s(),
+            a.out.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Runs `feedloop tune`.
+pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
+    use feedloop_analysis::identify::svg::heatmap_svg;
+    use feedloop_analysis::identify::tune as t;
+    let job = Job::load(&a.job)?;
+    let grid = t::parse_grid(&a.grid)?;
+    let w: Vec<f64> = a
+        .weights
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--weights `{}`: expected l1,l2,l3", a.weights))?;
+    let [l1, l2, l3] = w[..] else {
+        bail!("--weights `{}`: expected three numbers l1,l2,l3", a.weights);
+    };
+    let total: u64 = grid.iter().map(|g| g.values.len() as u64).product();
+    let bar = if a.json {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(total)
+    };
+    let t0 = std::time::Instant::now();
+    let r = t::tune(&job, 0, &grid, [l1, l2, l3], a.refine, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let secs = t0.elapsed().as_secs_f64();
+    if let Some(p) = &a.svg {
+        // E over the first two grid axes, best over the others.
+        let xs = &grid[0];
+        let ys = grid.get(1);
+        let ny = ys.map_or(1, |y| y.values.len());
+        let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
+        let per_y = inner / ny.max(1);
+        let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
+        for (k, e) in r.all.iter().enumerate() {
+            let ix = k / inner.max(1);
+            let iy = (k % inner.max(1)) / per_y.max(1);
+            if let Some(v) = e.e {
+                let c = &mut m[iy][ix];
+                if c.is_nan() || v < *c {
+                    *c = v;
+                }
+            }
+        }
+        let empty: Vec<f64> = vec![];
+        std::fs::write(
+            p,
+            heatmap_svg(
+                "E (best over the other parameters)",
+                &xs.name,
+                &xs.values,
+                ys.map_or("-", |y| y.name.as_str()),
+                ys.map_or(&empty, |y| &y.values),
+                &m,
+            ),
+        )
+        .with_context(|| format!("writing {}", p.display()))?;
+    }
+    if let Some(out) = &a.apply {
+        let text = std::fs::read_to_string(&a.job)?;
+        let mut table: toml::Table = text.parse()?;
+        if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
+            for ja in &job.axes {
+                if let Some(toml::Value::Table(ax)) = axes.get_mut(&ja.name) {
+                    let abs = std::fs::canonicalize(&ja.model.path)
+                        .unwrap_or_else(|_| ja.model.path.clone());
+                    ax.insert("model".into(), abs.display().to_string().into());
+                }
+            }
+        }
+        let axis = job.axes[0].name.clone();
+        let b = r.best;
+        let mut chain = match table.remove("chain") {
+            Some(toml::Value::Array(c)) => c,
+            _ => vec![],
+        };
+        for (plugin, stage, keys) in [
+            ("position_p", "position", vec![("kp_per_s", b.kp_per_s)]),
+            (
+                "pi_velocity",
+                "velocity",
+                vec![("kv_nms_per_rad", b.kv_nms_per_rad), ("tv_s", b.tv_s)],
+            ),
+        ] {
+            let found = chain.iter_mut().find(|e| {
+                e.get("plugin").and_then(|v| v.as_str()) == Some(plugin)
+                    && e.get("axis").and_then(|v| v.as_str()) == Some(axis.as_str())
+            });
+            let entry = match found {
+                Some(e) => e,
+                None => {
+                    let mut e = toml::Table::new();
+                    e.insert("axis".into(), axis.clone().into());
+                    e.insert("stage".into(), stage.into());
+                    e.insert("plugin".into(), plugin.into());
+                    chain.push(toml::Value::Table(e));
+                    chain.last_mut().unwrap()
+                }
+            };
+            if let Some(e) = entry.as_table_mut() {
+                let params = e
+                    .entry("params")
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                if let Some(pt) = params.as_table_mut() {
+                    for (k, v) in keys {
+                        pt.insert(k.into(), v.into());
+                    }
+                }
+            }
+        }
+        table.insert("chain".into(), toml::Value::Array(chain));
+        std::fs::write(
+            out,
+            format!(
+                "# {} tuned by feedloop tune (E {:.4e}, defaults {:.4e})\n{}",
+                a.job.display(),
+                r.e_best,
+                r.e_default,
+                toml::to_string(&table)?
+            ),
+        )
+        .with_context(|| format!("writing {}", out.display()))?;
+    }
+    if a.json {
+        println!(
+            "{}",
+            serde_json::json!({"best": r.best, "e_best": r.e_best, "e_default": r.e_default,
+                "evaluated": r.evaluated, "rejected": r.rejected, "seconds": secs})
+        );
+    } else {
+        println!(
+            "best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {secs:.1} s",
+            r.best.kp_per_s,
+            r.best.kv_nms_per_rad,
+            r.best.tv_s,
+            r.e_best,
+            r.e_default,
+            r.evaluated,
+            r.rejected
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
