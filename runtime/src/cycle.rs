@@ -20,6 +20,7 @@ pub struct ControlCycle {
     refs: Vec<RefState>,
     period_s: f64,
     cycles: u64,
+    identity: bool,
 }
 
 impl ControlCycle {
@@ -41,7 +42,10 @@ impl ControlCycle {
             ));
         }
         let cycles = job.cycles_for(duration);
+        let identity = map.iter().enumerate().all(|(i, m)| *m == Some(i))
+            && trajectory.axes().len() == names.len();
         let mut me = Self {
+            identity,
             traj_out: vec![[0.0; REF_DERIVS]; trajectory.axes().len()],
             refs: vec![[0.0; REF_DERIVS]; names.len()],
             trajectory,
@@ -101,6 +105,11 @@ impl ControlCycle {
     }
 
     fn eval(&mut self, t: f64) {
+        if self.identity {
+            // The trajectory drives every job axis in job order (all built-in kinds do).
+            self.trajectory.eval(t, &mut self.refs);
+            return;
+        }
         self.trajectory.eval(t, &mut self.traj_out);
         for (r, m) in self.refs.iter_mut().zip(&self.map) {
             *r = match m {

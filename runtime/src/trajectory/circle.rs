@@ -31,6 +31,8 @@ pub struct Circle {
     /// Arc length `sigma(t)`, m.
     arc: PiecewisePoly,
     windows: Vec<[f64; 2]>,
+    /// The cruise at constant feed: `(t0, t1, sigma(t0), feed)`; evaluated in closed form.
+    cruise: Option<(f64, f64, f64, f64)>,
 }
 
 impl Trajectory for Circle {
@@ -45,6 +47,32 @@ impl Trajectory for Circle {
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         for o in out.iter_mut() {
             *o = [0.0; REF_DERIVS];
+        }
+        if let Some((t0, t1, sigma0, feed)) = self.cruise {
+            if t_s >= t0 && t_s < t1 {
+                // Constant angular speed w: the derivatives of cos/sin are powers of w.
+                let k = self.direction / self.radius_m;
+                let w = k * feed;
+                let phi = self.start_angle_rad + k * (sigma0 + feed * (t_s - t0));
+                let (sn, cs) = phi.sin_cos();
+                let r = self.radius_m;
+                let (w2, w3) = (w * w, w * w * w);
+                let (w4, w5) = (w2 * w2, w2 * w3);
+                let x = [cs, -w * sn, -w2 * cs, w3 * sn, w4 * cs, -w5 * sn];
+                let y = [sn, w * cs, -w2 * sn, -w3 * cs, w4 * sn, w5 * cs];
+                for (i, (v, c)) in [(x, self.center_m[0]), (y, self.center_m[1])]
+                    .into_iter()
+                    .enumerate()
+                {
+                    if let Some(o) = out.get_mut(self.plane[i]) {
+                        for (d, vv) in o.iter_mut().zip(v) {
+                            *d = r * vv;
+                        }
+                        o[0] += c;
+                    }
+                }
+                return;
+            }
         }
         let sigma = self.arc.eval_axis(t_s, 0);
         let k = self.direction / self.radius_m;
@@ -167,6 +195,10 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     b.smooth_velocity_change(ramp_s, &[-feed]);
     b.hold(after);
     let (arc, windows) = b.finish();
+    let cruise = windows.first().map(|w| {
+        let at = arc.eval_axis(w[0], 0);
+        (w[0], w[1], at[0], feed)
+    });
     Ok(Box::new(Circle {
         axes: ctx.axes.to_vec(),
         plane,
@@ -176,6 +208,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         start_angle_rad,
         arc,
         windows,
+        cruise,
     }))
 }
 
