@@ -108,7 +108,28 @@ fn shipped_quadrant_example_relearns_its_table_and_halves_the_spike() {
     assert!(p[2].axes[0].spike <= 0.5 * p[0].axes[0].spike);
     let shipped =
         feedloop_plugins::QuadrantTable::load(&ex.join("tables/xy-circle-quadrant.toml")).unwrap();
-    assert_eq!(shipped, rep.table);
+    // Same pulses up to rounding (libm's sin/cos may differ in the last bits between machines).
+    assert_eq!(shipped.axes.len(), rep.table.axes.len());
+    for (name, a) in &shipped.axes {
+        let b = &rep.table.axes[name];
+        for (pa, pb) in [
+            (&a.to_positive, &b.to_positive),
+            (&a.to_negative, &b.to_negative),
+        ] {
+            assert_eq!(pa.len(), pb.len(), "axis {name}: pulse count");
+            for (x, y) in pa.iter().zip(pb.iter()) {
+                assert_eq!(
+                    (x.pass, x.start_s, x.peak_s, x.end_s),
+                    (y.pass, y.start_s, y.peak_s, y.end_s)
+                );
+                let tol = 1e-6 * x.amplitude.abs().max(1e-12);
+                assert!(
+                    (x.amplitude - y.amplitude).abs() <= tol,
+                    "axis {name}: {x:?} vs {y:?}"
+                );
+            }
+        }
+    }
 }
 
 #[test]
