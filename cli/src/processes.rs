@@ -542,6 +542,7 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
             .unwrap_or(Value::Null),
     );
     extra.insert("bad_sequence".into(), json!(t.bad_sequence));
+    extra.insert("late_commands".into(), json!(t.late_commands));
     extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
     if let Some(s) = &sched_info {
         extra.insert("swaps".into(), s["swaps"].clone());

@@ -16,7 +16,8 @@ use crate::clock::{now_ns, wait_until_ns};
 use crate::ipc::{IpcError, PlantEndpoint, WaitOutcome};
 use crate::job::{Mode, SafeStop, SafetyOptions, WaitKind};
 use crate::record::{
-    AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_MISSED, REC_OVERRUN, REC_STALL,
+    AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_LATE_CMD, REC_MISSED, REC_OVERRUN,
+    REC_STALL,
 };
 use crate::wire::{
     ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
@@ -244,6 +245,11 @@ pub fn run_plant<P: PlantDevice>(
             ep.send(sample)?;
             while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
                 if c.flags & FLAG_HELLO != 0 {
+                    continue;
+                }
+                if c.seq < k && c.instance_tag == tag {
+                    // The answer to an earlier cycle, after its deadline: too late to apply.
+                    flags |= REC_LATE_CMD;
                     continue;
                 }
                 if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {

@@ -42,6 +42,9 @@ pub const REC_OVERRUN: u8 = 2;
 pub const REC_STALL: u8 = 4;
 /// `PlantRecord::flags`: a command with an unexpected sequence number was seen and dropped.
 pub const REC_BAD_SEQ: u8 = 8;
+/// `PlantRecord::flags`: a command for an earlier cycle arrived late (after its deadline) and
+/// was dropped.
+pub const REC_LATE_CMD: u8 = 16;
 
 /// What the plant logs each cycle.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]

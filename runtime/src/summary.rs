@@ -60,6 +60,8 @@ pub struct Timing {
     pub latency_us: Option<Percentiles>,
     /// Commands with an unexpected sequence number the plant dropped.
     pub bad_sequence: u64,
+    /// Cycles in which an answer to an earlier cycle arrived after its deadline (dropped).
+    pub late_commands: u64,
 }
 
 /// Computes timing figures from the plant's records.
@@ -76,6 +78,9 @@ pub fn timing(records: &[PlantRecord]) -> Timing {
         }
         if r.flags & crate::record::REC_BAD_SEQ != 0 {
             t.bad_sequence += 1;
+        }
+        if r.flags & crate::record::REC_LATE_CMD != 0 {
+            t.late_commands += 1;
         }
         if r.flags & REC_STALL != 0 {
             if !in_stall {
