@@ -16,9 +16,12 @@ use feedloop_runtime::cycle::ControlCycle;
 use feedloop_runtime::export::{
     human_summary, row_values, summary_json, trace_columns, EndInfo, SummaryInput,
 };
+use feedloop_runtime::ipc::IpcError;
 use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
 use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{run_plant, PlantEnd, PlantLoopConfig, StopCause};
+use feedloop_runtime::plant_loop::{
+    run_plant, PlantEnd, PlantLoopConfig, PlantLoopError, PlantOutcome, StopCause,
+};
 use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
 use feedloop_runtime::summary::{timing, ContourMode, Tracking};
@@ -208,7 +211,25 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
         cycle_hook: None,
     };
     let mut dev = SimDevice(plant);
-    let outcome = run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP)?;
+    let outcome = match run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP) {
+        Ok(o) => o,
+        // The scheduler vanished before the first cycle: nothing moved, report it as lost.
+        Err(PlantLoopError::Ipc(e @ IpcError::PeerTimeout { .. })) => {
+            eprintln!("feedloop plant: {e}");
+            PlantOutcome {
+                end: PlantEnd::Stopped {
+                    cause: StopCause::SchedulerLost {
+                        detected_after_cycles: 0,
+                    },
+                    cycle: 0,
+                    safe_stop: cfg.safety.safe_stop,
+                },
+                cycles: 0,
+                dropped_records: 0,
+            }
+        }
+        Err(e) => return Err(e.into()),
+    };
     drop(ep);
     let end = match outcome.end {
         PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
