@@ -39,7 +39,7 @@ use std::path::Path;
 use feedloop_runtime::controller::{AxisContext, AxisSignals, Coupler, CycleContext, REF_DERIVS};
 use feedloop_runtime::model::AxisKind;
 use feedloop_runtime::params::{ConfigError, Fields, Range};
-use feedloop_runtime::trajectory::cam::{CamProfile, XcGeometry};
+use feedloop_runtime::trajectory::cam::XcGeometry;
 
 /// The scheduled gains of the nonlinear PID.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -125,59 +125,12 @@ pub struct NlPidCouplerParams {
     pub max_correction_m_per_s: f64,
 }
 
-/// Reads the profile keys of the `xc_cam` trajectory.
-fn read_profile(f: &mut Fields<'_>) -> Result<CamProfile, ConfigError> {
-    Ok(match f.str("profile")? {
-        "eccentric" => {
-            let e = f.f64("eccentricity_m", Range::NonNegative)?;
-            let rho = f.f64("disc_radius_m", Range::Positive)?;
-            if e >= rho {
-                return Err(f.error(
-                    "eccentricity_m",
-                    format!("must be < disc_radius_m ({rho} m), got {e}"),
-                ));
-            }
-            CamProfile::Eccentric {
-                eccentricity_m: e,
-                disc_radius_m: rho,
-            }
-        }
-        "rise_dwell" => CamProfile::RiseDwell {
-            base_radius_m: f.f64("base_radius_m", Range::Positive)?,
-            lift_m: f.f64("lift_m", Range::Finite)?,
-            rise_start_rad: f.f64_or("rise_start_rad", Range::Finite, 0.0)?,
-            rise_rad: f.f64("rise_rad", Range::Positive)?,
-            dwell_rad: f.f64_or("dwell_rad", Range::NonNegative, 0.0)?,
-            fall_rad: f.f64("fall_rad", Range::Positive)?,
-        },
-        "table" => {
-            let radii = f
-                .opt_f64_array("radius_table_m")?
-                .ok_or_else(|| f.error("radius_table_m", "is required for profile = \"table\""))?;
-            if radii.len() < 8 {
-                return Err(f.error(
-                    "radius_table_m",
-                    format!("needs at least 8 radii, got {}", radii.len()),
-                ));
-            }
-            let h = f.opt_i64("harmonics", 1, 1000)?.unwrap_or(32) as usize;
-            CamProfile::from_table(&radii, h)
-        }
-        other => {
-            return Err(f.error(
-                "profile",
-                format!("unknown profile `{other}` (eccentric, rise_dwell, table)"),
-            ))
-        }
-    })
-}
-
 impl NlPidCouplerParams {
     /// Reads the coupler keys (`file` for messages).
     pub fn from_table(params: &toml::Table, file: &Path) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
         let wheel = f.f64("wheel_radius_m", Range::Positive)?;
-        let profile = read_profile(&mut f)?;
+        let profile = feedloop_runtime::trajectory::cam::read_profile(&mut f)?;
         let d = NlPidGains::default();
         let width = Range::Within(1e-12, 1.0);
         let g = NlPidGains {

@@ -384,7 +384,9 @@ impl Trajectory for XcCam {
     }
 }
 
-fn profile(f: &mut Fields) -> Result<CamProfile, ConfigError> {
+/// Reads the cam profile keys (`profile` and its own keys) of a table; shared by the `xc_cam`
+/// trajectory and the `nl_pid_coupler` plugin so both read the same geometry.
+pub fn read_profile(f: &mut Fields) -> Result<CamProfile, ConfigError> {
     let p = match f.str("profile")? {
         "eccentric" => {
             let e = f.f64("eccentricity_m", Range::NonNegative)?;
@@ -472,7 +474,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         return Err(f.error("axes", "X and C must be two different axes"));
     }
     let wheel = f.f64("wheel_radius_m", Range::Positive)?;
-    let profile = profile(&mut f)?;
+    let profile = read_profile(&mut f)?;
     let speed = f.f64("speed_rad_per_s", Range::Positive)?;
     let turns = f.f64_or("turns", Range::Positive, 1.0)?;
     let ramp_s = f.f64_or("ramp_s", Range::Positive, 0.2)?;
