@@ -294,6 +294,29 @@ impl TraceError {
 // Names
 // ---------------------------------------------------------------------------------------------
 
+/// Checks every header name and refuses duplicates (`line` is the header's line number).
+fn check_header<S: AsRef<str>>(path: &Path, line: usize, names: &[S]) -> Result<(), TraceError> {
+    for (i, c) in names.iter().map(AsRef::as_ref).enumerate() {
+        check_column_name(c).map_err(|reason| TraceError::BadColumnName {
+            path: path.to_path_buf(),
+            line,
+            column: quote(c),
+            position: i + 1,
+            reason,
+        })?;
+        if let Some(j) = names[..i].iter().position(|d| d.as_ref() == c) {
+            return Err(TraceError::DuplicateColumn {
+                path: path.to_path_buf(),
+                line,
+                column: c.to_string(),
+                first: j + 1,
+                second: i + 1,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Checks a column name: non-empty, ASCII letters, digits, `_`, `.`, `-`, not starting or ending
 /// with `.` and without an empty `..` part. Returns what is wrong.
 pub fn check_column_name(name: &str) -> Result<(), String> {
@@ -653,24 +676,7 @@ impl Trace {
                             .into(),
                 });
             }
-            for (i, c) in names.iter().enumerate() {
-                check_column_name(c).map_err(|reason| TraceError::BadColumnName {
-                    path: p(),
-                    line: n,
-                    column: quote(c),
-                    position: i + 1,
-                    reason,
-                })?;
-                if let Some(j) = names[..i].iter().position(|d| d == c) {
-                    return Err(TraceError::DuplicateColumn {
-                        path: p(),
-                        line: n,
-                        column: c.to_string(),
-                        first: j + 1,
-                        second: i + 1,
-                    });
-                }
-            }
+            check_header(path, n, &names)?;
             let columns: Vec<String> = names.iter().map(|s| s.to_string()).collect();
             break (n, columns);
         };
@@ -800,24 +806,7 @@ impl Trace {
                 reason,
             })?;
         }
-        for (i, c) in columns.iter().enumerate() {
-            check_column_name(c).map_err(|reason| TraceError::BadColumnName {
-                path: p(),
-                line: header_line,
-                column: quote(c),
-                position: i + 1,
-                reason,
-            })?;
-            if let Some(j) = columns[..i].iter().position(|d| d == c) {
-                return Err(TraceError::DuplicateColumn {
-                    path: p(),
-                    line: header_line,
-                    column: c.clone(),
-                    first: j + 1,
-                    second: i + 1,
-                });
-            }
-        }
+        check_header(path, header_line, &columns)?;
         let t_index =
             columns
                 .iter()
