@@ -164,3 +164,31 @@ pub fn trace_rows(path: &Path) -> Vec<Vec<f64>> {
         .map(|l| l.split(',').map(|c| c.parse::<f64>().unwrap()).collect())
         .collect()
 }
+
+/// Starts `feedloop run JOB --out OUT --mode MODE --wait block --instance INSTANCE` (stdout muted).
+pub fn start_run(job: &Path, out: &Path, mode: &str, instance: &str) -> std::process::Child {
+    Command::new(feedloop_bin())
+        .arg("run")
+        .arg(job)
+        .arg("--out")
+        .arg(out)
+        .args(["--mode", mode, "--wait", "block", "--instance", instance])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("starting feedloop run")
+}
+
+/// Waits (at most 10 s) for a process whose command line holds `words`; returns its pid.
+pub fn wait_for_process(words: &[&str]) -> u32 {
+    let t = std::time::Instant::now();
+    loop {
+        if let Some(p) = find_process(words) {
+            return p;
+        }
+        assert!(
+            t.elapsed() < std::time::Duration::from_secs(10),
+            "process {words:?} never appeared"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}

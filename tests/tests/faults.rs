@@ -2,12 +2,12 @@
 //! Each test runs the real `feedloop` binary; kill trials are repeated at pseudo-random moments.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use feedloop_tests::{
-    describe, feedloop_bin, find_process, process_lock, read_json, repo_file, scratch, signal,
-    trace_rows,
+    describe, feedloop_bin, process_lock, read_json, repo_file, scratch, signal, start_run,
+    trace_rows, wait_for_process,
 };
 
 const PERIOD: f64 = 0.0005;
@@ -45,32 +45,6 @@ ramp_s = 0.05
     let p = dir.join(format!("{name}.toml"));
     std::fs::write(&p, text).unwrap();
     p
-}
-
-fn start_run(job: &Path, out: &Path, mode: &str, instance: &str) -> Child {
-    Command::new(feedloop_bin())
-        .args(["run"])
-        .arg(job)
-        .arg("--out")
-        .arg(out)
-        .args(["--mode", mode, "--wait", "block", "--instance", instance])
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap()
-}
-
-fn wait_for_process(words: &[&str]) -> u32 {
-    let t = Instant::now();
-    loop {
-        if let Some(p) = find_process(words) {
-            return p;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "process {words:?} never appeared"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
 }
 
 /// Rows must be one per cycle from 0 on, without gaps.

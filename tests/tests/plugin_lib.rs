@@ -4,11 +4,11 @@
 //! plugin symbols are refused with a reason.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use feedloop_tests::{
-    feedloop, feedloop_bin, find_process, process_lock, read_json, repo_file, scratch, signal,
+    feedloop, process_lock, read_json, repo_file, scratch, signal, start_run, wait_for_process,
 };
 
 fn build_example(target: &Path, wrong_abi: bool) -> PathBuf {
@@ -49,20 +49,8 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
     std::fs::write(&params, "kv_nms_per_rad = 5.5\n").unwrap();
     let inst = format!("lib-{}", std::process::id());
     let out = dir.join("out");
-    let mut run = Command::new(feedloop_bin())
-        .arg("run")
-        .arg(&job)
-        .arg("--out")
-        .arg(&out)
-        .args(["--mode", "realtime", "--wait", "block", "--instance", &inst])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t = Instant::now();
-    while find_process(&["scheduler", "--instance", &inst]).is_none() {
-        assert!(t.elapsed() < Duration::from_secs(10));
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let mut run = start_run(&job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
     std::thread::sleep(Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let swap = |extra: &[String]| {

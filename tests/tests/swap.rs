@@ -2,11 +2,10 @@
 //! and a bad request is refused without disturbing the loop.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use feedloop_tests::{
-    feedloop, feedloop_bin, find_process, process_lock, read_json, repo_file, scratch,
+    feedloop, process_lock, read_json, repo_file, scratch, start_run, wait_for_process,
 };
 
 const SWAPS: usize = 20;
@@ -48,20 +47,8 @@ ramp_s = 0.1
     std::fs::write(&p2, "kv_nms_per_rad = 6.0\ntv_s = 0.004\n").unwrap();
     let inst = format!("swap-{}", std::process::id());
     let out = dir.join("out");
-    let mut run = Command::new(feedloop_bin())
-        .arg("run")
-        .arg(&job)
-        .arg("--out")
-        .arg(&out)
-        .args(["--mode", "realtime", "--wait", "block", "--instance", &inst])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let t = Instant::now();
-    while find_process(&["scheduler", "--instance", &inst]).is_none() {
-        assert!(t.elapsed() < Duration::from_secs(10));
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let mut run = start_run(&job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
     std::thread::sleep(Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
     for i in 0..SWAPS {
