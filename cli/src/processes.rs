@@ -226,6 +226,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 },
                 cycles: 0,
                 dropped_records: 0,
+                sequence: Default::default(),
             }
         }
         Err(e) => return Err(e.into()),
@@ -256,6 +257,8 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
         &out.join("plant.json"),
         &json!({"pid": std::process::id(), "mode": mode.id(), "wait": wait.id(),
                 "cycles": outcome.cycles, "planned_cycles": cfg.cycles, "dropped_records": outcome.dropped_records, "end": end,
+                "commands": {"bad_sequence": outcome.sequence.bad_sequence, "duplicates": outcome.sequence.duplicates,
+                             "late": outcome.sequence.late, "missing": outcome.sequence.missing},
                 "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes()}),
     )?;
     if export {
@@ -324,12 +327,13 @@ pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
     write_json(
         &out.join("scheduler.json"),
         &json!({"pid": std::process::id(), "commands": outcome.commands,
-                "out_of_order": outcome.out_of_order, "skipped": outcome.skipped, "missing": outcome.missing,
+                "out_of_order": outcome.out_of_order, "duplicated": outcome.duplicated, "skipped": outcome.skipped, "missing": outcome.missing,
                 "nonfinite_faults": cycle.chain().nonfinite_faults,
                 "plugin_panics": cycle.chain().plugin_panics,
                 "dropped_records": outcome.dropped_records, "end": end,
                 "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes(),
-                "swaps": control.swaps}),
+                "swaps": control.swaps, "rejected_requests": control.rejected,
+                "rejected_count": control.rejected_count}),
     )?;
     Ok(if outcome.end == SchedulerEnd::Completed {
         ExitCode::SUCCESS
@@ -564,9 +568,11 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     );
     extra.insert("bad_sequence".into(), json!(t.bad_sequence));
     extra.insert("late_commands".into(), json!(t.late_commands));
+    extra.insert("duplicate_commands".into(), json!(t.duplicate_commands));
     extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
     if let Some(s) = &sched_info {
         extra.insert("swaps".into(), s["swaps"].clone());
+        extra.insert("rejected_requests".into(), s["rejected_requests"].clone());
         extra.insert("scheduler".into(), s.clone());
     }
     let v = summary_json(&SummaryInput {

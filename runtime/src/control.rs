@@ -211,6 +211,22 @@ pub struct SwapEvent {
     pub reason: Option<String>,
 }
 
+/// A refused control request, as reported in `summary.json`'s `rejected_requests`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Rejection {
+    /// Cycle in which the refusal was answered.
+    pub cycle: u64,
+    /// Time of that cycle, s.
+    pub t_s: f64,
+    /// The request's `op` (`swap`, `status`, or what was sent).
+    pub op: String,
+    /// The reason given to the client.
+    pub error: String,
+}
+
+/// At most this many refusals are kept (the count goes on).
+const MAX_REJECTIONS: usize = 4096;
+
 struct BuildJob {
     axis: usize,
     stage: Stage,
@@ -248,6 +264,12 @@ pub struct ControlPlane {
     probation: Option<Probation>,
     /// Every swap so far.
     pub swaps: Vec<SwapEvent>,
+    /// Refused requests (the first [`MAX_REJECTIONS`]).
+    pub rejected: Vec<Rejection>,
+    /// Refused requests, all of them.
+    pub rejected_count: u64,
+    /// The plant's deadline-miss count as of the latest sample (set by the scheduler loop).
+    pub plant_deadline_misses: u32,
     history: Vec<[f64; HISTORY]>,
     hist_pos: usize,
     hist_len: usize,
@@ -326,6 +348,9 @@ impl ControlPlane {
             pending: None,
             probation: None,
             swaps: Vec::with_capacity(4096),
+            rejected: Vec::with_capacity(MAX_REJECTIONS),
+            rejected_count: 0,
+            plant_deadline_misses: 0,
             history: vec![[0.0; HISTORY]; n],
             hist_pos: 0,
             hist_len: 0,
@@ -353,7 +378,7 @@ impl ControlPlane {
         };
         match built.controller {
             Err(reason) => {
-                respond(&req, 1, &json!({"error": reason}));
+                self.refuse(&req, seq, "swap", reason);
             }
             Ok(new) => {
                 let _ = (built.axis, built.stage);
@@ -475,7 +500,7 @@ impl ControlPlane {
         let msg = match req.payload().json() {
             Ok(v) => v,
             Err(e) => {
-                respond(&req, 1, &json!({"error": e}));
+                self.refuse(&req, seq, "", e.to_string());
                 return;
             }
         };
@@ -501,11 +526,13 @@ impl ControlPlane {
                     &req,
                     0,
                     &json!({"cycle": seq, "t_s": seq as f64 * self.period_s, "axes": axes,
-                            "swaps": self.swaps.len(), "nonfinite_faults": cycle.chain().nonfinite_faults}),
+                            "swaps": self.swaps.len(), "nonfinite_faults": cycle.chain().nonfinite_faults,
+                            "deadline_misses": self.plant_deadline_misses,
+                            "rejected_requests": self.rejected_count}),
                 );
             }
             "swap" => match self.parse_swap(&msg) {
-                Err(e) => respond(&req, 1, &json!({"error": e})),
+                Err(e) => self.refuse(&req, seq, "swap", e),
                 Ok(job) => {
                     let (axis, stage) = (job.axis, job.stage);
                     if self.to_builder.send(job).is_err() {
@@ -519,11 +546,24 @@ impl ControlPlane {
                     }
                 }
             },
-            other => respond(
-                &req,
-                1,
-                &json!({"error": format!("unknown op `{other}` (status, swap)")}),
-            ),
+            other => {
+                let e = format!("unknown op `{other}` (status, swap)");
+                self.refuse(&req, seq, other, e);
+            }
+        }
+    }
+
+    /// Answers `req` with a refusal and keeps it for the summary.
+    fn refuse(&mut self, req: &CtlActive, seq: u64, op: &str, error: String) {
+        respond(req, 1, &json!({ "error": error }));
+        self.rejected_count += 1;
+        if self.rejected.len() < MAX_REJECTIONS {
+            self.rejected.push(Rejection {
+                cycle: seq,
+                t_s: seq as f64 * self.period_s,
+                op: op.to_string(),
+                error,
+            });
         }
     }
 

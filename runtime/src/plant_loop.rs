@@ -16,8 +16,8 @@ use crate::clock::{now_ns, wait_until_ns};
 use crate::ipc::{IpcError, PlantEndpoint, WaitOutcome};
 use crate::job::{Mode, SafeStop, SafetyOptions, WaitKind};
 use crate::record::{
-    AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_LATE_CMD, REC_MISSED, REC_OVERRUN,
-    REC_STALL,
+    AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_DUP_CMD, REC_LATE_CMD, REC_MISSED,
+    REC_OVERRUN, REC_STALL,
 };
 use crate::wire::{
     ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
@@ -130,6 +130,22 @@ pub struct PlantOutcome {
     pub cycles: u64,
     /// Records the recorder could not keep (ring full).
     pub dropped_records: u64,
+    /// Sequence checks on the command service (messages, not cycles).
+    pub sequence: CommandSequence,
+}
+
+/// What the plant saw on the command service besides the one expected command per cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CommandSequence {
+    /// Commands whose sequence number (or instance/axis count) matched no cycle of this run:
+    /// numbers from the future or from elsewhere. Dropped.
+    pub bad_sequence: u64,
+    /// A second command for a cycle that had already been answered. Dropped.
+    pub duplicates: u64,
+    /// Answers to an earlier, unanswered cycle that arrived after its deadline. Dropped.
+    pub late: u64,
+    /// Cycles whose command never arrived in time (the last command was held).
+    pub missing: u64,
 }
 
 /// Errors of a plant run.
@@ -179,6 +195,11 @@ pub fn run_plant<P: PlantDevice>(
     let mut applied = ActuatorCommand::empty(n as u32, tag);
     let mut end = PlantEnd::Completed;
     let mut silent_cycles = 0u64;
+    let mut seqs = CommandSequence::default();
+    let mut deadline_misses = 0u32;
+    // Which of the last 64 cycles took a command (bit i: cycle k - i), to tell a duplicate from a
+    // late answer.
+    let mut answered = 0u64;
     let mut prev_missed = false;
     let mut saturated_cycles = [0u64; crate::wire::MAX_AXES];
     let max_sat_cycles = cfg
@@ -238,6 +259,7 @@ pub fn run_plant<P: PlantDevice>(
             0
         };
         plant.sense(&mut sample);
+        sample.deadline_misses = deadline_misses;
         let sense_ns = now_ns() - c0;
         let published = now_ns();
         let mut latency_ns = u64::MAX;
@@ -247,15 +269,25 @@ pub fn run_plant<P: PlantDevice>(
                 if c.flags & FLAG_HELLO != 0 {
                     continue;
                 }
+                let age = k.wrapping_sub(c.seq);
+                if c.seq <= k && age < 64 && answered >> age & 1 == 1 && c.instance_tag == tag {
+                    // The same cycle answered twice: the first answer was applied.
+                    flags |= REC_DUP_CMD;
+                    seqs.duplicates += 1;
+                    continue;
+                }
                 if c.seq < k && c.instance_tag == tag {
                     // The answer to an earlier cycle, after its deadline: too late to apply.
                     flags |= REC_LATE_CMD;
+                    seqs.late += 1;
                     continue;
                 }
                 if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
                     flags |= REC_BAD_SEQ;
+                    seqs.bad_sequence += 1;
                     continue;
                 }
+                answered |= 1;
                 latency_ns = now_ns() - published;
                 if c.flags & FLAG_FAULT != 0 {
                     cause = cause.or(Some(StopCause::PluginFault));
@@ -268,6 +300,11 @@ pub fn run_plant<P: PlantDevice>(
             }
             if latency_ns == u64::MAX {
                 flags |= REC_MISSED;
+                seqs.missing += 1;
+                if flags & REC_OVERRUN == 0 {
+                    // The summary's definition: a miss while the plant itself was on time.
+                    deadline_misses = deadline_misses.saturating_add(1);
+                }
                 // Only a machine-wide stall excuses silence: a merely busy machine still counts.
                 let on_time = flags & REC_STALL == 0;
                 if cfg.mode == Mode::Lockstep {
@@ -353,6 +390,7 @@ pub fn run_plant<P: PlantDevice>(
             h(k);
         }
         k += 1;
+        answered <<= 1;
     }
     // Safe state: no torque. Tell the scheduler we are done.
     let off = ActuatorCommand::empty(n as u32, tag);
@@ -369,6 +407,7 @@ pub fn run_plant<P: PlantDevice>(
         end,
         cycles: k,
         dropped_records: dropped,
+        sequence: seqs,
     })
 }
 

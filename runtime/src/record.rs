@@ -45,6 +45,9 @@ pub const REC_BAD_SEQ: u8 = 8;
 /// `PlantRecord::flags`: a command for an earlier cycle arrived late (after its deadline) and
 /// was dropped.
 pub const REC_LATE_CMD: u8 = 16;
+/// `PlantRecord::flags`: a second command for a cycle already answered (a duplicate) was seen
+/// and dropped.
+pub const REC_DUP_CMD: u8 = 32;
 
 /// What the plant logs each cycle.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]

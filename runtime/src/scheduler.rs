@@ -8,7 +8,9 @@ use crate::cycle::ControlCycle;
 use crate::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
 use crate::job::Mode;
 use crate::record::{Recorder, SchedRecord};
-use crate::wire::{ActuatorCommand, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION};
+use crate::wire::{
+    ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
+};
 
 /// Settings of one scheduler run.
 #[derive(Debug, Clone)]
@@ -54,8 +56,10 @@ pub struct SchedulerOutcome {
     pub end: SchedulerEnd,
     /// Commands sent.
     pub commands: u64,
-    /// Samples whose sequence number went backwards or repeated.
+    /// Samples whose sequence number went back behind the last one answered (dropped).
     pub out_of_order: u64,
+    /// Samples that repeated the last answered sequence number (dropped).
+    pub duplicated: u64,
     /// Samples skipped because a newer one was queued.
     pub skipped: u64,
     /// Sequence numbers never seen (gaps), excluding skipped ones.
@@ -110,6 +114,7 @@ pub fn run_scheduler(
         end: SchedulerEnd::Completed,
         commands: 0,
         out_of_order: 0,
+        duplicated: 0,
         skipped: 0,
         missing: 0,
         dropped_records: 0,
@@ -145,14 +150,23 @@ pub fn run_scheduler(
                 break;
             }
         };
-        // Realtime catch-up: answer the newest sample.
+        // Realtime catch-up: answer the newest sample; every other queued one is either skipped
+        // (older than the newest, but not answered before) or a sequence fault (counted).
         let mut skipped = 0u32;
         if started {
+            let mut best = screen(&mut out, next_seq, None, s);
             while let Some(newer) = ep.try_receive()? {
                 if newer.flags & FLAG_HELLO == 0 {
-                    s = newer;
-                    skipped += 1;
+                    let before = best.is_some();
+                    best = screen(&mut out, next_seq, best, newer);
+                    if before && best.map(|b| b.seq) == Some(newer.seq) {
+                        skipped += 1;
+                    }
                 }
+            }
+            match best {
+                Some(b) => s = b,
+                None => continue,
             }
         }
         if s.flags & FLAG_HELLO != 0 {
@@ -182,17 +196,14 @@ pub fn run_scheduler(
             continue;
         }
         if s.seq < next_seq {
-            if s.flags & FLAG_END != 0 {
-                // The plant's goodbye after an early stop (it repeats the last cycle number).
-                out.end = if stop_sent {
-                    SchedulerEnd::OperatorStop { cycle: s.seq }
-                } else {
-                    SchedulerEnd::PlantEnded { cycle: s.seq }
-                };
-                break;
-            }
-            out.out_of_order += 1;
-            continue;
+            // `screen` let only the plant's goodbye after an early stop through (it repeats the
+            // last cycle number).
+            out.end = if stop_sent {
+                SchedulerEnd::OperatorStop { cycle: s.seq }
+            } else {
+                SchedulerEnd::PlantEnded { cycle: s.seq }
+            };
+            break;
         }
         if s.seq > next_seq + u64::from(skipped) {
             out.missing += s.seq - next_seq - u64::from(skipped);
@@ -206,6 +217,7 @@ pub fn run_scheduler(
             break;
         }
         if let Some(c) = control.as_deref_mut() {
+            c.plant_deadline_misses = s.deadline_misses;
             c.before_cycle(cycle, s.seq);
         }
         let c0 = now_ns();
@@ -254,4 +266,32 @@ pub fn run_scheduler(
     out.dropped_records = rec.dropped();
     rec.finish().map_err(log_err)?;
     Ok(out)
+}
+
+/// Keeps the sample to answer among `best` and the newly received `m`: a sample behind the last
+/// answered one is counted (`duplicated` when it repeats the last answered number or the one
+/// already held, `out_of_order` otherwise) and dropped; of two valid ones the newer wins. The
+/// plant's end message always wins (its goodbye after an early stop repeats a cycle number).
+fn screen(
+    out: &mut SchedulerOutcome,
+    next_seq: u64,
+    best: Option<SensorSample>,
+    m: SensorSample,
+) -> Option<SensorSample> {
+    if m.flags & FLAG_END != 0 {
+        return Some(m);
+    }
+    if best.is_some_and(|b| b.flags & FLAG_END != 0) {
+        return best;
+    }
+    let repeat = m.seq + 1 == next_seq || best.is_some_and(|b| b.seq == m.seq);
+    if m.seq < next_seq || best.is_some_and(|b| m.seq <= b.seq) {
+        if repeat {
+            out.duplicated += 1;
+        } else {
+            out.out_of_order += 1;
+        }
+        return best;
+    }
+    Some(m)
 }

@@ -62,6 +62,8 @@ pub struct Timing {
     pub bad_sequence: u64,
     /// Cycles in which an answer to an earlier cycle arrived after its deadline (dropped).
     pub late_commands: u64,
+    /// Cycles in which a second command for an already answered cycle was seen (dropped).
+    pub duplicate_commands: u64,
 }
 
 /// Computes timing figures from the plant's records.
@@ -81,6 +83,9 @@ pub fn timing(records: &[PlantRecord]) -> Timing {
         }
         if r.flags & crate::record::REC_LATE_CMD != 0 {
             t.late_commands += 1;
+        }
+        if r.flags & crate::record::REC_DUP_CMD != 0 {
+            t.duplicate_commands += 1;
         }
         if r.flags & REC_STALL != 0 {
             if !in_stall {

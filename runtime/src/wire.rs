@@ -54,8 +54,9 @@ pub struct SensorSample {
     pub instance_tag: u64,
     /// Number of valid entries in `axes`.
     pub axis_count: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// Deadline misses the plant has counted so far in this run (saturating); lets the scheduler's
+    /// status service report them. Zero in the handshake. (Was `reserved`, always zero: same layout.)
+    pub deadline_misses: u32,
     /// Per-axis measurements, in job axis order.
     pub axes: [AxisSensor; MAX_AXES],
 }
@@ -101,7 +102,7 @@ impl SensorSample {
             flags: 0,
             instance_tag,
             axis_count,
-            reserved: 0,
+            deadline_misses: 0,
             axes: [AxisSensor {
                 motor_pos: 0.0,
                 motor_vel: 0.0,

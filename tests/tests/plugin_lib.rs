@@ -90,6 +90,30 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
             String::from_utf8_lossy(&o.stdout)
         );
     }
+    // The refusals below must not disturb the loop: the plant's deadline-miss count, as the
+    // status service reports it, is the same before and after.
+    let status = || -> serde_json::Value {
+        let o = feedloop(&["status", "--instance", &inst]);
+        assert!(o.status.success(), "{}", feedloop_tests::describe(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let before = status();
+    let bad_params = dir.join("bad.toml");
+    std::fs::write(
+        &bad_params,
+        "kv_nms_per_rad = -5.5
+",
+    )
+    .unwrap();
+    let o = swap(&[
+        "--plugin".into(),
+        "pi_velocity".into(),
+        "--params".into(),
+        s(&bad_params),
+    ]);
+    assert!(!o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("kv_nms_per_rad"), "{text}");
     let o = swap(&[
         "--plugin".into(),
         "pi_velocity_c".into(),
@@ -115,6 +139,16 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
             "{text}"
         );
     }
+    let after = status();
+    assert!(after["cycle"].as_u64() > before["cycle"].as_u64());
+    assert_eq!(
+        after["deadline_misses"], before["deadline_misses"],
+        "refused requests disturbed the loop: {before} -> {after}"
+    );
+    assert_eq!(
+        after["rejected_requests"].as_u64().unwrap(),
+        before["rejected_requests"].as_u64().unwrap() + if libm.is_some() { 3 } else { 2 }
+    );
     signal(run.id(), "TERM");
     assert!(run.wait().unwrap().success());
     let sum = read_json(&out.join("summary.json"));

@@ -72,7 +72,15 @@ ramp_s = 0.1
             String::from_utf8_lossy(&o.stdout)
         );
     }
-    // Refused requests, answered with a reason, loop undisturbed.
+    // Refused requests, answered with a reason, loop undisturbed: the plant's deadline-miss
+    // count (reported through the status service) is the same before and after them.
+    let status = |inst: &str| -> serde_json::Value {
+        let o = feedloop(&["status", "--instance", inst]);
+        assert!(o.status.success(), "{}", feedloop_tests::describe(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let before = status(&inst);
+    let mut refused = 0;
     for (args, why) in [
         (
             vec![
@@ -114,10 +122,18 @@ ramp_s = 0.1
         assert!(!o.status.success());
         let text = String::from_utf8_lossy(&o.stdout);
         assert!(text.contains(why), "{text}");
+        refused += 1;
     }
-    let status = feedloop(&["status", "--instance", &inst]);
-    assert!(status.status.success());
-    let st: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    let st = status(&inst);
+    assert!(
+        st["cycle"].as_u64() > before["cycle"].as_u64(),
+        "the loop kept running: {before} -> {st}"
+    );
+    assert_eq!(
+        st["deadline_misses"], before["deadline_misses"],
+        "refused requests disturbed the loop: {before} -> {st}"
+    );
+    assert_eq!(st["rejected_requests"].as_u64(), Some(refused));
     assert_eq!(st["swaps"].as_u64().unwrap() as usize, SWAPS);
     assert_eq!(st["axes"][0]["stages"]["velocity"], "pi_velocity");
     let pid = run.id();
@@ -138,4 +154,10 @@ ramp_s = 0.1
         assert_eq!(w["from"], "pi_velocity");
     }
     assert_eq!(sum["bad_sequence"], 0);
+    let rejected = sum["rejected_requests"].as_array().unwrap();
+    assert_eq!(rejected.len() as u64, refused, "{rejected:?}");
+    for r in rejected {
+        assert_eq!(r["op"], "swap", "{r}");
+        assert!(!r["error"].as_str().unwrap().is_empty(), "{r}");
+    }
 }

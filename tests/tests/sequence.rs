@@ -1,0 +1,265 @@
+//! Sequence faults on both services are detected and counted: a hand-written peer that speaks the
+//! wire protocol injects out-of-order, duplicated, missing, late, alien and future sequence numbers
+//! into the real plant loop and the real scheduler loop, and the counters must match the
+//! injection plan.
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use feedloop_analysis::sim::SimDevice;
+use feedloop_plant::Plant;
+use feedloop_plugins::Builtins;
+use feedloop_runtime::clock::now_ns;
+use feedloop_runtime::cycle::ControlCycle;
+use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
+use feedloop_runtime::job::{Job, Mode, WaitKind};
+use feedloop_runtime::plant_loop::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
+use feedloop_runtime::wire::{instance_tag, ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO};
+use feedloop_tests::{repo_file, scratch};
+
+const CYCLES: u64 = 200;
+
+fn job() -> Job {
+    Job::load(&repo_file("examples/jobs/xy-circle.toml")).unwrap()
+}
+
+fn count(pred: impl Fn(u64) -> bool) -> u64 {
+    (0..CYCLES).filter(|&k| pred(k)).count() as u64
+}
+
+/// The plant loop (realtime, 5 ms period so the injected faults are the only ones expected)
+/// against a scheduler that answers every cycle except by plan:
+/// - k % 10 == 1: first a command carrying another instance's tag (bad),
+/// - k % 10 == 3: first a command numbered five cycles ahead (bad),
+/// - k % 10 == 6: the right command twice (the second is a duplicate),
+/// - k % 10 == 8: no command at all (missing: the plant holds the last one),
+/// - k % 10 == 9: first the overdue answer for cycle k-1 (late), then the right one.
+#[test]
+fn the_plant_counts_bad_duplicate_late_and_missing_commands() {
+    let _g = feedloop_tests::process_lock();
+    let dir = scratch("seq_plant");
+    let job = job();
+    let n = job.axes.len();
+    let instance = format!("seqp{}", std::process::id());
+    let tag = instance_tag(&instance);
+    let stop = Arc::new(AtomicBool::new(false));
+    let period_s = 5e-3;
+
+    let plant_job = job.clone();
+    let plant_inst = instance.clone();
+    let plant_stop = stop.clone();
+    let plant = std::thread::spawn(move || {
+        let job = plant_job;
+        let cycle = ControlCycle::new(&job, &Builtins).unwrap();
+        let mut p = Plant::new(&job).unwrap();
+        p.set_initial_positions(&cycle.initial_positions());
+        let ep = plant_endpoint(&plant_inst, WaitKind::Block, Duration::ZERO).unwrap();
+        let cfg = PlantLoopConfig {
+            instance: plant_inst,
+            mode: Mode::Realtime,
+            wait: WaitKind::Block,
+            spin: Duration::ZERO,
+            period_s,
+            cycles: CYCLES,
+            watchdog_cycles: 50,
+            peer_timeout_s: 10.0,
+            safety: job.safety.clone(),
+            brake_gain: vec![5.0; job.axes.len()],
+            torque_limit: vec![30.0; job.axes.len()],
+            cycle_hook: None,
+        };
+        run_plant(
+            &cfg,
+            &mut SimDevice(p),
+            &ep,
+            &dir.join("plant.log"),
+            &plant_stop,
+        )
+        .unwrap()
+    });
+
+    let ep = scheduler_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
+    let mut hello = ActuatorCommand::empty(n as u32, tag);
+    hello.flags = FLAG_HELLO;
+    let give_up = now_ns() + 20_000_000_000;
+    let mut started = false;
+    let mut answered = 0u64;
+    while now_ns() < give_up {
+        let s = match ep.receive_until(now_ns() + 100_000_000).unwrap() {
+            WaitOutcome::Got(s) => s,
+            WaitOutcome::TimedOut => continue,
+        };
+        if s.flags & FLAG_HELLO != 0 {
+            ep.send(hello).unwrap();
+            started = true;
+            continue;
+        }
+        assert!(started, "a sample before the handshake");
+        let k = s.seq;
+        let mut cmd = ActuatorCommand::empty(n as u32, tag);
+        cmd.seq = k;
+        match k % 10 {
+            1 => {
+                let mut alien = cmd;
+                alien.instance_tag = instance_tag("someone-else");
+                ep.send(alien).unwrap();
+                ep.send(cmd).unwrap();
+            }
+            3 => {
+                let mut future = cmd;
+                future.seq = k + 5;
+                ep.send(future).unwrap();
+                ep.send(cmd).unwrap();
+            }
+            6 => {
+                ep.send(cmd).unwrap();
+                ep.send(cmd).unwrap();
+            }
+            8 => {}
+            9 => {
+                let mut overdue = cmd;
+                overdue.seq = k - 1;
+                ep.send(overdue).unwrap();
+                ep.send(cmd).unwrap();
+            }
+            _ => ep.send(cmd).unwrap(),
+        }
+        answered += 1;
+        if s.flags & FLAG_END != 0 {
+            break;
+        }
+    }
+    let out = plant.join().unwrap();
+    assert_eq!(out.end, PlantEnd::Completed, "{out:?}");
+    assert_eq!(out.cycles, CYCLES);
+    assert_eq!(answered, CYCLES, "the rogue scheduler saw every sample");
+
+    let seq = out.sequence;
+    let planned_missing = count(|k| k % 10 == 8);
+    // Cycles the machine itself made us miss (none expected at 5 ms, but a loaded CI host may
+    // delay one): each can turn one planned duplicate into a late answer.
+    let natural = seq.missing - planned_missing;
+    assert!(seq.missing >= planned_missing, "{seq:?}");
+    assert!(
+        natural <= 5,
+        "too many unplanned misses for this test to mean much: {seq:?}"
+    );
+    assert_eq!(
+        seq.bad_sequence,
+        count(|k| k % 10 == 1 || k % 10 == 3),
+        "{seq:?}"
+    );
+    let planned_dups = count(|k| k % 10 == 6);
+    assert!(
+        seq.duplicates <= planned_dups && seq.duplicates + natural >= planned_dups,
+        "{seq:?}"
+    );
+    assert!(seq.late >= count(|k| k % 10 == 9), "{seq:?}");
+    assert!(seq.late <= count(|k| k % 10 == 9) + 2 * natural, "{seq:?}");
+}
+
+/// The scheduler loop against a plant that, after the answer to cycle k, by plan:
+/// - k % 10 == 2: never sends sample k+1 (missing),
+/// - k % 10 == 4: sends sample k again (duplicate) before k+1,
+/// - k % 10 == 7: sends sample k-3 (out of order) before k+1.
+///
+/// Every valid sample must still be answered with its own sequence number.
+#[test]
+fn the_scheduler_counts_duplicated_out_of_order_and_missing_samples() {
+    let _g = feedloop_tests::process_lock();
+    let dir = scratch("seq_sched");
+    let job = job();
+    let n = job.axes.len();
+    let instance = format!("seqs{}", std::process::id());
+    let tag = instance_tag(&instance);
+    let stop = Arc::new(AtomicBool::new(false));
+
+    let sched_job = job.clone();
+    let sched_inst = instance.clone();
+    let sched_stop = stop.clone();
+    let scheduler = std::thread::spawn(move || {
+        let job = sched_job;
+        let mut cycle = ControlCycle::new(&job, &Builtins).unwrap();
+        cycle.set_cycles(CYCLES);
+        let ep = scheduler_endpoint(&sched_inst, WaitKind::Block, Duration::ZERO).unwrap();
+        let cfg = SchedulerConfig {
+            instance: sched_inst,
+            mode: Mode::Lockstep,
+            peer_timeout_s: 10.0,
+            stale_after_s: 1.0,
+            cycle_hook: None,
+        };
+        run_scheduler(
+            &cfg,
+            &mut cycle,
+            job.axes.len(),
+            &ep,
+            &dir.join("scheduler.log"),
+            &sched_stop,
+            None,
+        )
+        .unwrap()
+    });
+
+    let ep = plant_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
+    // Handshake, as the plant does it.
+    let mut hello = SensorSample::empty(n as u32, tag);
+    hello.flags = FLAG_HELLO;
+    let give_up = now_ns() + 20_000_000_000;
+    loop {
+        assert!(now_ns() < give_up, "no handshake");
+        if ep.peer_connected() {
+            ep.send(hello).unwrap();
+        }
+        if let WaitOutcome::Got(c) = ep.receive_until(now_ns() + 2_000_000).unwrap() {
+            if c.flags & FLAG_HELLO != 0 {
+                break;
+            }
+        }
+    }
+    std::thread::sleep(Duration::from_millis(2));
+    ep.drain().unwrap();
+
+    let sample = |k: u64| {
+        let mut s = SensorSample::empty(n as u32, tag);
+        s.seq = k;
+        s.plant_time_s = k as f64 * job.period_s;
+        if k + 1 == CYCLES {
+            s.flags = FLAG_END;
+        }
+        s
+    };
+    let mut answers = Vec::new();
+    let mut k = 0u64;
+    while k < CYCLES {
+        ep.send(sample(k)).unwrap();
+        let c = loop {
+            match ep.receive_until(now_ns() + 5_000_000_000).unwrap() {
+                WaitOutcome::Got(c) if c.flags & FLAG_HELLO != 0 => continue,
+                WaitOutcome::Got(c) => break c,
+                WaitOutcome::TimedOut => panic!("no answer to sample {k}"),
+            }
+        };
+        answers.push(c.seq);
+        match k % 10 {
+            2 => k += 1,
+            4 => ep.send(sample(k)).unwrap(),
+            7 => ep.send(sample(k - 3)).unwrap(),
+            _ => {}
+        }
+        k += 1;
+    }
+    let out = scheduler.join().unwrap();
+    assert_eq!(out.end, SchedulerEnd::Completed, "{out:?}");
+    let sent: Vec<u64> = (0..CYCLES).filter(|k| k % 10 != 3).collect();
+    assert_eq!(
+        answers, sent,
+        "every valid sample is answered with its own number"
+    );
+    assert_eq!(out.commands, sent.len() as u64);
+    assert_eq!(out.missing, count(|k| k % 10 == 3), "{out:?}");
+    assert_eq!(out.duplicated, count(|k| k % 10 == 4), "{out:?}");
+    assert_eq!(out.out_of_order, count(|k| k % 10 == 7), "{out:?}");
+}
