@@ -365,6 +365,12 @@ impl ControlPlane {
         })
     }
 
+    /// Whether a freshly swapped controller is on probation (its faults roll it back instead of
+    /// stopping the axes).
+    pub fn in_probation(&self) -> bool {
+        self.probation.is_some()
+    }
+
     /// At the start of cycle `seq`: switches in a controller the builder finished.
     pub fn before_cycle(&mut self, cycle: &mut ControlCycle, seq: u64) {
         if self.probation.is_some() {

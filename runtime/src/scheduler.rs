@@ -122,6 +122,7 @@ pub fn run_scheduler(
     let t_start = now_ns();
     let mut stop_sent = false;
     let mut fault_sent = false;
+    let mut nonfinite_seen = 0u64;
     loop {
         let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
         if stop_now && !started {
@@ -228,8 +229,13 @@ pub fn run_scheduler(
         } else {
             cmd.flags &= !FLAG_STOP;
         }
-        if cycle.chain().plugin_panics > 0 {
-            // A plugin panicked: the chain's output can no longer be trusted.
+        let nonfinite = cycle.chain().nonfinite_faults > nonfinite_seen;
+        nonfinite_seen = cycle.chain().nonfinite_faults;
+        let on_probation = control.as_deref().is_some_and(|c| c.in_probation());
+        if cycle.chain().plugin_panics > 0 || (nonfinite && !on_probation) {
+            // A plugin panicked or produced a non-finite torque (zeroed by the chain): its output
+            // can no longer be trusted, the plant stops the axes. A controller just swapped in is
+            // rolled back by the control plane instead.
             cmd.flags |= FLAG_FAULT;
             fault_sent = true;
         }

@@ -192,3 +192,20 @@ pub fn wait_for_process(words: &[&str]) -> u32 {
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
 }
+
+/// Builds the out-of-tree example plugin (`examples/plugins/pi-velocity-c`) into `target` and
+/// returns the library's path; `wrong_abi` builds the variant that reports another ABI version.
+pub fn build_example_plugin(target: &Path, wrong_abi: bool) -> PathBuf {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    cmd.args(["build", "--release", "--offline", "--manifest-path"])
+        .arg(repo_file("examples/plugins/pi-velocity-c/Cargo.toml"))
+        .arg("--target-dir")
+        .arg(target);
+    if wrong_abi {
+        cmd.args(["--features", "wrong-abi"]);
+    }
+    let st = cmd.status().expect("running cargo for the example plugin");
+    assert!(st.success(), "building the example plugin failed");
+    target.join("release/libfeedloop_plugin_pi_velocity_c.so")
+}

@@ -282,3 +282,128 @@ fn a_second_scheduler_cannot_attach_to_a_running_instance() {
     // The intruder did not disturb the loop: no bad sequence numbers reached the plant.
     assert_eq!(sum["bad_sequence"], 0, "{sum}");
 }
+
+/// A long circle for the plugin-fault runs (about 12 s at 2 kHz, ended by the fault or a stop).
+fn long_job(dir: &Path, name: &str) -> PathBuf {
+    let text = std::fs::read_to_string(job(dir, name, "", None))
+        .unwrap()
+        .replace("turns = 1.0", "turns = 10.0");
+    let p = dir.join(format!("{name}-long.toml"));
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Starts a realtime run, swaps the example library plugin (with `params`) into axis x's
+/// velocity stage, and returns the run, the swap's output and the out folder.
+fn swap_in_faulty_plugin(
+    name: &str,
+    params: &str,
+) -> (std::process::Child, std::process::Output, PathBuf) {
+    let dir = scratch(name);
+    let lib = feedloop_tests::build_example_plugin(&dir.join("t-plugin"), false);
+    let job = long_job(&dir, name);
+    let p = dir.join("params.toml");
+    std::fs::write(&p, params).unwrap();
+    let out = dir.join("out");
+    let inst = format!("{name}-{}", std::process::id());
+    let run = start_run(&job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
+    std::thread::sleep(Duration::from_millis(300));
+    let o = feedloop_tests::feedloop(&[
+        "swap",
+        "--instance",
+        &inst,
+        "--axis",
+        "x",
+        "--stage",
+        "velocity",
+        "--plugin",
+        "pi_velocity_c",
+        "--lib",
+        lib.to_str().unwrap(),
+        "--params",
+        p.to_str().unwrap(),
+    ]);
+    (run, o, out)
+}
+
+#[test]
+fn a_plugin_failing_during_its_probation_is_rolled_back_and_the_loop_runs_on() {
+    let _g = process_lock();
+    // NaN torque from the 4th cycle on: inside the 10-cycle probation.
+    let (mut run, o, out) = swap_in_faulty_plugin(
+        "probation",
+        "kv_nms_per_rad = 5.0\ntest_fault = 2\ntest_fault_after_cycles = 3\n",
+    );
+    assert!(!o.status.success(), "{}", describe(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("rolled back"), "{text}");
+    std::thread::sleep(Duration::from_millis(200));
+    signal(run.id(), "TERM");
+    assert!(run.wait().unwrap().success());
+    let sum = read_json(&out.join("summary.json"));
+    assert_eq!(sum["end"]["reason"], "operator_stop", "{sum}");
+    let sw = &sum["swaps"][0];
+    assert_eq!(sw["rolled_back"], true, "{sum}");
+    assert!(
+        sw["reason"].as_str().unwrap().contains("non-finite"),
+        "{sw}"
+    );
+    assert!(sum["scheduler"]["nonfinite_faults"].as_u64().unwrap() >= 1);
+    // No non-finite value reached the plant.
+    for r in trace_rows(&out.join("trace.csv")) {
+        assert!(r.iter().all(|v| v.is_finite()), "{r:?}");
+    }
+}
+
+#[test]
+fn a_plugin_producing_nan_after_its_probation_stops_the_axes_as_a_plugin_fault() {
+    let _g = process_lock();
+    for (kind, what) in [("1", "error code"), ("2", "NaN torque")] {
+        let (mut run, o, out) = swap_in_faulty_plugin(
+            &format!("nanlater{kind}"),
+            &format!("kv_nms_per_rad = 5.0\ntest_fault = {kind}\ntest_fault_after_cycles = 400\n"),
+        );
+        assert!(o.status.success(), "{what}: {}", describe(&o));
+        let st = run.wait().unwrap();
+        assert!(!st.success(), "{what}: a plugin fault must exit non-zero");
+        let sum = read_json(&out.join("summary.json"));
+        assert_eq!(sum["end"]["reason"], "plugin_fault", "{what}: {sum}");
+        assert_eq!(sum["end"]["safe_stop"], "brake_ramp", "{sum}");
+        assert_eq!(sum["swaps"][0]["rolled_back"], false, "{sum}");
+        // The stop began within a cycle or two of the fault: 400 plugin steps after the swap.
+        let swap_cycle = sum["swaps"][0]["cycle"].as_u64().unwrap();
+        let stop_cycle = sum["end"]["cycle"].as_u64().unwrap();
+        assert!(
+            stop_cycle >= swap_cycle + 400 && stop_cycle <= swap_cycle + 404,
+            "{what}: swap at {swap_cycle}, stop at {stop_cycle}"
+        );
+        let rows = trace_rows(&out.join("trace.csv"));
+        for r in &rows {
+            assert!(r.iter().all(|v| v.is_finite()), "{what}: {r:?}");
+        }
+        let last = rows.last().unwrap();
+        assert!(last[4].abs() < 0.5, "{what}: x still moving: {last:?}");
+    }
+}
+
+#[test]
+fn a_plugin_library_that_crashes_the_scheduler_is_handled_as_a_lost_scheduler() {
+    let _g = process_lock();
+    let (mut run, o, out) = swap_in_faulty_plugin(
+        "crash",
+        "kv_nms_per_rad = 5.0\ntest_fault = 3\ntest_fault_after_cycles = 400\n",
+    );
+    assert!(o.status.success(), "{}", describe(&o));
+    let st = run.wait().unwrap();
+    assert!(!st.success());
+    let sum = read_json(&out.join("summary.json"));
+    assert_eq!(sum["end"]["reason"], "scheduler_lost", "{sum}");
+    assert_eq!(
+        sum["end"]["detected_after_cycles"].as_u64(),
+        Some(WATCHDOG),
+        "{sum}"
+    );
+    let rows = assert_contiguous(&out.join("trace.csv"));
+    assert!(rows > 400);
+}

@@ -3,35 +3,19 @@
 //! out alternately with the built-in PI; a library of another ABI version and a library without the
 //! plugin symbols are refused with a reason.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 use std::time::Duration;
 
 use feedloop_tests::{
     feedloop, process_lock, read_json, repo_file, scratch, signal, start_run, wait_for_process,
 };
 
-fn build_example(target: &Path, wrong_abi: bool) -> PathBuf {
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut cmd = Command::new(cargo);
-    cmd.args(["build", "--release", "--offline", "--manifest-path"])
-        .arg(repo_file("examples/plugins/pi-velocity-c/Cargo.toml"))
-        .arg("--target-dir")
-        .arg(target);
-    if wrong_abi {
-        cmd.args(["--features", "wrong-abi"]);
-    }
-    let st = cmd.status().expect("running cargo for the example plugin");
-    assert!(st.success(), "building the example plugin failed");
-    target.join("release/libfeedloop_plugin_pi_velocity_c.so")
-}
-
 #[test]
 fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_are_refused() {
     let _g = process_lock();
     let dir = scratch("plugin-lib");
-    let good = build_example(&dir.join("t-good"), false);
-    let wrong = build_example(&dir.join("t-wrong"), true);
+    let good = feedloop_tests::build_example_plugin(&dir.join("t-good"), false);
+    let wrong = feedloop_tests::build_example_plugin(&dir.join("t-wrong"), true);
     let models = repo_file("examples/models");
     let job = dir.join("lib.toml");
     std::fs::write(

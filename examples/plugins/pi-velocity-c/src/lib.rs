@@ -3,6 +3,9 @@
 //!
 //! Parameters (TOML text, `key = number` lines): `kv_nms_per_rad`, `tv_s`, `torque_limit_nm`;
 //! each defaults to the axis model's value handed over in `FlAxis`.
+//! For fault-injection tests: `test_fault = 1 | 2 | 3` makes the plugin, after
+//! `test_fault_after_cycles` steps, report a failure (1: non-zero return code), write a NaN torque
+//! (2), or abort the whole process (3: what a crashing native library does).
 //! Build: `cargo build --release` here, then
 //! `feedloop swap --instance NAME --axis x --stage velocity --plugin pi_velocity_c --lib target/release/libfeedloop_plugin_pi_velocity_c.so`.
 
@@ -53,6 +56,9 @@ struct Pi {
     limit: f64,
     period: f64,
     integral: f64,
+    fault: u32,
+    fault_after: u64,
+    steps: u64,
 }
 
 fn parse(text: &str, axis: &FlAxis) -> Result<Pi, String> {
@@ -62,6 +68,9 @@ fn parse(text: &str, axis: &FlAxis) -> Result<Pi, String> {
         limit: axis.torque_limit,
         period: axis.period_s,
         integral: 0.0,
+        fault: 0,
+        fault_after: 0,
+        steps: 0,
     };
     for (n, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("").trim();
@@ -82,7 +91,10 @@ fn parse(text: &str, axis: &FlAxis) -> Result<Pi, String> {
             "kv_nms_per_rad" if v > 0.0 => pi.kv = v,
             "tv_s" if v >= 0.0 => pi.tv = v,
             "torque_limit_nm" if v > 0.0 => pi.limit = v,
-            "kv_nms_per_rad" | "tv_s" | "torque_limit_nm" => {
+            "test_fault" if [0.0, 1.0, 2.0, 3.0].contains(&v) => pi.fault = v as u32,
+            "test_fault_after_cycles" if v >= 0.0 && v.fract() == 0.0 => pi.fault_after = v as u64,
+            "kv_nms_per_rad" | "tv_s" | "torque_limit_nm" | "test_fault"
+            | "test_fault_after_cycles" => {
                 return Err(format!("line {}: `{}` out of range: {v}", n + 1, k.trim()))
             }
             other => return Err(format!("line {}: unknown key `{other}`", n + 1)),
@@ -169,6 +181,17 @@ pub unsafe extern "C" fn feedloop_plugin_step(
                 pi.integral = ((io.torque - io.torque_ff) / pi.kv - e) * pi.tv;
             }
             return 0;
+        }
+        pi.steps += 1;
+        if pi.fault != 0 && pi.steps > pi.fault_after {
+            match pi.fault {
+                1 => return 3,
+                2 => {
+                    io.torque = f64::NAN;
+                    return 0;
+                }
+                _ => std::process::abort(),
+            }
         }
         let prev = pi.integral;
         if pi.tv > 0.0 {
