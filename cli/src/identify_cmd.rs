@@ -28,7 +28,7 @@ pub struct InertiaArgs {
     /// sim-match (method 1) | linear (method 2).
     #[arg(long, default_value = "sim-match")]
     pub method: String,
-    /// The measured trace (columns A.load, A.motor).
+    /// The measured trace (columns A.load and A.cmd, or A.motor with --deviation motor-load).
     #[arg(long)]
     pub trace: PathBuf,
     /// sim-match: the job that produced the trace (its axis model is the one adjusted; the
@@ -53,6 +53,10 @@ pub struct InertiaArgs {
     /// Half width of the least-squares window around --at, load units.
     #[arg(long, default_value_t = 5e-4)]
     pub window: f64,
+    /// command-load (the patent's th - thL, command minus load position) | motor-load (the
+    /// screw's twist, motor position in load units minus load position).
+    #[arg(long, default_value = "command-load")]
+    pub deviation: String,
     /// Axis (default: the first).
     #[arg(long)]
     pub axis: Option<String>,
@@ -176,6 +180,7 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
     let probe = Probe {
         at: a.at,
         half_window: a.window,
+        kind: inertia::DeviationKind::parse(&a.deviation)?,
     };
     let job = match &a.model {
         Some(p) => Some(Job::load(p)?),
@@ -221,7 +226,7 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
             let d0 = inertia::trace_deviation(&read_trace(n0)?, &axis, mpl, probe)?;
             let d1 = inertia::trace_deviation(&read_trace(n1)?, &axis, mpl, probe)?;
             let d = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
-            inertia::linear(d0, j0, d1, j1, d)?
+            inertia::linear(d0, j0, d1, j1, d, probe.kind)?
         }
         other => bail!("unknown method `{other}` (expected sim-match or linear)"),
     };
@@ -245,15 +250,21 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string(&est)?);
     } else {
         println!(
-            "jl_kgm2 = {:.6e} ({}, {} simulated moves; deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+            "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
             est.jl_kgm2,
             est.method,
             est.iterations,
+            est.deviation,
             a.at,
             1e6 * est.deviation_measured_m,
             1e6 * est.deviation_model_m,
             a.window
         );
+        if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
+            println!(
+                "literal feedforward: the patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
