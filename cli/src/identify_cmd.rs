@@ -427,7 +427,7 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
         indicatif::ProgressBar::new(total)
     };
     let t0 = std::time::Instant::now();
-    let r = t::tune(&job, 0, &grid, [l1, l2, l3], a.refine, &|| bar.inc(1))?;
+    let r = t::tune(&job, 0, &grid, [l1, l2, l3], 1, a.refine, &|| bar.inc(1))?;
     bar.finish_and_clear();
     let secs = t0.elapsed().as_secs_f64();
     if let Some(p) = &a.svg {
