@@ -8,7 +8,7 @@ use feedloop_analysis::identify::inertia::{self, Probe};
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
 };
-use feedloop_analysis::identify::svg::bode_svg;
+use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
 use feedloop_runtime::job::Job;
 use feedloop_runtime::trace::Trace;
 use feedloop_runtime::trajectory::{build_at, excitation::write_excitation_csv};
@@ -63,6 +63,10 @@ pub struct InertiaArgs {
     /// Write the axis model with the estimated jl_kgm2 here (the feedforward's a3..a5 follow).
     #[arg(long)]
     pub apply: Option<PathBuf>,
+    /// Plot (SVG) of the deviation along the move: the measured trace and the model at the
+    /// estimate (sim-match) or the three traces (linear), the probe position marked.
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
@@ -217,13 +221,30 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         Some(j) => j.axes[i].name.clone(),
         None => trace_axis(&trace, a.axis.as_deref())?,
     };
+    // Curves of the --svg plot: (label, colour, points).
+    let mut curves: Vec<(String, &str, Vec<(f64, f64)>)> = vec![];
     let est = match a.method.as_str() {
         "sim-match" => {
             let job = job
                 .as_ref()
                 .context("--method sim-match needs --model JOB")?;
-            let measured = inertia::trace_deviation(&trace, &axis, mpl.unwrap(), probe)?;
-            inertia::sim_match(job, i, measured, probe)?
+            let mpl = mpl.unwrap_or(1.0);
+            let measured = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
+            let est = inertia::sim_match(job, i, measured, probe)?;
+            if a.svg.is_some() {
+                let ff = inertia::feedforward_jl(job, i).unwrap_or(est.jl_kgm2);
+                curves.push((
+                    format!("measured ({})", a.trace.display()),
+                    "black",
+                    inertia::trace_profile(&trace, &axis, mpl, probe.kind)?,
+                ));
+                curves.push((
+                    format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
+                    "steelblue",
+                    inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
+                ));
+            }
+            est
         }
         "linear" => {
             let (Some(n0), Some(n1), Some(j1)) = (&a.no_load, &a.loaded, a.loaded_jl_kgm2) else {
@@ -244,13 +265,54 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
                     "--method linear needs --model JOB for the screw lead (motor rad per load m)"
                 ),
             };
-            let d0 = inertia::trace_deviation(&read_trace(n0)?, &axis, mpl, probe)?;
-            let d1 = inertia::trace_deviation(&read_trace(n1)?, &axis, mpl, probe)?;
+            let (t0, t1) = (read_trace(n0)?, read_trace(n1)?);
+            let d0 = inertia::trace_deviation(&t0, &axis, mpl, probe)?;
+            let d1 = inertia::trace_deviation(&t1, &axis, mpl, probe)?;
             let d = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
-            inertia::linear(d0, j0, d1, j1, d, probe.kind)?
+            let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
+            if a.svg.is_some() {
+                for (t, label, colour) in [
+                    (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
+                    (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
+                    (
+                        &trace,
+                        format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
+                        "black",
+                    ),
+                ] {
+                    curves.push((
+                        label,
+                        colour,
+                        inertia::trace_profile(t, &axis, mpl, probe.kind)?,
+                    ));
+                }
+            }
+            est
         }
         other => bail!("unknown method `{other}` (expected sim-match or linear)"),
     };
+    if let Some(p) = &a.svg {
+        let series: Vec<Series> = curves
+            .iter()
+            .map(|(label, color, points)| Series {
+                label,
+                color,
+                points,
+            })
+            .collect();
+        let probe_label = format!("--at {}", a.at);
+        let text = lines_svg(
+            &format!(
+                "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
+                est.deviation, est.method, est.jl_kgm2
+            ),
+            "load position, m",
+            "deviation, m",
+            &series,
+            &[(probe_label.as_str(), a.at)],
+        );
+        std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))?;
+    }
     if let Some(out) = &a.apply {
         let job = job
             .as_ref()

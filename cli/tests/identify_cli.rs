@@ -220,6 +220,7 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     let measured = machine_trace(&d, "w30", truth, "structure = \"split\"");
     let job = repo("examples/jobs/identify-inertia-move.toml");
     let applied = d.join("applied.toml");
+    let svg = d.join("deviation.svg");
     let v = json(&[
         "identify",
         "inertia",
@@ -233,8 +234,17 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
         "0.01",
         "--apply",
         applied.to_str().unwrap(),
+        "--svg",
+        svg.to_str().unwrap(),
     ]);
     println!("sim-match: {v}");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert!(plot.contains("</svg>") && plot.contains("--at 0.01"));
+    assert_eq!(
+        plot.matches("<polyline").count(),
+        2,
+        "measured and model curves"
+    );
     assert_eq!(v["method"], "sim-match");
     assert_eq!(v["deviation"], "command-load");
     assert!((num(&v, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v}");
@@ -272,6 +282,7 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     assert!((num(&v2, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v2}");
 
     // Method 2 between the no-load run (3e-3) and a known +20 % run (3.6e-3).
+    let svg = d.join("linear.svg");
     let no_load = machine_trace(&d, "w0", 3.0e-3, "structure = \"split\"");
     let loaded = machine_trace(&d, "w20", 3.6e-3, "structure = \"split\"");
     let v3 = json(&[
@@ -293,8 +304,12 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
         measured.to_str().unwrap(),
         "--at",
         "0.01",
+        "--svg",
+        svg.to_str().unwrap(),
     ]);
     println!("linear: {v3}");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert_eq!(plot.matches("<polyline").count(), 3, "three traces");
     assert_eq!(v3["method"], "linear");
     assert!((num(&v3, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v3}");
 

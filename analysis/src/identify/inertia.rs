@@ -160,6 +160,76 @@ pub fn trace_deviation(
     }
 }
 
+/// (load position, deviation) along the first pass of the move (from the start to the load's
+/// farthest point), at most about `max_points` points: what the `--svg` plot draws.
+pub fn deviation_profile(
+    load: &[f64],
+    reference: &[f64],
+    reference_per_load: f64,
+    max_points: usize,
+) -> Vec<(f64, f64)> {
+    let n = load.len().min(reference.len());
+    if n == 0 {
+        return vec![];
+    }
+    let far = (0..n)
+        .max_by(|&a, &b| {
+            (load[a] - load[0])
+                .abs()
+                .total_cmp(&(load[b] - load[0]).abs())
+        })
+        .unwrap_or(0);
+    let step = (far / max_points.max(1)).max(1);
+    (0..=far)
+        .step_by(step)
+        .map(|k| (load[k], reference[k] / reference_per_load - load[k]))
+        .collect()
+}
+
+/// [`deviation_profile`] of `axis` in a trace.
+pub fn trace_profile(
+    trace: &Trace,
+    axis: &str,
+    motor_per_load: f64,
+    kind: DeviationKind,
+) -> Result<Vec<(f64, f64)>, IdentifyError> {
+    let load = trace.require(&format!("{axis}.load"))?;
+    Ok(match kind {
+        DeviationKind::CommandLoad => {
+            deviation_profile(load, trace.require(&format!("{axis}.cmd"))?, 1.0, 2000)
+        }
+        DeviationKind::MotorLoad => deviation_profile(
+            load,
+            trace.require(&format!("{axis}.motor"))?,
+            motor_per_load,
+            2000,
+        ),
+    })
+}
+
+/// [`deviation_profile`] of a simulated run of `job`'s axis `i` with plant inertia `plant_jl`
+/// and feedforward inertia `ff_jl`.
+pub fn simulated_profile(
+    job: &Job,
+    i: usize,
+    plant_jl: f64,
+    ff_jl: f64,
+    kind: DeviationKind,
+) -> Result<Vec<(f64, f64)>, IdentifyError> {
+    let rec = run_axis(&job_with_jl(job, i, plant_jl, ff_jl)?, i)?;
+    let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
+    Ok(match kind {
+        DeviationKind::CommandLoad => {
+            let c: Vec<f64> = rec.iter().map(|r| r.cmd).collect();
+            deviation_profile(&load, &c, 1.0, 2000)
+        }
+        DeviationKind::MotorLoad => {
+            let m: Vec<f64> = rec.iter().map(|r| r.motor).collect();
+            deviation_profile(&load, &m, job.axes[i].model.plant.motor_per_load(), 2000)
+        }
+    })
+}
+
 /// The deviation of simulated records of one axis.
 pub fn records_deviation(
     rec: &[AxisRecord],
