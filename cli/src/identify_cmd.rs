@@ -201,6 +201,9 @@ fn trace_axis(t: &Trace, axis: Option<&str>) -> anyhow::Result<String> {
     }
 }
 
+/// A curve of the `identify inertia --svg` plot: label, colour, (load position, deviation).
+type Curve = (String, &'static str, Vec<(f64, f64)>);
+
 fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
     let probe = Probe {
         at: a.at,
@@ -221,8 +224,7 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         Some(j) => j.axes[i].name.clone(),
         None => trace_axis(&trace, a.axis.as_deref())?,
     };
-    // Curves of the --svg plot: (label, colour, points).
-    let mut curves: Vec<(String, &str, Vec<(f64, f64)>)> = vec![];
+    let mut curves: Vec<Curve> = vec![];
     let est = match a.method.as_str() {
         "sim-match" => {
             let job = job
