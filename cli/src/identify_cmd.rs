@@ -8,7 +8,7 @@ use feedloop_analysis::identify::inertia::{self, Probe};
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
 };
-use feedloop_analysis::identify::svg::bode_svg;
+use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
 use feedloop_runtime::job::Job;
 use feedloop_runtime::trace::Trace;
 use feedloop_runtime::trajectory::{build_at, excitation::write_excitation_csv};
@@ -28,7 +28,7 @@ pub struct InertiaArgs {
     /// sim-match (method 1) | linear (method 2).
     #[arg(long, default_value = "sim-match")]
     pub method: String,
-    /// The measured trace (columns A.load, A.motor).
+    /// The measured trace (columns A.load and A.cmd, or A.motor with --deviation motor-load).
     #[arg(long)]
     pub trace: PathBuf,
     /// sim-match: the job that produced the trace (its axis model is the one adjusted; the
@@ -53,12 +53,20 @@ pub struct InertiaArgs {
     /// Half width of the least-squares window around --at, load units.
     #[arg(long, default_value_t = 5e-4)]
     pub window: f64,
+    /// command-load (the patent's th - thL, command minus load position) | motor-load (the
+    /// screw's twist, motor position in load units minus load position).
+    #[arg(long, default_value = "command-load")]
+    pub deviation: String,
     /// Axis (default: the first).
     #[arg(long)]
     pub axis: Option<String>,
     /// Write the axis model with the estimated jl_kgm2 here (the feedforward's a3..a5 follow).
     #[arg(long)]
     pub apply: Option<PathBuf>,
+    /// Plot (SVG) of the deviation along the move: the measured trace and the model at the
+    /// estimate (sim-match) or the three traces (linear), the probe position marked.
+    #[arg(long)]
+    pub svg: Option<PathBuf>,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
@@ -144,6 +152,14 @@ pub struct TuneArgs {
     /// Write the tuned job here.
     #[arg(long)]
     pub apply: Option<PathBuf>,
+    /// Axis to tune (default: every axis whose command has a ramp, one after another, each with
+    /// the axes before it at their tuned gains).
+    #[arg(long)]
+    pub axis: Option<String>,
+    /// Transport delay of the drive for the margin check, control periods (on top of the
+    /// zero-order hold and the model's [effects.delay]).
+    #[arg(long, default_value_t = 1)]
+    pub delay_cycles: u32,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
@@ -164,18 +180,35 @@ fn read_trace(p: &Path) -> anyhow::Result<Trace> {
 fn trace_axis(t: &Trace, axis: Option<&str>) -> anyhow::Result<String> {
     match axis {
         Some(a) => Ok(a.to_string()),
+        // The first axis with a command and a load column, else the first `A.*` column's
+        // axis (the command then names the column it misses).
         None => t
             .axes()
             .into_iter()
             .next()
-            .context("the trace has no axis columns (A.torque, A.motor_vel, ...)"),
+            .or_else(|| {
+                t.columns
+                    .iter()
+                    .find_map(|c| c.split_once('.').map(|(a, _)| a.to_string()))
+            })
+            .with_context(|| {
+                format!(
+                    "{}: no axis columns (A.cmd, A.load, A.torque, A.motor_vel, ...); columns: {}",
+                    t.path.display(),
+                    t.columns.join(", ")
+                )
+            }),
     }
 }
+
+/// A curve of the `identify inertia --svg` plot: label, colour, (load position, deviation).
+type Curve = (String, &'static str, Vec<(f64, f64)>);
 
 fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
     let probe = Probe {
         at: a.at,
         half_window: a.window,
+        kind: inertia::DeviationKind::parse(&a.deviation)?,
     };
     let job = match &a.model {
         Some(p) => Some(Job::load(p)?),
@@ -191,13 +224,29 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         Some(j) => j.axes[i].name.clone(),
         None => trace_axis(&trace, a.axis.as_deref())?,
     };
+    let mut curves: Vec<Curve> = vec![];
     let est = match a.method.as_str() {
         "sim-match" => {
             let job = job
                 .as_ref()
                 .context("--method sim-match needs --model JOB")?;
-            let measured = inertia::trace_deviation(&trace, &axis, mpl.unwrap(), probe)?;
-            inertia::sim_match(job, i, measured, probe)?
+            let mpl = mpl.unwrap_or(1.0);
+            let measured = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
+            let est = inertia::sim_match(job, i, measured, probe)?;
+            if a.svg.is_some() {
+                let ff = inertia::feedforward_jl(job, i).unwrap_or(est.jl_kgm2);
+                curves.push((
+                    format!("measured ({})", a.trace.display()),
+                    "black",
+                    inertia::trace_profile(&trace, &axis, mpl, probe.kind)?,
+                ));
+                curves.push((
+                    format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
+                    "steelblue",
+                    inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
+                ));
+            }
+            est
         }
         "linear" => {
             let (Some(n0), Some(n1), Some(j1)) = (&a.no_load, &a.loaded, a.loaded_jl_kgm2) else {
@@ -218,13 +267,54 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
                     "--method linear needs --model JOB for the screw lead (motor rad per load m)"
                 ),
             };
-            let d0 = inertia::trace_deviation(&read_trace(n0)?, &axis, mpl, probe)?;
-            let d1 = inertia::trace_deviation(&read_trace(n1)?, &axis, mpl, probe)?;
+            let (t0, t1) = (read_trace(n0)?, read_trace(n1)?);
+            let d0 = inertia::trace_deviation(&t0, &axis, mpl, probe)?;
+            let d1 = inertia::trace_deviation(&t1, &axis, mpl, probe)?;
             let d = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
-            inertia::linear(d0, j0, d1, j1, d)?
+            let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
+            if a.svg.is_some() {
+                for (t, label, colour) in [
+                    (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
+                    (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
+                    (
+                        &trace,
+                        format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
+                        "black",
+                    ),
+                ] {
+                    curves.push((
+                        label,
+                        colour,
+                        inertia::trace_profile(t, &axis, mpl, probe.kind)?,
+                    ));
+                }
+            }
+            est
         }
         other => bail!("unknown method `{other}` (expected sim-match or linear)"),
     };
+    if let Some(p) = &a.svg {
+        let series: Vec<Series> = curves
+            .iter()
+            .map(|(label, color, points)| Series {
+                label,
+                color,
+                points,
+            })
+            .collect();
+        let probe_label = format!("--at {}", a.at);
+        let text = lines_svg(
+            &format!(
+                "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
+                est.deviation, est.method, est.jl_kgm2
+            ),
+            "load position, m",
+            "deviation, m",
+            &series,
+            &[(probe_label.as_str(), a.at)],
+        );
+        std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))?;
+    }
     if let Some(out) = &a.apply {
         let job = job
             .as_ref()
@@ -245,15 +335,21 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string(&est)?);
     } else {
         println!(
-            "jl_kgm2 = {:.6e} ({}, {} simulated moves; deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+            "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
             est.jl_kgm2,
             est.method,
             est.iterations,
+            est.deviation,
             a.at,
             1e6 * est.deviation_measured_m,
             1e6 * est.deviation_model_m,
             a.window
         );
+        if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
+            println!(
+                "literal feedforward: the patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -394,9 +490,105 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// One tuned axis.
+struct TunedAxis {
+    name: String,
+    result: feedloop_analysis::identify::tune::TuneResult,
+    seconds: f64,
+}
+
+/// `path` for the only axis, `stem-axis.ext` when several are tuned.
+fn per_axis_path(p: &Path, axis: &str, several: bool) -> PathBuf {
+    if !several {
+        return p.to_path_buf();
+    }
+    let stem = p.file_stem().map_or("tune".into(), |s| s.to_string_lossy());
+    let name = match p.extension() {
+        Some(e) => format!("{stem}-{axis}.{}", e.to_string_lossy()),
+        None => format!("{stem}-{axis}"),
+    };
+    p.with_file_name(name)
+}
+
+/// Heat map of E over the first two grid axes (best over the others).
+fn tune_heatmap(
+    grid: &[feedloop_analysis::identify::tune::GridAxis],
+    r: &feedloop_analysis::identify::tune::TuneResult,
+    axis: &str,
+) -> String {
+    use feedloop_analysis::identify::svg::heatmap_svg;
+    let xs = &grid[0];
+    let ys = grid.get(1);
+    let ny = ys.map_or(1, |y| y.values.len());
+    let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
+    let per_y = inner / ny.max(1);
+    let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
+    for (k, e) in r.all.iter().enumerate() {
+        let ix = k / inner.max(1);
+        let iy = (k % inner.max(1)) / per_y.max(1);
+        if let Some(v) = e.e {
+            let c = &mut m[iy][ix];
+            if c.is_nan() || v < *c {
+                *c = v;
+            }
+        }
+    }
+    let empty: Vec<f64> = vec![];
+    heatmap_svg(
+        &format!("E of axis {axis} (best over the other parameters)"),
+        &xs.name,
+        &xs.values,
+        ys.map_or("-", |y| y.name.as_str()),
+        ys.map_or(&empty, |y| &y.values),
+        &m,
+    )
+}
+
+/// Sets `position_p { kp_per_s }` and `pi_velocity { kv_nms_per_rad, tv_s }` of `axis` in the
+/// job's `[[chain]]` array (adding the entries if missing).
+fn apply_gains(
+    chain: &mut Vec<toml::Value>,
+    axis: &str,
+    b: feedloop_analysis::identify::tune::Gains,
+) {
+    for (plugin, stage, keys) in [
+        ("position_p", "position", vec![("kp_per_s", b.kp_per_s)]),
+        (
+            "pi_velocity",
+            "velocity",
+            vec![("kv_nms_per_rad", b.kv_nms_per_rad), ("tv_s", b.tv_s)],
+        ),
+    ] {
+        let pos = chain.iter().position(|e| {
+            e.get("plugin").and_then(|v| v.as_str()) == Some(plugin)
+                && e.get("axis").and_then(|v| v.as_str()) == Some(axis)
+        });
+        let k = match pos {
+            Some(k) => k,
+            None => {
+                let mut e = toml::Table::new();
+                e.insert("axis".into(), axis.into());
+                e.insert("stage".into(), stage.into());
+                e.insert("plugin".into(), plugin.into());
+                chain.push(toml::Value::Table(e));
+                chain.len() - 1
+            }
+        };
+        if let Some(e) = chain[k].as_table_mut() {
+            let params = e
+                .entry("params")
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let Some(pt) = params.as_table_mut() {
+                for (key, v) in keys {
+                    pt.insert(key.into(), v.into());
+                }
+            }
+        }
+    }
+}
+
 /// Runs `feedloop tune`.
 pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
-    use feedloop_analysis::identify::svg::heatmap_svg;
     use feedloop_analysis::identify::tune as t;
     let job = Job::load(&a.job)?;
     let grid = t::parse_grid(&a.grid)?;
@@ -409,51 +601,73 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     let [l1, l2, l3] = w[..] else {
         bail!("--weights `{}`: expected three numbers l1,l2,l3", a.weights);
     };
-    let total: u64 = grid.iter().map(|g| g.values.len() as u64).product();
+    let weights = [l1, l2, l3];
+    // Which axes: the one asked for, else every axis whose command has a ramp to score.
+    let mut skipped: Vec<(String, String)> = vec![];
+    let axes: Vec<usize> = match &a.axis {
+        Some(name) => vec![inertia::axis_index(&job, Some(name))?],
+        None => (0..job.axes.len())
+            .filter(|&i| match t::ramp_error(&job, i, weights) {
+                Ok(_) => true,
+                Err(e) => {
+                    skipped.push((job.axes[i].name.clone(), e.to_string()));
+                    false
+                }
+            })
+            .collect(),
+    };
+    if axes.is_empty() {
+        let why: Vec<String> = skipped.iter().map(|(n, e)| format!("{n}: {e}")).collect();
+        bail!(
+            "{}: no axis can be tuned ({})",
+            a.job.display(),
+            why.join("; ")
+        );
+    }
+    for (n, e) in &skipped {
+        eprintln!("axis {n} not tuned: {e}");
+    }
+    let per_axis: u64 = grid.iter().map(|g| g.values.len() as u64).product();
     let bar = if a.json {
         indicatif::ProgressBar::hidden()
     } else {
-        indicatif::ProgressBar::new(total)
-    };
-    let t0 = std::time::Instant::now();
-    let r = t::tune(&job, 0, &grid, [l1, l2, l3], a.refine, &|| bar.inc(1))?;
-    bar.finish_and_clear();
-    let secs = t0.elapsed().as_secs_f64();
-    if let Some(p) = &a.svg {
-        // E over the first two grid axes, best over the others.
-        let xs = &grid[0];
-        let ys = grid.get(1);
-        let ny = ys.map_or(1, |y| y.values.len());
-        let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
-        let per_y = inner / ny.max(1);
-        let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
-        for (k, e) in r.all.iter().enumerate() {
-            let ix = k / inner.max(1);
-            let iy = (k % inner.max(1)) / per_y.max(1);
-            if let Some(v) = e.e {
-                let c = &mut m[iy][ix];
-                if c.is_nan() || v < *c {
-                    *c = v;
-                }
-            }
-        }
-        let empty: Vec<f64> = vec![];
-        std::fs::write(
-            p,
-            heatmap_svg(
-                "E (best over the other parameters)",
-                &xs.name,
-                &xs.values,
-                ys.map_or("-", |y| y.name.as_str()),
-                ys.map_or(&empty, |y| &y.values),
-                &m,
-            ),
+        indicatif::ProgressBar::new(per_axis * axes.len() as u64).with_style(
+            indicatif::ProgressStyle::with_template("tune {msg} {bar:40} {pos}/{len} sets ({eta})")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         )
-        .with_context(|| format!("writing {}", p.display()))?;
+    };
+    let mut cur = job.clone();
+    let mut tuned: Vec<TunedAxis> = vec![];
+    for &i in &axes {
+        let name = job.axes[i].name.clone();
+        bar.set_message(format!("axis {name}"));
+        let t0 = std::time::Instant::now();
+        let r = t::tune(&cur, i, &grid, weights, a.delay_cycles, a.refine, &|| {
+            bar.inc(1)
+        })
+        .with_context(|| format!("tuning axis `{name}` of {}", a.job.display()))?;
+        cur = t::job_with_gains(&cur, i, r.best);
+        tuned.push(TunedAxis {
+            name,
+            result: r,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+    }
+    bar.finish_and_clear();
+    let several = tuned.len() > 1;
+    if let Some(p) = &a.svg {
+        for ta in &tuned {
+            let out = per_axis_path(p, &ta.name, several);
+            std::fs::write(&out, tune_heatmap(&grid, &ta.result, &ta.name))
+                .with_context(|| format!("writing {}", out.display()))?;
+        }
     }
     if let Some(out) = &a.apply {
-        let text = std::fs::read_to_string(&a.job)?;
-        let mut table: toml::Table = text.parse()?;
+        let text = std::fs::read_to_string(&a.job)
+            .with_context(|| format!("reading {}", a.job.display()))?;
+        let mut table: toml::Table = text
+            .parse()
+            .with_context(|| format!("{}", a.job.display()))?;
         if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
             for ja in &job.axes {
                 if let Some(toml::Value::Table(ax)) = axes.get_mut(&ja.name) {
@@ -463,76 +677,73 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
                 }
             }
         }
-        let axis = job.axes[0].name.clone();
-        let b = r.best;
         let mut chain = match table.remove("chain") {
             Some(toml::Value::Array(c)) => c,
             _ => vec![],
         };
-        for (plugin, stage, keys) in [
-            ("position_p", "position", vec![("kp_per_s", b.kp_per_s)]),
-            (
-                "pi_velocity",
-                "velocity",
-                vec![("kv_nms_per_rad", b.kv_nms_per_rad), ("tv_s", b.tv_s)],
-            ),
-        ] {
-            let found = chain.iter_mut().find(|e| {
-                e.get("plugin").and_then(|v| v.as_str()) == Some(plugin)
-                    && e.get("axis").and_then(|v| v.as_str()) == Some(axis.as_str())
-            });
-            let entry = match found {
-                Some(e) => e,
-                None => {
-                    let mut e = toml::Table::new();
-                    e.insert("axis".into(), axis.clone().into());
-                    e.insert("stage".into(), stage.into());
-                    e.insert("plugin".into(), plugin.into());
-                    chain.push(toml::Value::Table(e));
-                    chain.last_mut().unwrap()
-                }
-            };
-            if let Some(e) = entry.as_table_mut() {
-                let params = e
-                    .entry("params")
-                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-                if let Some(pt) = params.as_table_mut() {
-                    for (k, v) in keys {
-                        pt.insert(k.into(), v.into());
-                    }
-                }
-            }
+        let mut summary = vec![];
+        for ta in &tuned {
+            apply_gains(&mut chain, &ta.name, ta.result.best);
+            summary.push(format!(
+                "{}: E {:.4e}, defaults {:.4e}",
+                ta.name, ta.result.e_best, ta.result.e_default
+            ));
         }
         table.insert("chain".into(), toml::Value::Array(chain));
         std::fs::write(
             out,
             format!(
-                "# {} tuned by feedloop tune (E {:.4e}, defaults {:.4e})\n{}",
+                "# {} tuned by feedloop tune ({})\n{}",
                 a.job.display(),
-                r.e_best,
-                r.e_default,
+                summary.join("; "),
                 toml::to_string(&table)?
             ),
         )
         .with_context(|| format!("writing {}", out.display()))?;
     }
     if a.json {
-        println!(
-            "{}",
+        let skipped_json: Vec<serde_json::Value> = skipped
+            .iter()
+            .map(|(n, e)| serde_json::json!({"axis": n, "reason": e}))
+            .collect();
+        let v = if let [ta] = &tuned[..] {
+            let r = &ta.result;
             serde_json::json!({"best": r.best, "e_best": r.e_best, "e_default": r.e_default,
-                "evaluated": r.evaluated, "rejected": r.rejected, "seconds": secs})
-        );
+                "evaluated": r.evaluated, "rejected": r.rejected, "seconds": ta.seconds,
+                "axis": ta.name, "delay_cycles": a.delay_cycles, "skipped": skipped_json})
+        } else {
+            let mut best = serde_json::Map::new();
+            let mut e_best = serde_json::Map::new();
+            let mut e_default = serde_json::Map::new();
+            for ta in &tuned {
+                best.insert(ta.name.clone(), serde_json::json!(ta.result.best));
+                e_best.insert(ta.name.clone(), serde_json::json!(ta.result.e_best));
+                e_default.insert(ta.name.clone(), serde_json::json!(ta.result.e_default));
+            }
+            serde_json::json!({"best": best, "e_best": e_best, "e_default": e_default,
+                "evaluated": tuned.iter().map(|x| x.result.evaluated).sum::<usize>(),
+                "rejected": tuned.iter().map(|x| x.result.rejected).sum::<usize>(),
+                "seconds": tuned.iter().map(|x| x.seconds).sum::<f64>(),
+                "axes": tuned.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
+                "delay_cycles": a.delay_cycles, "skipped": skipped_json})
+        };
+        println!("{v}");
     } else {
-        println!(
-            "best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {secs:.1} s",
-            r.best.kp_per_s,
-            r.best.kv_nms_per_rad,
-            r.best.tv_s,
-            r.e_best,
-            r.e_default,
-            r.evaluated,
-            r.rejected
-        );
+        for ta in &tuned {
+            let r = &ta.result;
+            println!(
+                "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {:.1} s",
+                ta.name,
+                r.best.kp_per_s,
+                r.best.kv_nms_per_rad,
+                r.best.tv_s,
+                r.e_best,
+                r.e_default,
+                r.evaluated,
+                r.rejected,
+                ta.seconds
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

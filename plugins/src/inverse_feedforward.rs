@@ -20,7 +20,10 @@
 //!   and the second lag vanishes). The lags are discretised with Tustin. For a
 //!   proportional-only velocity loop (Tv = 0) VH = thM' + tau / Kv. The PI sums the sampled VH
 //!   with the rectangle rule; with the Tustin lags this leaves 0.011 um on the brief's 50 mm /
-//!   0.3 s move (the brief, discretising differently, saw about 0.6 um).
+//!   0.3 s move. `lag_discretisation = "backward_euler"` discretises the lags as the brief did
+//!   (y_k = (tau y_{k-1} + T x_k) / (tau + T)): the lag and the PI's rectangle rule then cancel
+//!   into a rectangle-rule integral of the numerator, which leads the continuous one by half a
+//!   sample and leaves 0.85 um (the brief's ~0.6 um).
 //! - `"split"` (default): the same inverse split at the PI: the motor's velocity reference thM'
 //!   is added to the velocity command and the model torque tau directly to `torque_ff`, so the PI
 //!   sees zero error when the plant follows the model. The torque is evaluated half a sample
@@ -41,7 +44,8 @@
 //! `structure`; `jm_kgm2`, `dm_nms_per_rad`, `kl_nm_per_rad`, `cl_nms_per_rad`, `jl_kgm2`,
 //! `dl_nms_per_rad` (ball-screw and rotary axes) or `mass_kg`, `viscous_ns_per_m` (rigid axes);
 //! `kv_nms_per_rad` / `kv_ns_per_m` and `tv_s` (the PI being inverted; `literal` only);
-//! `torque_advance_s` (s, default period / 2; `split` only); `velocity_estimate`.
+//! `torque_advance_s` (s, default period / 2; `split` only); `velocity_estimate`;
+//! `lag_discretisation` (`tustin`, default, or `backward_euler`; `literal` only).
 //! `jl_kgm2` is the key inertia identification updates (a3..a5 depend on it).
 
 use std::path::Path;
@@ -199,6 +203,15 @@ pub enum Structure {
     Split,
 }
 
+/// How the literal structure's lags 1/(1 + tau s) are discretised (`lag_discretisation`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LagDiscretisation {
+    /// Bilinear (Tustin), s = 2 (z - 1) / (T (z + 1)).
+    Tustin,
+    /// Backward Euler, s = (z - 1) / (T z): the brief's literal implementation.
+    BackwardEuler,
+}
+
 /// How the plant's motor velocity is measured (what the velocity reference must match).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MotorVelMeasure {
@@ -225,6 +238,8 @@ pub struct InverseFeedforwardParams {
     pub motor_vel: MotorVelMeasure,
     /// Control period, s.
     pub period_s: f64,
+    /// Discretisation of the literal structure's lags.
+    pub lag: LagDiscretisation,
 }
 
 impl InverseFeedforwardParams {
@@ -276,6 +291,16 @@ impl InverseFeedforwardParams {
                 ))
             }
         };
+        let lag = match f.opt_str("lag_discretisation")? {
+            None | Some("tustin") => LagDiscretisation::Tustin,
+            Some("backward_euler") => LagDiscretisation::BackwardEuler,
+            Some(other) => {
+                return Err(f.error(
+                    "lag_discretisation",
+                    format!("unknown lag discretisation `{other}` (tustin, backward_euler)"),
+                ))
+            }
+        };
         f.finish()?;
         let kv = kv.or(axis.defaults.kv);
         let kv = match (structure, kv) {
@@ -300,31 +325,46 @@ impl InverseFeedforwardParams {
             torque_advance_s: adv.unwrap_or(axis.period_s / 2.0),
             motor_vel,
             period_s: axis.period_s,
+            lag,
         })
     }
 }
 
-/// First-order lag 1/(1 + tau s), Tustin (c = 2/T); `tau = 0` passes through.
+/// First-order lag 1/(1 + tau s), `y_k = b0 x_k + s`, `s = b1 x_k - a1 y_k`: Tustin (c = 2/T,
+/// b1 = b0) or backward Euler (b1 = 0); `tau = 0` passes through.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Lag {
     b0: f64,
+    b1: f64,
     a1: f64,
     s: f64,
 }
 
 impl Lag {
-    fn new(tau: f64, period: f64) -> Self {
-        let c = 2.0 / period;
-        Self {
-            b0: 1.0 / (1.0 + c * tau),
-            a1: (1.0 - c * tau) / (1.0 + c * tau),
-            s: 0.0,
+    fn new(tau: f64, period: f64, how: LagDiscretisation) -> Self {
+        match how {
+            LagDiscretisation::Tustin => {
+                let c = 2.0 / period;
+                let b0 = 1.0 / (1.0 + c * tau);
+                Self {
+                    b0,
+                    b1: b0,
+                    a1: (1.0 - c * tau) / (1.0 + c * tau),
+                    s: 0.0,
+                }
+            }
+            LagDiscretisation::BackwardEuler => Self {
+                b0: period / (tau + period),
+                b1: 0.0,
+                a1: -tau / (tau + period),
+                s: 0.0,
+            },
         }
     }
     #[inline]
     fn process(&mut self, x: f64) -> f64 {
         let y = self.b0 * x + self.s;
-        self.s = self.b0 * x - self.a1 * y;
+        self.s = self.b1 * x - self.a1 * y;
         y
     }
     fn settle(&mut self, x: f64) {
@@ -355,8 +395,8 @@ impl InverseFeedforward {
             params,
             last_crackle: None,
             coef: [0.0; 5],
-            lag_tv: Lag::new(0.0, params.period_s),
-            lag_spring: Lag::new(0.0, params.period_s),
+            lag_tv: Lag::new(0.0, params.period_s, params.lag),
+            lag_spring: Lag::new(0.0, params.period_s, params.lag),
         };
         me.set_model(params.model);
         me
@@ -378,8 +418,8 @@ impl InverseFeedforward {
             [0.0; 5]
         };
         let (s1, s2) = (self.lag_tv.s, self.lag_spring.s);
-        self.lag_tv = Lag::new(p.tv_s, p.period_s);
-        self.lag_spring = Lag::new(model.spring_tau_s(), p.period_s);
+        self.lag_tv = Lag::new(p.tv_s, p.period_s, p.lag);
+        self.lag_spring = Lag::new(model.spring_tau_s(), p.period_s, p.lag);
         self.lag_tv.s = s1;
         self.lag_spring.s = s2;
     }
@@ -606,6 +646,22 @@ mod tests {
         let t: toml::Table = "structure = \"inverse\"".parse().unwrap();
         let e = InverseFeedforwardParams::from_table(&t, &axis(), Path::new("j")).unwrap_err();
         assert_eq!(e.key, "structure");
+    }
+
+    #[test]
+    fn backward_euler_lag_steps_by_t_over_tau_plus_t_and_unknown_names_are_refused() {
+        let t: toml::Table = "structure = \"literal\"\nlag_discretisation = \"backward_euler\""
+            .parse()
+            .unwrap();
+        let p = InverseFeedforwardParams::from_table(&t, &axis(), Path::new("j")).unwrap();
+        assert_eq!(p.lag, LagDiscretisation::BackwardEuler);
+        // y_k = (tau y_{k-1} + T x_k) / (tau + T) on a unit step, tau = 4 T.
+        let mut lag = Lag::new(4e-4, 1e-4, LagDiscretisation::BackwardEuler);
+        let (y1, y2) = (lag.process(1.0), lag.process(1.0));
+        assert!((y1 - 0.2).abs() < 1e-12 && (y2 - (0.8 * 0.2 + 0.2)).abs() < 1e-12);
+        let t: toml::Table = "lag_discretisation = \"euler\"".parse().unwrap();
+        let e = InverseFeedforwardParams::from_table(&t, &axis(), Path::new("j")).unwrap_err();
+        assert_eq!(e.key, "lag_discretisation");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! Minimal SVG plots: a Bode plot with marked points, and a heat map.
+//! Minimal SVG plots: a Bode plot with marked points, a heat map, and curves over a linear axis.
 
 use std::fmt::Write;
 
@@ -154,5 +154,120 @@ pub fn heatmap_svg(
         y0 + ph + 45.0,
         fmt(y)
     );
+    s
+}
+
+/// One curve of [`lines_svg`]: label, colour, points (x, y).
+pub struct Series<'a> {
+    /// Legend text.
+    pub label: &'a str,
+    /// SVG colour.
+    pub color: &'a str,
+    /// Points.
+    pub points: &'a [(f64, f64)],
+}
+
+/// Curves over a linear x axis with vertical markers at `marks` (label, x); labels carry the
+/// units.
+pub fn lines_svg(
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    marks: &[(&str, f64)],
+) -> String {
+    let (w, h) = (800.0, 480.0);
+    let (x0, x1, y0, y1) = (90.0, 780.0, 40.0, 430.0);
+    let all = series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|p| p.0.is_finite() && p.1.is_finite());
+    let (mut xlo, mut xhi, mut ylo, mut yhi) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for p in all {
+        xlo = xlo.min(p.0);
+        xhi = xhi.max(p.0);
+        ylo = ylo.min(p.1);
+        yhi = yhi.max(p.1);
+    }
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="{w}" height="{h}" fill="white"/><text x="{x0}" y="20">{title}</text>"#
+    );
+    if !(xlo.is_finite() && xhi.is_finite()) {
+        s.push_str("</svg>\n");
+        return s;
+    }
+    if xhi <= xlo {
+        xhi = xlo + 1.0;
+    }
+    if yhi <= ylo {
+        yhi = ylo + 1e-12_f64.max(ylo.abs() * 1e-3);
+    }
+    let pad = 0.05 * (yhi - ylo);
+    let (ylo, yhi) = (ylo - pad, yhi + pad);
+    let lx = |x: f64| x0 + (x - xlo) / (xhi - xlo) * (x1 - x0);
+    let ly = |y: f64| y1 - (y - ylo) / (yhi - ylo) * (y1 - y0);
+    let _ = writeln!(
+        s,
+        r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/>"#,
+        x1 - x0,
+        y1 - y0
+    );
+    if ylo < 0.0 && yhi > 0.0 {
+        let _ = writeln!(
+            s,
+            r#"<line x1="{x0}" y1="{y:.1}" x2="{x1}" y2="{y:.1}" stroke="grey" stroke-width="0.5"/>"#,
+            y = ly(0.0)
+        );
+    }
+    for (k, se) in series.iter().enumerate() {
+        let mut path = String::new();
+        for p in se
+            .points
+            .iter()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+        {
+            let _ = write!(path, "{:.1},{:.1} ", lx(p.0), ly(p.1));
+        }
+        let _ = writeln!(
+            s,
+            r#"<polyline points="{path}" fill="none" stroke="{c}" stroke-width="1.2"/><text x="{:.1}" y="{:.1}" fill="{c}">{}</text>"#,
+            x0 + 10.0,
+            y0 + 16.0 + 15.0 * k as f64,
+            se.label,
+            c = se.color
+        );
+    }
+    for (label, x) in marks {
+        let px = lx(*x);
+        let _ = writeln!(
+            s,
+            r#"<line x1="{px:.1}" y1="{y0}" x2="{px:.1}" y2="{y1}" stroke="red" stroke-dasharray="4,3"/><text x="{:.1}" y="{:.1}" fill="red">{label}</text>"#,
+            px + 4.0,
+            y1 - 6.0
+        );
+    }
+    let _ = writeln!(
+        s,
+        r#"<text x="5" y="{:.1}">{yhi:.3e}</text><text x="5" y="{y1}">{ylo:.3e}</text><text x="5" y="{:.1}">{y_label}</text>"#,
+        y0 + 10.0,
+        (y0 + y1) / 2.0
+    );
+    let _ = writeln!(
+        s,
+        r#"<text x="{x0}" y="{:.1}">{xlo:.4}</text><text x="{:.1}" y="{:.1}">{xhi:.4}</text><text x="{:.1}" y="{:.1}">{x_label}</text>"#,
+        y1 + 16.0,
+        x1 - 50.0,
+        y1 + 16.0,
+        (x0 + x1) / 2.0 - 60.0,
+        y1 + 36.0
+    );
+    s.push_str("</svg>\n");
     s
 }

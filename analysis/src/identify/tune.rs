@@ -1,7 +1,8 @@
 //! Control-parameter optimisation by a ramp test (seed 001): run the job for each parameter set
 //! of a grid (in parallel), score `E = l1 RMS(x err) + l2 RMS(v err) + l3 RMS(a err)` over the
-//! steady-state part, reject sets that saturate the torque or whose loops (from the model) have
-//! less than 30 deg phase margin or 6 dB gain margin.
+//! steady-state part, reject sets that saturate the torque or whose loops (from the model, with
+//! the control period's delay and zero-order hold) have less than 30 deg phase margin or 6 dB
+//! gain margin.
 
 use std::f64::consts::PI;
 
@@ -138,10 +139,18 @@ pub fn job_with_gains(job: &Job, i: usize, g: Gains) -> Job {
 }
 
 /// Phase and gain margins (deg, dB) of the velocity loop and of the position loop around it,
-/// from the 2-mass model (continuous time, no sampling delay); the worse of the two loops. The
-/// phase margin is the smallest distance of the phase from -180 deg at any gain crossover; the
-/// gain margin the smallest -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
-pub fn margins(plant: &PlantParams, g: Gains) -> Option<(f64, f64)> {
+/// from the 2-mass model; the worse of the two loops. The phase margin is the smallest
+/// distance of the phase from -180 deg at any gain crossover; the gain margin the smallest
+/// -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
+///
+/// The digital controller is in the loop with its sampling: both loops are computed from
+/// samples taken at the start of a cycle and the torque is held for a period. With
+/// `period_s = T > 0` the torque path carries the zero-order hold `(1 - e^{-sT}) / (sT)` (about
+/// T/2 of delay) and the frequency grid stops at the Nyquist frequency; `delay_s` adds a
+/// transport delay `e^{-s delay_s}` (computation, fieldbus: one period when the drive applies
+/// the command at the next cycle; 1.5 T in all is 8.6 deg at 160 Hz for T = 1e-4 s).
+/// `period_s = 0, delay_s = 0` is the continuous-time loop.
+pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Option<(f64, f64)> {
     let t = plant.two_mass()?;
     let (jm, dm, kl, cl, jl, dl) = (
         t.jm_kgm2,
@@ -152,20 +161,32 @@ pub fn margins(plant: &PlantParams, g: Gains) -> Option<(f64, f64)> {
         t.dl_nms_per_rad,
     );
     let n = 4000;
+    let f_max = if period_s > 0.0 {
+        (0.5 / period_s).min(1e4)
+    } else {
+        1e4
+    };
     let mut lv = Vec::with_capacity(n);
     let mut lp = Vec::with_capacity(n);
     for k in 0..n {
-        let f = 0.1 * (1e5f64).powf(k as f64 / (n - 1) as f64);
+        let f = 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64);
         let s = Complex64::new(0.0, 2.0 * PI * f);
+        let zoh = if period_s > 0.0 {
+            (1.0 - (-s * period_s).exp()) / (s * period_s)
+        } else {
+            Complex64::new(1.0, 0.0)
+        };
+        let delay = zoh * (-s * delay_s).exp();
         let ks = kl + cl * s;
         let a = jm * s * s + dm * s + ks;
         let b = jl * s * s + dl * s + ks;
         let d = a * b - ks * ks;
-        let cv = if g.tv_s > 0.0 {
-            g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
-        } else {
-            Complex64::new(g.kv_nms_per_rad, 0.0)
-        };
+        let cv = delay
+            * if g.tv_s > 0.0 {
+                g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
+            } else {
+                Complex64::new(g.kv_nms_per_rad, 0.0)
+            };
         let l_v = cv * s * b / d;
         lv.push((f, l_v));
         let th_l_over_v = cv * ks / (d + cv * s * b);
@@ -261,16 +282,39 @@ pub fn ramp_error(job: &Job, i: usize, weights: [f64; 3]) -> Result<(f64, f64), 
     Ok((e, tmax))
 }
 
-/// Evaluates one gain set.
-pub fn evaluate(job: &Job, i: usize, g: Gains, weights: [f64; 3]) -> Evaluation {
+/// The plant's own transport delay of axis `i` (`[effects.delay] delay_cycles`), cycles.
+pub fn model_delay_cycles(job: &Job, i: usize) -> u32 {
+    job.axes[i]
+        .model
+        .effects
+        .get("delay")
+        .and_then(|d| d.get("delay_cycles"))
+        .and_then(|v| v.as_integer())
+        .map_or(0, |n| n.clamp(0, 10_000) as u32)
+}
+
+/// Transport delay of the margin check, s: `delay_cycles` (the drive's computation / output
+/// delay) plus the model's own `[effects.delay]`, in periods.
+pub fn loop_delay_s(job: &Job, i: usize, delay_cycles: u32) -> f64 {
+    job.period_s * f64::from(delay_cycles + model_delay_cycles(job, i))
+}
+
+/// Evaluates one gain set; the margins include the zero-order hold and `delay_cycles` periods
+/// of transport delay on top of the model's own.
+pub fn evaluate(job: &Job, i: usize, g: Gains, weights: [f64; 3], delay_cycles: u32) -> Evaluation {
     let reject = |why: String| Evaluation {
         gains: g,
         e: None,
         rejected: Some(why),
     };
-    if let Some((pm, gm)) = margins(&job.axes[i].model.plant, g) {
+    let delay_s = loop_delay_s(job, i, delay_cycles);
+    if let Some((pm, gm)) = margins(&job.axes[i].model.plant, g, job.period_s, delay_s) {
         if pm < 30.0 || gm < 6.0 {
-            return reject(format!("margins {pm:.1} deg / {gm:.1} dB"));
+            return reject(format!(
+                "margins {pm:.1} deg / {gm:.1} dB (with the {:.0} us sampling hold and {:.0} us delay)",
+                0.5e6 * job.period_s,
+                1e6 * delay_s
+            ));
         }
     }
     let j = job_with_gains(job, i, g);
@@ -315,12 +359,14 @@ pub struct TuneResult {
     pub all: Vec<Evaluation>,
 }
 
-/// Runs the grid in parallel; `progress` is called from worker threads after each set.
+/// Runs the grid on axis `i` in parallel; `progress` is called from worker threads after each
+/// set. `delay_cycles`: see [`evaluate`].
 pub fn tune(
     job: &Job,
     i: usize,
     grid: &[GridAxis],
     weights: [f64; 3],
+    delay_cycles: u32,
     refine: bool,
     progress: &(dyn Fn() + Sync),
 ) -> Result<TuneResult, IdentifyError> {
@@ -344,12 +390,14 @@ pub fn tune(
     let all: Vec<Evaluation> = sets
         .par_iter()
         .map(|g| {
-            let e = evaluate(job, i, *g, weights);
+            let e = evaluate(job, i, *g, weights, delay_cycles);
             progress();
             e
         })
         .collect();
-    let e_default = evaluate(job, i, base, weights).e.unwrap_or(f64::NAN);
+    let e_default = evaluate(job, i, base, weights, delay_cycles)
+        .e
+        .unwrap_or(f64::NAN);
     let best = all
         .iter()
         .filter_map(|e| e.e.map(|v| (v, e.gains)))
@@ -376,7 +424,7 @@ pub fn tune(
                         _ => g.tv_s,
                     };
                     g.set(&name, v * s);
-                    if let Some(e) = evaluate(job, i, g, weights).e {
+                    if let Some(e) = evaluate(job, i, g, weights, delay_cycles).e {
                         if e < e_best {
                             e_best = e;
                             g_best = g;

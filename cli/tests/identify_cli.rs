@@ -1,0 +1,533 @@
+//! `feedloop excite`, `identify inertia|stiffness` and `tune` end to end on the shipped
+//! examples, through the real binary: JSON on stdout (parsed whole: nothing else may be
+//! there), plots written, figures against the example model's truth (examples/models/xy-x.toml:
+//! JM 2e-3, JL 3e-3 kg m^2, KL 3000 N m/rad, 10 mm lead), and the bad inputs refused
+//! with a clear message and a non-zero exit, never a panic.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_feedloop")
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("feedloop-idcli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(bin()).args(args).output().unwrap()
+}
+
+fn describe(args: &[&str], o: &Output) -> String {
+    format!(
+        "feedloop {}\nexit {:?}\nstdout: {}\nstderr: {}",
+        args.join(" "),
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+/// Runs with `--json`; the command must succeed and its whole stdout must be one JSON value.
+fn json(args: &[&str]) -> serde_json::Value {
+    let mut a = args.to_vec();
+    a.push("--json");
+    let o = run(&a);
+    assert!(o.status.success(), "{}", describe(&a, &o));
+    let out = String::from_utf8(o.stdout.clone()).unwrap();
+    serde_json::from_str(out.trim_end())
+        .unwrap_or_else(|e| panic!("stdout is not pure JSON ({e}): {}", describe(&a, &o)))
+}
+
+/// The command must fail with a message (no panic, nothing on stdout); returns stderr.
+fn refused(args: &[&str]) -> String {
+    let o = run(args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success(), "accepted: {}", describe(args, &o));
+    assert!(
+        !err.contains("panicked") && !err.is_empty(),
+        "{}",
+        describe(args, &o)
+    );
+    assert!(o.stdout.is_empty(), "{}", describe(args, &o));
+    err
+}
+
+fn num(v: &serde_json::Value, key: &str) -> f64 {
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("`{key}` missing or not a number in {v}"))
+}
+
+fn sim(job: &Path, out: &Path) -> PathBuf {
+    let args = [
+        "sim",
+        job.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    let o = run(&args);
+    assert!(o.status.success(), "{}", describe(&args, &o));
+    out.join("trace.csv")
+}
+
+/// The "machine": the inertia example's move on the X axis with load inertia `jl` while the
+/// feedforward keeps the nominal 3e-3 (`params` of the feedforward as given).
+fn machine_trace(d: &Path, tag: &str, jl: f64, ff_params: &str) -> PathBuf {
+    let model = std::fs::read_to_string(repo("examples/models/xy-x.toml")).unwrap();
+    assert!(model.contains("jl_kgm2 = 3.0e-3"));
+    let model = model.replace("jl_kgm2 = 3.0e-3", &format!("jl_kgm2 = {jl:e}"));
+    let m = d.join(format!("machine-{tag}.toml"));
+    std::fs::write(&m, model).unwrap();
+    let job = std::fs::read_to_string(repo("examples/jobs/identify-inertia-move.toml")).unwrap();
+    assert!(job.contains("model = \"../models/xy-x.toml\""));
+    assert!(job.contains("params = { structure = \"split\" }"));
+    let job = job
+        .replace(
+            "model = \"../models/xy-x.toml\"",
+            &format!("model = {:?}", m.display().to_string()),
+        )
+        .replace(
+            "params = { structure = \"split\" }",
+            &format!("params = {{ {ff_params}, jl_kgm2 = 3.0e-3 }}"),
+        );
+    let j = d.join(format!("machine-{tag}-job.toml"));
+    std::fs::write(&j, job).unwrap();
+    sim(&j, &d.join(format!("run-{tag}")))
+}
+
+#[test]
+fn excite_writes_a_playable_command_for_each_kind() {
+    let d = scratch("excite");
+    for (kind, set) in [
+        ("random-segments", "duration_s=2.0"),
+        ("prbs", "periods=1"),
+        ("multisine", "periods=1"),
+    ] {
+        let out = d.join(format!("{kind}.csv"));
+        let v = json(&[
+            "excite",
+            "--kind",
+            kind,
+            "--set",
+            set,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        println!("{kind}: {v}");
+        assert_eq!(v["kind"], kind);
+        assert_eq!(v["out"], out.display().to_string());
+        let (dur, rows) = (num(&v, "duration_s"), num(&v, "rows"));
+        assert!(dur > 0.5 && dur < 20.0, "{v}");
+        assert!((rows - (dur / 1e-4 + 1.0)).abs() <= 2.0, "{v}");
+        let text = std::fs::read_to_string(&out).unwrap();
+        let header = text
+            .lines()
+            .find(|l| !l.starts_with('#'))
+            .expect("a header line");
+        assert_eq!(header, "t,x.cmd,x.cmd_vel,x.cmd_acc");
+        let data = text.lines().filter(|l| !l.starts_with('#')).count() - 1;
+        assert!((data as f64 - rows).abs() <= 2.0, "{data} rows vs {rows}");
+    }
+    let e = refused(&[
+        "excite",
+        "--kind",
+        "sweep",
+        "--out",
+        d.join("x.csv").to_str().unwrap(),
+    ]);
+    assert!(e.contains("sweep") && e.contains("random-segments"), "{e}");
+}
+
+#[test]
+fn identify_stiffness_on_the_shipped_excitation_finds_kl_and_jl_and_draws_the_bode_plot() {
+    let d = scratch("stiffness");
+    let trace = sim(
+        &repo("examples/jobs/identify-stiffness.toml"),
+        &d.join("run"),
+    );
+    let svg = d.join("bode.svg");
+    let t = trace.to_str().unwrap();
+    let v = json(&[
+        "identify",
+        "stiffness",
+        "--trace",
+        t,
+        "--jm-kgm2",
+        "2e-3",
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    println!("{v}");
+    // Truth: wa = sqrt(KL / JL) = 159.15 Hz, wr = sqrt(KL (JM + JL) / (JM JL)) = 251.64 Hz.
+    let wa = (3000.0f64 / 3e-3).sqrt() / (2.0 * std::f64::consts::PI);
+    let wr = (3000.0f64 * 5e-3 / 6e-6).sqrt() / (2.0 * std::f64::consts::PI);
+    assert!(
+        (num(&v, "kl_nm_per_rad") / 3000.0 - 1.0).abs() < 0.02,
+        "{v}"
+    );
+    assert!((num(&v, "jl_kgm2") / 3e-3 - 1.0).abs() < 0.02, "{v}");
+    assert!((num(&v, "antiresonance_hz") / wa - 1.0).abs() < 0.01, "{v}");
+    assert!((num(&v, "resonance_hz") / wr - 1.0).abs() < 0.01, "{v}");
+    let c = num(&v, "coherence_min");
+    assert!(c > 0.8 && c <= 1.0, "{v}");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert!(
+        plot.starts_with("<svg") || plot.starts_with("<?xml"),
+        "not an SVG"
+    );
+    assert!(plot.contains("anti-resonance") && plot.contains("</svg>"));
+
+    // A band without a resonance (below the anti-resonance) names the band.
+    let e = refused(&[
+        "identify",
+        "stiffness",
+        "--trace",
+        t,
+        "--jm-kgm2",
+        "2e-3",
+        "--f-max-hz",
+        "100",
+    ]);
+    assert!(e.contains("between 5.0 and 100.0 Hz"), "{e}");
+    // The closed-loop command -> table FRF is refused with the reason.
+    let e = refused(&[
+        "identify",
+        "stiffness",
+        "--trace",
+        t,
+        "--jm-kgm2",
+        "2e-3",
+        "--frf",
+        "command-table",
+    ]);
+    assert!(e.contains("negative"), "{e}");
+}
+
+#[test]
+fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_writes_the_model() {
+    let d = scratch("inertia");
+    let truth = 3.9e-3;
+    let measured = machine_trace(&d, "w30", truth, "structure = \"split\"");
+    let job = repo("examples/jobs/identify-inertia-move.toml");
+    let applied = d.join("applied.toml");
+    let svg = d.join("deviation.svg");
+    let v = json(&[
+        "identify",
+        "inertia",
+        "--method",
+        "sim-match",
+        "--trace",
+        measured.to_str().unwrap(),
+        "--model",
+        job.to_str().unwrap(),
+        "--at",
+        "0.01",
+        "--apply",
+        applied.to_str().unwrap(),
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    println!("sim-match: {v}");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert!(plot.contains("</svg>") && plot.contains("--at 0.01"));
+    assert_eq!(
+        plot.matches("<polyline").count(),
+        2,
+        "measured and model curves"
+    );
+    assert_eq!(v["method"], "sim-match");
+    assert_eq!(v["deviation"], "command-load");
+    assert!((num(&v, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v}");
+    let it = num(&v, "iterations");
+    assert!((2.0..=20.0).contains(&it), "{v}");
+    let (dm, dd) = (
+        num(&v, "deviation_measured_m"),
+        num(&v, "deviation_model_m"),
+    );
+    // +30 % against a feedforward at 3e-3 leaves well under a micrometre at 10 mm, not zero.
+    assert!(dm.abs() > 1e-8 && dm.abs() < 1e-5, "{v}");
+    assert!((dm - dd).abs() <= 1e-3 * dm.abs(), "{v}");
+    assert!(v["literal_bias_percent"].is_null(), "{v}");
+    // The applied model carries the estimate; the job runs with it.
+    let text = std::fs::read_to_string(&applied).unwrap();
+    let t: toml::Table = text.parse().unwrap();
+    let jl = t["jl_kgm2"].as_float().unwrap();
+    assert!((jl - num(&v, "jl_kgm2")).abs() < 1e-12, "{text}");
+    assert!(text.starts_with('#') && text.contains("a3..a5"), "{text}");
+
+    // The motor-load deviation (screw twist) gives the same inertia.
+    let v2 = json(&[
+        "identify",
+        "inertia",
+        "--trace",
+        measured.to_str().unwrap(),
+        "--model",
+        job.to_str().unwrap(),
+        "--at",
+        "0.01",
+        "--deviation",
+        "motor-load",
+    ]);
+    println!("sim-match, motor-load: {v2}");
+    assert!((num(&v2, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v2}");
+
+    // Method 2 between the no-load run (3e-3) and a known +20 % run (3.6e-3).
+    let svg = d.join("linear.svg");
+    let no_load = machine_trace(&d, "w0", 3.0e-3, "structure = \"split\"");
+    let loaded = machine_trace(&d, "w20", 3.6e-3, "structure = \"split\"");
+    let v3 = json(&[
+        "identify",
+        "inertia",
+        "--method",
+        "linear",
+        "--no-load",
+        no_load.to_str().unwrap(),
+        "--loaded",
+        loaded.to_str().unwrap(),
+        "--loaded-jl-kgm2",
+        "3.6e-3",
+        "--no-load-jl-kgm2",
+        "3.0e-3",
+        "--model",
+        job.to_str().unwrap(),
+        "--trace",
+        measured.to_str().unwrap(),
+        "--at",
+        "0.01",
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    println!("linear: {v3}");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert_eq!(plot.matches("<polyline").count(), 3, "three traces");
+    assert_eq!(v3["method"], "linear");
+    assert!((num(&v3, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v3}");
+
+    // Bad input: a position outside the move names the travel.
+    let e = refused(&[
+        "identify",
+        "inertia",
+        "--trace",
+        measured.to_str().unwrap(),
+        "--model",
+        job.to_str().unwrap(),
+        "--at",
+        "0.2",
+    ]);
+    assert!(e.contains("outside the move"), "{e}");
+}
+
+#[test]
+fn the_brief_literal_structure_reports_its_bias_through_the_command_line() {
+    let d = scratch("literal");
+    let ff = "structure = \"literal\", lag_discretisation = \"backward_euler\"";
+    let measured = machine_trace(&d, "lit", 3.0e-3, ff);
+    // The model job: the shipped example with the same literal feedforward.
+    let job = std::fs::read_to_string(repo("examples/jobs/identify-inertia-move.toml"))
+        .unwrap()
+        .replace(
+            "model = \"../models/xy-x.toml\"",
+            &format!(
+                "model = {:?}",
+                repo("examples/models/xy-x.toml").display().to_string()
+            ),
+        )
+        .replace(
+            "params = { structure = \"split\" }",
+            &format!("params = {{ {ff} }}"),
+        );
+    let j = d.join("model-job.toml");
+    std::fs::write(&j, job).unwrap();
+    let v = json(&[
+        "identify",
+        "inertia",
+        "--trace",
+        measured.to_str().unwrap(),
+        "--model",
+        j.to_str().unwrap(),
+        "--at",
+        "0.03",
+    ]);
+    println!("{v}");
+    assert!((num(&v, "jl_kgm2") / 3e-3 - 1.0).abs() < 0.005, "{v}");
+    // The brief: ~0.6 um residual against ~8..10 um per +100 % of JL: -7.5 .. -6 %.
+    let b = num(&v, "literal_bias_percent");
+    assert!((-8.5..=-5.0).contains(&b), "{v}");
+    let jc = num(&v, "jl_continuous_model_kgm2");
+    assert!(
+        (jc / num(&v, "jl_kgm2") - 1.0 - b / 100.0).abs() < 1e-9,
+        "{v}"
+    );
+}
+
+#[test]
+fn a_trace_without_the_needed_columns_is_refused_naming_the_column() {
+    let d = scratch("columns");
+    let cmd = d.join("cmd.csv");
+    json(&[
+        "excite",
+        "--kind",
+        "prbs",
+        "--set",
+        "periods=1",
+        "--out",
+        cmd.to_str().unwrap(),
+    ]);
+    let job = repo("examples/jobs/identify-inertia-move.toml");
+    let e = refused(&[
+        "identify",
+        "inertia",
+        "--trace",
+        cmd.to_str().unwrap(),
+        "--model",
+        job.to_str().unwrap(),
+        "--at",
+        "0.01",
+    ]);
+    assert!(e.contains("x.load"), "{e}");
+    let e = refused(&[
+        "identify",
+        "stiffness",
+        "--trace",
+        cmd.to_str().unwrap(),
+        "--jm-kgm2",
+        "2e-3",
+    ]);
+    assert!(e.contains("x.torque") || e.contains("x.motor_vel"), "{e}");
+    let e = refused(&[
+        "identify",
+        "stiffness",
+        "--trace",
+        d.join("missing.csv").to_str().unwrap(),
+        "--jm-kgm2",
+        "2e-3",
+    ]);
+    assert!(e.contains("missing.csv"), "{e}");
+}
+
+#[test]
+fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned_job() {
+    let d = scratch("tune");
+    let svg = d.join("heat.svg");
+    let tuned = d.join("tuned.toml");
+    let job = repo("examples/jobs/tune-ramp.toml");
+    let grid = "kp_per_s=20:120:3,kv_nms_per_rad=2:10:3,tv_s=0.005:0.005:1";
+    let t0 = std::time::Instant::now();
+    let v = json(&[
+        "tune",
+        "--job",
+        job.to_str().unwrap(),
+        "--grid",
+        grid,
+        "--svg",
+        svg.to_str().unwrap(),
+        "--apply",
+        tuned.to_str().unwrap(),
+    ]);
+    println!("{v} ({:.2} s)", t0.elapsed().as_secs_f64());
+    for k in ["kp_per_s", "kv_nms_per_rad", "tv_s"] {
+        assert!(v["best"][k].is_number(), "{v}");
+    }
+    assert_eq!(num(&v, "evaluated"), 9.0);
+    assert!(num(&v, "rejected") <= 9.0);
+    let (eb, ed) = (num(&v, "e_best"), num(&v, "e_default"));
+    // Defaults kp 50: the ramp's following error alone is v / kp = 0.1 / 50 = 2 mm.
+    assert!((ed / 2.0e-3 - 1.0).abs() < 0.05, "{v}");
+    assert!(eb < ed, "{v}");
+    assert_eq!(v["axis"], "x");
+    let plot = std::fs::read_to_string(&svg).unwrap();
+    assert!(plot.contains("</svg>") && plot.contains("kp_per_s"));
+    // The tuned job, run afresh, has the lower E: its following error is v / kp.
+    let t: toml::Table = std::fs::read_to_string(&tuned).unwrap().parse().unwrap();
+    let kp = t["chain"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["plugin"].as_str() == Some("position_p"))
+        .and_then(|e| e["params"]["kp_per_s"].as_float())
+        .unwrap();
+    assert_eq!(kp, num(&v["best"], "kp_per_s"));
+    let run = sim(&tuned, &d.join("fresh"));
+    let text = std::fs::read_to_string(&run).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let (ic, il) = (
+        header.iter().position(|h| *h == "x.cmd").unwrap(),
+        header.iter().position(|h| *h == "x.load").unwrap(),
+    );
+    let fe_mid = lines
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            (c[0], c[ic] - c[il])
+        })
+        .filter(|(t, _)| (0.5..0.8).contains(t))
+        .map(|(_, e)| e.abs())
+        .fold(0.0, f64::max);
+    println!("tuned job afresh: following error {fe_mid:.4e} m at constant velocity");
+    assert!(fe_mid < 2.0e-3 * 0.9 && (fe_mid - 0.1 / kp).abs() < 0.05 * 0.1 / kp);
+
+    // Bad input: an empty grid.
+    for g in ["", "kp_per_s=20:120:0", "kp_per_s=120:20:3"] {
+        let e = refused(&["tune", "--job", job.to_str().unwrap(), "--grid", g]);
+        assert!(e.contains("grid"), "`{g}`: {e}");
+    }
+    let e = refused(&[
+        "tune",
+        "--job",
+        job.to_str().unwrap(),
+        "--grid",
+        grid,
+        "--axis",
+        "z",
+    ]);
+    assert!(e.contains("`z`"), "{e}");
+}
+
+#[test]
+fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
+    let d = scratch("tune-xy");
+    let svg = d.join("heat.svg");
+    let job = repo("examples/jobs/tune-ramp-xy.toml");
+    let v = json(&[
+        "tune",
+        "--job",
+        job.to_str().unwrap(),
+        "--grid",
+        "kp_per_s=20:120:3,kv_nms_per_rad=2:10:2",
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    println!("{v}");
+    assert_eq!(v["axes"], serde_json::json!(["x", "y"]));
+    assert_eq!(num(&v, "evaluated"), 12.0);
+    for a in ["x", "y"] {
+        assert!(v["best"][a]["kp_per_s"].is_number(), "{v}");
+        assert!(num(&v["e_best"], a) < num(&v["e_default"], a), "{v}");
+        assert!(d.join(format!("heat-{a}.svg")).exists());
+    }
+    // Y runs at half X's velocity: its E at the same gains is about half.
+    let r = num(&v["e_default"], "y") / num(&v["e_default"], "x");
+    assert!((r - 0.5).abs() < 0.05, "{v}");
+    // --axis picks one.
+    let v = json(&[
+        "tune",
+        "--job",
+        job.to_str().unwrap(),
+        "--grid",
+        "kp_per_s=20:120:3",
+        "--axis",
+        "y",
+    ]);
+    assert_eq!(v["axis"], "y");
+    assert_eq!(num(&v, "evaluated"), 3.0);
+}
