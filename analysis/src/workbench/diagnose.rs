@@ -193,6 +193,23 @@ fn default_side(kind: AxisKind) -> Side {
     }
 }
 
+/// Nonlinear parameters of the backlash column: the model's `JM`, `DM` (to form the torque the
+/// screw transmits) and a dead band of 5 % of that torque's range, inside which the flank in
+/// contact is undetermined. `None` without a 2-mass model or a torque column.
+pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
+    let t = model.file.plant.two_mass()?;
+    let y = d.torque.as_ref()?;
+    let (a, b) = d.range;
+    let tr: Vec<f64> = (a..b)
+        .map(|k| (y[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k]).abs())
+        .collect();
+    Some(vec![
+        t.jm_kgm2,
+        t.dm_nms_per_rad,
+        0.05 * quantile(&tr, 0.99),
+    ])
+}
+
 /// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
 /// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
 pub fn best_effect(
@@ -205,7 +222,13 @@ pub fn best_effect(
 ) -> Option<(Effect, Cv)> {
     let side = default_side(d.kind);
     let mut best: Option<(Effect, Cv)> = None;
-    for h in hyper_grid(id, d) {
+    let mut grid = hyper_grid(id, d);
+    if id == "backlash" {
+        if let Some(h) = backlash_hyper(model, d) {
+            grid = vec![h];
+        }
+    }
+    for h in grid {
         let e = Effect::new(id, side, h);
         let cv = match channel(id) {
             Channel::TorquePath => {
@@ -462,6 +485,26 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 ));
                 continue;
             };
+            // backlash says where the deflection is only while a flank transmits torque:
+            // inside the gap (the transmitted torque within its dead band) the samples are
+            // left out of its score (zero weight in the residual and every column)
+            let mask: Option<Vec<f64>> = (id == "backlash")
+                .then(|| backlash_hyper(model, d))
+                .flatten()
+                .map(|h| {
+                    Effect::new(id, default_side(kind), h).columns(d)[0]
+                        .iter()
+                        .map(|x| x.abs())
+                        .collect()
+                });
+            let masked = |x: &[f64]| -> Vec<f64> {
+                match &mask {
+                    Some(m) => x.iter().zip(m).map(|(v, w)| v * w).collect(),
+                    None => x.to_vec(),
+                }
+            };
+            let rd = &masked(rd);
+            let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
             let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
             let d0 = cv_cols(&[], &[], rd, &bl);
             let dbase = cv_cols(&dref, &[], rd, &bl);
@@ -646,7 +689,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let verdict = match sig.first() {
         None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
         None => format!(
-            "no missing effect found: no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more; the remaining misfit is coloured (whiteness test failed, lag-1 autocorrelation {:.2}) but no effect of the library explains it",
+            "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more",
             ac.first().copied().unwrap_or(0.0)
         ),
         Some(top) => {
