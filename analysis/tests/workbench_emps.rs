@@ -63,6 +63,12 @@ fn emps_misfit_of_the_nominal_model_is_concentrated_at_velocity_reversals() {
 fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
     let Some((m, d)) = setup() else { return };
     let dg = diagnose(&m, &d, &DiagOptions::default());
+    for c in &dg.candidates {
+        println!(
+            "{} ({}) {:.2} % significant {} {:?} same {:?}",
+            c.effect, c.class, c.error_reduction_pct, c.significant, c.params, c.same_as
+        );
+    }
     let top = &dg.candidates[0];
     assert_eq!(top.effect, "coulomb_friction", "{}", dg.verdict);
     assert!(top.significant);
@@ -77,6 +83,23 @@ fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
     let off = top.params["offset_n"];
     assert!((off + 3.1648).abs() < 0.5, "offset = {off}");
     assert!(dg.verdict.contains("coulomb_friction"), "{}", dg.verdict);
+    // Coulomb friction and its offset are the only things named: the offset alone
+    // (`constant_force`) is reported in the friction class, and nothing else (a torque clamp
+    // re-explaining part of the friction steps, say) is significant beyond them
+    let others: Vec<String> = dg
+        .candidates
+        .iter()
+        .skip(1)
+        .filter(|c| c.significant)
+        .map(|c| format!("{} {:.1} %", c.effect, c.error_reduction_pct))
+        .collect();
+    assert!(others.is_empty(), "also significant: {others:?}");
+    let cf = dg
+        .candidates
+        .iter()
+        .find(|c| c.effect == "constant_force")
+        .unwrap();
+    assert_eq!(cf.class, "friction", "{}", cf.evidence);
 }
 
 #[test]

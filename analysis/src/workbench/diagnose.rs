@@ -636,6 +636,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0);
     // candidates the data cannot tell apart
     for i in 0..cands.len() {
         let mut same = Vec::new();
@@ -655,7 +656,11 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 same.push(cands[j].effect.clone());
             }
         }
-        cands[i].same_as = same;
+        for x in same {
+            if !cands[i].same_as.contains(&x) {
+                cands[i].same_as.push(x);
+            }
+        }
     }
     // a class shared by indistinguishable candidates: the first one's class
     for i in 0..cands.len() {
@@ -720,6 +725,93 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         whiteness_passed: white,
         untested,
     }
+}
+
+/// Forward selection: once the first candidate (an effect on the torque channel) is
+/// significant, every other torque-channel effect must earn its significance beyond it: it is
+/// refitted together with the base parameters and the first candidate, and keeps its
+/// significance only if it lowers the cross-validated error further by [`MIN_REDUCTION_PCT`] in
+/// [`MIN_FOLD_WINS`] blocks. A candidate that only re-explains part of the first one's misfit
+/// (a clamp of the torque where friction steps, an offset the first one already carries) is
+/// credited with its extra only; when the first candidate already includes its effect, it is
+/// reported in the first one's class.
+fn condition_on_top(
+    cands: &mut [Candidate],
+    model: &WbModel,
+    d: &AxisData,
+    base_cols: &[&[f64]],
+    res: &[f64],
+    bl: &[(usize, usize)],
+    e0: f64,
+) {
+    let Some(top) = cands.first() else { return };
+    if top.is_param || !top.significant || top.channel != "torque" {
+        return;
+    }
+    let top_add = top.add.clone();
+    let top_class = top.class.clone();
+    let top_name = top.effect.clone();
+    let needed = model.torque_needed(d);
+    let mut with_top = model.clone();
+    let mut top_cols: Vec<Vec<f64>> = Vec::new();
+    for e in &top_add {
+        match channel(&e.id) {
+            Channel::TorquePath => with_top.effects.push(e.clone()),
+            Channel::Torque => top_cols.extend(e.columns(d)),
+            Channel::Deflection => {}
+        }
+    }
+    let target_of = |m: &WbModel| -> Vec<f64> {
+        match m.applied(d) {
+            Some(t) => t.iter().zip(&needed).map(|(a, b)| a - b).collect(),
+            None => res.to_vec(),
+        }
+    };
+    let t_ref = target_of(&with_top);
+    let mut cols: Vec<&[f64]> = base_cols.to_vec();
+    cols.extend(top_cols.iter().map(|c| c.as_slice()));
+    let cv_ref = cv_cols(&cols, &[], &t_ref, bl);
+    let mut included = Vec::new();
+    for c in cands.iter_mut().skip(1) {
+        if c.is_param || !c.significant || c.channel != "torque" || c.add.is_empty() {
+            continue;
+        }
+        let mut with = with_top.clone();
+        let mut extra_cols: Vec<Vec<f64>> = Vec::new();
+        for e in &c.add {
+            match channel(&e.id) {
+                Channel::TorquePath => with.effects.push(e.clone()),
+                Channel::Torque => extra_cols.extend(e.columns(d)),
+                Channel::Deflection => {}
+            }
+        }
+        let t = if with.effects.len() > with_top.effects.len() {
+            target_of(&with)
+        } else {
+            t_ref.clone()
+        };
+        let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
+        let cv = cv_cols(&cols, &refs, &t, bl);
+        let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
+        let wins = fold_wins(&cv, &cv_ref.fold_mse);
+        if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {
+            c.significant = false;
+            c.error_reduction_pct = extra;
+            if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
+                c.class = top_class.clone();
+                if !c.same_as.contains(&top_name) {
+                    c.same_as.push(top_name.clone());
+                }
+                included.push(c.effect.clone());
+            }
+            c.evidence = format!(
+                "{}; beyond {top_name} it lowers the cross-validated error by only {extra:.1} % (not significant)",
+                c.evidence
+            );
+        }
+    }
+    cands[0].same_as.extend(included);
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
 }
 
 /// Deflection channel: (residual, base columns) when both positions are measured.
