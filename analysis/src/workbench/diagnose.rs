@@ -250,6 +250,10 @@ pub fn best_effect(
         if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
             continue;
         }
+        // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
+        if id == "third_mass" && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
+            continue;
+        }
         if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
             let mut e = e;
             let nb = base.len();
