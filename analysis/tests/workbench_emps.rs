@@ -131,5 +131,6 @@ fn emps_fit_with_coulomb_and_offset_reproduces_the_published_estimates() {
         r.before.window_sim_nrmse_pct.unwrap(),
         r.after.window_sim_nrmse_pct.unwrap(),
     );
+    println!("EMPS windowed simulation NRMSE {wb:.2} % -> {wa:.2} %, relative force error {before:.2} % -> {e:.2} %");
     assert!(wa < 0.4 * wb, "windowed simulation NRMSE {wb} -> {wa}");
 }
