@@ -171,7 +171,22 @@ fn run(hidden: &str, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
     (m, d, dg)
 }
 
-fn check_effect(hidden: &str, class: &str) {
+/// What the windowed simulation (50 ms windows restarted from the measured state, the plant
+/// simulator's 2-mass axis with the model's effects) must show when the top candidate is added.
+#[derive(Debug, Clone, Copy)]
+enum Window {
+    /// Its NRMSE falls by at least 70 %.
+    Cut70,
+    /// Its NRMSE falls, but the effect's own windowed error is of the order of the restart
+    /// floor: the windowed error of the true model on the trace without a hidden effect is
+    /// about 3.9 % (restarting a 2-mass axis from filtered positions and velocities leaves a
+    /// spring and velocity-loop transient in every window), so a 70 % cut is not reachable.
+    Falls,
+    /// Not asserted (see the test's comment).
+    Unchecked,
+}
+
+fn check_effect(hidden: &str, class: &str, window: Window) {
     let (m, d, dg) = run(hidden, BASE);
     let top = &dg.candidates[0];
     let table: Vec<String> = dg
@@ -191,15 +206,30 @@ fn check_effect(hidden: &str, class: &str) {
         r.before.equation_nrmse_pct.unwrap(),
         r.after.equation_nrmse_pct.unwrap(),
     );
+    let (wb, wa) = (
+        r.before.window_sim_nrmse_pct.unwrap(),
+        r.after.window_sim_nrmse_pct.unwrap(),
+    );
     println!(
-        "{hidden:?}: top {} equation NRMSE {b:.2} -> {a:.2}; window {:?} -> {:?}",
-        top.effect, r.before.window_sim_nrmse_pct, r.after.window_sim_nrmse_pct
+        "{hidden:?}: top {} equation NRMSE {b:.2} -> {a:.2}; window {wb:.2} -> {wa:.2}",
+        top.effect
     );
     assert!(
         a < 0.3 * b,
         "hidden {hidden}: equation NRMSE {b} -> {a}; params {:?}",
         r.params
     );
+    match window {
+        Window::Cut70 => assert!(
+            wa < 0.3 * wb,
+            "hidden {hidden}: windowed simulation NRMSE {wb} -> {wa}"
+        ),
+        Window::Falls => assert!(
+            wa < wb,
+            "hidden {hidden}: windowed simulation NRMSE {wb} -> {wa}"
+        ),
+        Window::Unchecked => {}
+    }
 }
 
 #[test]
@@ -207,12 +237,17 @@ fn hidden_coulomb_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_pe
     check_effect(
         "[effects.coulomb_friction]\nside = \"load\"\nfc_n = 100.0\n",
         "friction",
+        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_constant_force_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    check_effect("[effects.constant_force]\nforce_n = -300.0\n", "offset");
+    check_effect(
+        "[effects.constant_force]\nforce_n = -300.0\n",
+        "offset",
+        Window::Falls,
+    );
 }
 
 #[test]
@@ -220,6 +255,7 @@ fn hidden_viscous_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_pe
     check_effect(
         "[effects.viscous_friction]\nside = \"load\"\nc_ns_per_m = 3000.0\n",
         "damping",
+        Window::Falls,
     );
 }
 
@@ -228,12 +264,20 @@ fn hidden_cogging_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
     check_effect(
         "[effects.cogging]\namplitude_nm = 0.2\nperiods_per_rev = 12\n",
         "cogging",
+        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_delay_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    check_effect("[effects.delay]\ndelay_cycles = 3\n", "delay");
+    // Not asserted: with 3 cycles of delay the recorded loop rides its torque limit in the fast
+    // sweep and jogs, and the windowed simulation of even the true model (delay added) does
+    // not follow it (its NRMSE stays above 100 %): a known gap.
+    check_effect(
+        "[effects.delay]\ndelay_cycles = 3\n",
+        "delay",
+        Window::Unchecked,
+    );
 }
 
 #[test]
@@ -246,11 +290,12 @@ fn a_trace_without_hidden_effect_gives_no_significant_effect() {
         .map(|c| c.effect.as_str())
         .collect();
     assert!(sig.is_empty(), "significant: {sig:?}; {}", dg.verdict);
-    assert!(
-        dg.verdict.starts_with("no missing effect found"),
-        "{}",
-        dg.verdict
-    );
+    let wording = if dg.whiteness_passed {
+        "no missing effect found; the remaining misfit looks like noise (whiteness test passed)"
+    } else {
+        "no missing effect found; the remaining misfit does not look like noise (whiteness test failed)"
+    };
+    assert!(dg.verdict.starts_with(wording), "{}", dg.verdict);
 }
 
 #[test]
@@ -299,12 +344,19 @@ fn hidden_third_mass_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent(
     check_effect(
         "[effects.third_mass]\nmass_kg = 30.0\nstiffness_n_per_m = 4.26e6\ndamping_ns_per_m = 1130.0\n",
         "mode",
+        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_current_lag_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    check_effect("[effects.current_lag]\ntau_s = 0.0015\n", "delay");
+    // Not asserted: as with the delay, the windowed simulation of the lagged loop does not
+    // follow the recorded one (its NRMSE rises when the lag is added): a known gap.
+    check_effect(
+        "[effects.current_lag]\ntau_s = 0.0015\n",
+        "delay",
+        Window::Unchecked,
+    );
 }
 
 #[test]
@@ -312,11 +364,12 @@ fn hidden_torque_saturation_is_ranked_first_and_adding_it_cuts_the_error_by_70_p
     check_effect(
         "[effects.torque_saturation]\nlimit_nm = 15.0\n",
         "saturation",
+        Window::Cut70,
     );
 }
 
 #[test]
-#[ignore = "known gap: the impacts at the end of the gap excite the resonance and a 400 Hz third_mass outranks backlash on the torque channel"]
+#[ignore = "known gap: backlash is named on the deflection (gap 19.0 um for 20 um, 57 % of the deflection misfit) but a third_mass fitting 76 % of the tiny (0.16 % NRMSE) impact-excited torque residual still ranks above it"]
 fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
     let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
     let top = &dg.candidates[0];
@@ -327,11 +380,22 @@ fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
 
 #[test]
 fn hidden_pitch_error_is_ranked_first_with_its_amplitude() {
-    let (_, _, dg) = run("[effects.pitch_error]\namplitude_m = 5.0e-6\n", BASE);
+    let (m, d, dg) = run("[effects.pitch_error]\namplitude_m = 5.0e-6\n", BASE);
     let top = &dg.candidates[0];
     assert_eq!(top.class, "pitch", "{}", dg.verdict);
     let a = top.params["amplitude_m"];
     assert!((a - 5e-6).abs() < 1e-6, "amplitude {a}");
+    // the phase of the lead error as the plant library defines it (0 here)
+    let ph = top.params["phase_rad"];
+    assert!(ph.abs() < 0.1, "phase {ph}");
+    // the lead error shows in the windowed simulation (the restart puts the measured deflection
+    // on the spring); its own share is of the order of the restart floor (see `Window::Falls`)
+    let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
+    let (wb, wa) = (
+        r.before.window_sim_nrmse_pct.unwrap(),
+        r.after.window_sim_nrmse_pct.unwrap(),
+    );
+    assert!(wa < wb, "windowed simulation NRMSE {wb} -> {wa}");
 }
 
 #[test]

@@ -63,6 +63,12 @@ fn emps_misfit_of_the_nominal_model_is_concentrated_at_velocity_reversals() {
 fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
     let Some((m, d)) = setup() else { return };
     let dg = diagnose(&m, &d, &DiagOptions::default());
+    for c in &dg.candidates {
+        println!(
+            "{} ({}) {:.2} % significant {} {:?} same {:?}",
+            c.effect, c.class, c.error_reduction_pct, c.significant, c.params, c.same_as
+        );
+    }
     let top = &dg.candidates[0];
     assert_eq!(top.effect, "coulomb_friction", "{}", dg.verdict);
     assert!(top.significant);
@@ -77,6 +83,23 @@ fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
     let off = top.params["offset_n"];
     assert!((off + 3.1648).abs() < 0.5, "offset = {off}");
     assert!(dg.verdict.contains("coulomb_friction"), "{}", dg.verdict);
+    // Coulomb friction and its offset are the only things named: the offset alone
+    // (`constant_force`) is reported in the friction class, and nothing else (a torque clamp
+    // re-explaining part of the friction steps, say) is significant beyond them
+    let others: Vec<String> = dg
+        .candidates
+        .iter()
+        .skip(1)
+        .filter(|c| c.significant)
+        .map(|c| format!("{} {:.1} %", c.effect, c.error_reduction_pct))
+        .collect();
+    assert!(others.is_empty(), "also significant: {others:?}");
+    let cf = dg
+        .candidates
+        .iter()
+        .find(|c| c.effect == "constant_force")
+        .unwrap();
+    assert_eq!(cf.class, "friction", "{}", cf.evidence);
 }
 
 #[test]
@@ -108,5 +131,6 @@ fn emps_fit_with_coulomb_and_offset_reproduces_the_published_estimates() {
         r.before.window_sim_nrmse_pct.unwrap(),
         r.after.window_sim_nrmse_pct.unwrap(),
     );
+    println!("EMPS windowed simulation NRMSE {wb:.2} % -> {wa:.2} %, relative force error {before:.2} % -> {e:.2} %");
     assert!(wa < 0.4 * wb, "windowed simulation NRMSE {wb} -> {wa}");
 }

@@ -509,6 +509,83 @@ impl AxisPlant {
         self.measure();
     }
 
+    /// Puts the axis in a given state, for a simulation restarted from a measured state (the
+    /// workbench's windowed simulation): motor position and velocity (rad, rad/s; m, m/s on a
+    /// rigid axis), load position and velocity (m, m/s on a ball screw, rad, rad/s on a rotary
+    /// axis; ignored on a rigid axis). `past_torque` holds the torque commands of the periods
+    /// before, oldest first: the latest fill the delay line (missing ones count as the oldest
+    /// given, or 0), and the last one is the current lag's state and the applied torque.
+    ///
+    /// A third mass starts at rest relative to the load with its spring relaxed; dry friction
+    /// sticks on a body whose velocity is exactly 0 and slides in the direction of its velocity
+    /// otherwise; the backlash contact follows from the deflection. Non-finite values are taken
+    /// as 0.
+    pub fn set_state(&mut self, motor: (f64, f64), load: (f64, f64), past_torque: &[f64]) {
+        let fin = |v: f64| if v.is_finite() { v } else { 0.0 };
+        let (mp, mv) = (fin(motor.0), fin(motor.1));
+        let (lp, lv) = if self.st.two_mass {
+            (
+                fin(load.0) * self.motor_per_load,
+                fin(load.1) * self.motor_per_load,
+            )
+        } else {
+            (mp, mv)
+        };
+        self.x = [0.0; MAX_N];
+        self.x[0] = mp;
+        self.x[1] = mv;
+        if self.st.two_mass {
+            self.x[2] = lp;
+            self.x[3] = lv;
+        }
+        if let Some((i3, ..)) = self.st.third {
+            self.x[i3] = lp;
+            self.x[i3 + 1] = lv;
+        }
+        let last = past_torque.last().copied().map(fin).unwrap_or(0.0);
+        if let Some((il, _)) = self.st.lag {
+            self.x[il] = last.clamp(-self.limit, self.limit);
+        }
+        // the delay line holds the commands of the last `len` periods; the next one read is the
+        // oldest
+        let len = self.delay.len();
+        let oldest = past_torque.first().copied().map(fin).unwrap_or(0.0);
+        for i in 0..len {
+            // slot i (read i periods from now) holds the command of `len - i` periods ago
+            let back = len - i;
+            let v = if back <= past_torque.len() {
+                fin(past_torque[past_torque.len() - back])
+            } else {
+                oldest
+            };
+            self.delay[i] = v;
+        }
+        self.delay_pos = 0;
+        self.e_m = 0.0;
+        if let Some(p) = self.pitch {
+            self.e_m = p.eval(mp * self.load_per_motor).0 * self.motor_per_load;
+        }
+        self.contact = 0;
+        if self.backlash && self.st.two_mass {
+            let d = self.x[0] + self.e_m - self.x[2];
+            self.contact = if d > self.gap_half {
+                1
+            } else if d < -self.gap_half {
+                -1
+            } else {
+                0
+            };
+        }
+        for b in &mut self.bodies[..self.nbodies] {
+            let v = self.x[b.vel];
+            b.stuck = b.dry && v == 0.0;
+            b.dir = if v < 0.0 { -1.0 } else { 1.0 };
+        }
+        self.applied = last;
+        self.sensor.reset_position(self.x[0]);
+        self.measure();
+    }
+
     /// True state `(motor_pos, motor_vel, load_pos, load_vel)`: motor rad, rad/s (m, m/s on a
     /// rigid axis); load m, m/s (ballscrew, rigid) or rad, rad/s (rotary).
     pub fn true_state(&self) -> (f64, f64, f64, f64) {

@@ -337,6 +337,7 @@ impl Comparison {
             "window_sim_nrmse_pct": self.sim.headline_nrmse_pct(),
             "free_sim_nrmse_pct": self.sim.headline_free_nrmse_pct(),
             "sim_mode": self.sim.mode,
+            "sim_plant": self.sim.plant,
             "window_s": self.sim.window_s,
             "channels": channels,
             "segments": seg,

@@ -193,6 +193,23 @@ fn default_side(kind: AxisKind) -> Side {
     }
 }
 
+/// Nonlinear parameters of the backlash column: the model's `JM`, `DM` (to form the torque the
+/// screw transmits) and a dead band of 5 % of that torque's range, inside which the flank in
+/// contact is undetermined. `None` without a 2-mass model or a torque column.
+pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
+    let t = model.file.plant.two_mass()?;
+    let y = d.torque.as_ref()?;
+    let (a, b) = d.range;
+    let tr: Vec<f64> = (a..b)
+        .map(|k| (y[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k]).abs())
+        .collect();
+    Some(vec![
+        t.jm_kgm2,
+        t.dm_nms_per_rad,
+        0.05 * quantile(&tr, 0.99),
+    ])
+}
+
 /// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
 /// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
 pub fn best_effect(
@@ -205,7 +222,13 @@ pub fn best_effect(
 ) -> Option<(Effect, Cv)> {
     let side = default_side(d.kind);
     let mut best: Option<(Effect, Cv)> = None;
-    for h in hyper_grid(id, d) {
+    let mut grid = hyper_grid(id, d);
+    if id == "backlash" {
+        if let Some(h) = backlash_hyper(model, d) {
+            grid = vec![h];
+        }
+    }
+    for h in grid {
         let e = Effect::new(id, side, h);
         let cv = match channel(id) {
             Channel::TorquePath => {
@@ -225,6 +248,10 @@ pub fn best_effect(
         // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         let nb = base.len();
         if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
+            continue;
+        }
+        // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
+        if id == "third_mass" && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
             continue;
         }
         if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
@@ -462,6 +489,26 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 ));
                 continue;
             };
+            // backlash says where the deflection is only while a flank transmits torque:
+            // inside the gap (the transmitted torque within its dead band) the samples are
+            // left out of its score (zero weight in the residual and every column)
+            let mask: Option<Vec<f64>> = (id == "backlash")
+                .then(|| backlash_hyper(model, d))
+                .flatten()
+                .map(|h| {
+                    Effect::new(id, default_side(kind), h).columns(d)[0]
+                        .iter()
+                        .map(|x| x.abs())
+                        .collect()
+                });
+            let masked = |x: &[f64]| -> Vec<f64> {
+                match &mask {
+                    Some(m) => x.iter().zip(m).map(|(v, w)| v * w).collect(),
+                    None => x.to_vec(),
+                }
+            };
+            let rd = &masked(rd);
+            let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
             let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
             let d0 = cv_cols(&[], &[], rd, &bl);
             let dbase = cv_cols(&dref, &[], rd, &bl);
@@ -593,6 +640,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0);
     // candidates the data cannot tell apart
     for i in 0..cands.len() {
         let mut same = Vec::new();
@@ -612,7 +660,11 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 same.push(cands[j].effect.clone());
             }
         }
-        cands[i].same_as = same;
+        for x in same {
+            if !cands[i].same_as.contains(&x) {
+                cands[i].same_as.push(x);
+            }
+        }
     }
     // a class shared by indistinguishable candidates: the first one's class
     for i in 0..cands.len() {
@@ -646,7 +698,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let verdict = match sig.first() {
         None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
         None => format!(
-            "no missing effect found: no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more; the remaining misfit is coloured (whiteness test failed, lag-1 autocorrelation {:.2}) but no effect of the library explains it",
+            "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more",
             ac.first().copied().unwrap_or(0.0)
         ),
         Some(top) => {
@@ -677,6 +729,93 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         whiteness_passed: white,
         untested,
     }
+}
+
+/// Forward selection: once the first candidate (an effect on the torque channel) is
+/// significant, every other torque-channel effect must earn its significance beyond it: it is
+/// refitted together with the base parameters and the first candidate, and keeps its
+/// significance only if it lowers the cross-validated error further by [`MIN_REDUCTION_PCT`] in
+/// [`MIN_FOLD_WINS`] blocks. A candidate that only re-explains part of the first one's misfit
+/// (a clamp of the torque where friction steps, an offset the first one already carries) is
+/// credited with its extra only; when the first candidate already includes its effect, it is
+/// reported in the first one's class.
+fn condition_on_top(
+    cands: &mut [Candidate],
+    model: &WbModel,
+    d: &AxisData,
+    base_cols: &[&[f64]],
+    res: &[f64],
+    bl: &[(usize, usize)],
+    e0: f64,
+) {
+    let Some(top) = cands.first() else { return };
+    if top.is_param || !top.significant || top.channel != "torque" {
+        return;
+    }
+    let top_add = top.add.clone();
+    let top_class = top.class.clone();
+    let top_name = top.effect.clone();
+    let needed = model.torque_needed(d);
+    let mut with_top = model.clone();
+    let mut top_cols: Vec<Vec<f64>> = Vec::new();
+    for e in &top_add {
+        match channel(&e.id) {
+            Channel::TorquePath => with_top.effects.push(e.clone()),
+            Channel::Torque => top_cols.extend(e.columns(d)),
+            Channel::Deflection => {}
+        }
+    }
+    let target_of = |m: &WbModel| -> Vec<f64> {
+        match m.applied(d) {
+            Some(t) => t.iter().zip(&needed).map(|(a, b)| a - b).collect(),
+            None => res.to_vec(),
+        }
+    };
+    let t_ref = target_of(&with_top);
+    let mut cols: Vec<&[f64]> = base_cols.to_vec();
+    cols.extend(top_cols.iter().map(|c| c.as_slice()));
+    let cv_ref = cv_cols(&cols, &[], &t_ref, bl);
+    let mut included = Vec::new();
+    for c in cands.iter_mut().skip(1) {
+        if c.is_param || !c.significant || c.channel != "torque" || c.add.is_empty() {
+            continue;
+        }
+        let mut with = with_top.clone();
+        let mut extra_cols: Vec<Vec<f64>> = Vec::new();
+        for e in &c.add {
+            match channel(&e.id) {
+                Channel::TorquePath => with.effects.push(e.clone()),
+                Channel::Torque => extra_cols.extend(e.columns(d)),
+                Channel::Deflection => {}
+            }
+        }
+        let t = if with.effects.len() > with_top.effects.len() {
+            target_of(&with)
+        } else {
+            t_ref.clone()
+        };
+        let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
+        let cv = cv_cols(&cols, &refs, &t, bl);
+        let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
+        let wins = fold_wins(&cv, &cv_ref.fold_mse);
+        if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {
+            c.significant = false;
+            c.error_reduction_pct = extra;
+            if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
+                c.class = top_class.clone();
+                if !c.same_as.contains(&top_name) {
+                    c.same_as.push(top_name.clone());
+                }
+                included.push(c.effect.clone());
+            }
+            c.evidence = format!(
+                "{}; beyond {top_name} it lowers the cross-validated error by only {extra:.1} % (not significant)",
+                c.evidence
+            );
+        }
+    }
+    cands[0].same_as.extend(included);
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
 }
 
 /// Deflection channel: (residual, base columns) when both positions are measured.

@@ -119,8 +119,11 @@ impl Effect {
     /// - `constant_force`: `[1]`;
     /// - `cogging` (hyper `[period]`, motor units): `[sin(2 pi q / P), cos(2 pi q / P)]`;
     /// - `third_mass` (hyper `[f_hz, zeta]`): `[x3'']` of a mass on a spring driven by the load;
-    /// - `backlash`: `[sign vm]` in the deflection (half gap);
-    /// - `pitch_error` (hyper `[period_m]`): `[sin, cos, x]` in the deflection.
+    /// - `backlash` (hyper `[JM, DM, dead band]`, from the model): `[sign T]` in the deflection
+    ///   (half gap), `T = torque - JM aM - DM vM` the torque the screw transmits, 0 within the
+    ///   dead band; without hyper (or torque) `[sign vM]`;
+    /// - `pitch_error` (hyper `[period_m]`): `[sin, cos, x]` in the deflection (which carries
+    ///   minus the lead error: the motor angle makes up for it).
     pub fn columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
         let cols = self.raw_columns(d);
         if d.torque_filtered
@@ -171,10 +174,19 @@ impl Effect {
                 ]
             }
             "third_mass" => vec![third_mass_accel(d, self.hyper[0], self.hyper[1])],
-            "backlash" => {
-                let eps = dead_band(d, &d.vm);
-                vec![d.vm.iter().map(|x| sgn(*x, eps)).collect()]
-            }
+            "backlash" => vec![match (self.hyper.as_slice(), &d.torque) {
+                // the flank in contact follows the torque the screw transmits, not the
+                // direction of travel (a load without friction is braked through the other
+                // flank); inside the dead band of that torque the position in the gap is
+                // undetermined
+                ([jm, dm, eps, ..], Some(y)) => (0..d.len())
+                    .map(|k| sgn(y[k] - jm * d.am[k] - dm * d.vm[k], *eps))
+                    .collect(),
+                _ => {
+                    let eps = dead_band(d, &d.vm);
+                    d.vm.iter().map(|x| sgn(*x, eps)).collect()
+                }
+            }],
             "pitch_error" => {
                 let w = 2.0 * PI / (self.hyper[0] * d.r);
                 vec![
@@ -336,14 +348,15 @@ impl Effect {
                 _ => put(&mut t, "gap_rad", (2.0 * self.coef[0]).max(0.0)),
             },
             "pitch_error" => {
-                let (a, b) = (self.coef[0], self.coef[1]);
+                // the deflection carries minus the lead error (the motor angle makes up for it)
+                let (a, b) = (-self.coef[0], -self.coef[1]);
                 put(&mut t, "amplitude_m", a.hypot(b) / r);
                 put(&mut t, "period_m", self.hyper[0]);
                 t.insert(
                     "phase_rad".into(),
                     toml::Value::Float(round_sig(b.atan2(a))),
                 );
-                put(&mut t, "slope_um_per_m", self.coef[2] * 1e6);
+                put(&mut t, "slope_um_per_m", -self.coef[2] * 1e6);
             }
             _ => {}
         }
@@ -470,9 +483,9 @@ impl Effect {
                 let ph = num("phase_rad")?.unwrap_or(0.0);
                 e.hyper = vec![num("period_m")?.unwrap_or(lead)];
                 e.coef = vec![
-                    a * ph.cos(),
-                    a * ph.sin(),
-                    num("slope_um_per_m")?.unwrap_or(0.0) * 1e-6,
+                    -a * ph.cos(),
+                    -a * ph.sin(),
+                    -num("slope_um_per_m")?.unwrap_or(0.0) * 1e-6,
                 ];
             }
             other => {
@@ -693,12 +706,9 @@ impl WbModel {
         out
     }
 
-    /// Writes the model with the current base values and effects to `path`.
-    pub fn write(&self, path: &Path) -> Result<(), WorkbenchError> {
-        let mut t = self.table.clone();
-        for (k, v) in &self.base {
-            t.insert(k.clone(), toml::Value::Float(round_sig(*v)));
-        }
+    /// The `[effects]` table of the current effects, under the model file's keys (a repeated
+    /// effect becomes an array of tables).
+    pub fn effects_table(&self) -> toml::Table {
         let kind = self.kind();
         let r = self.file.plant.motor_per_load();
         let mut eff = toml::Table::new();
@@ -719,6 +729,38 @@ impl WbModel {
                 Some(_) => {}
             }
         }
+        eff
+    }
+
+    /// The model as the plant simulator reads it: the current base values and effects, no
+    /// sensor model (the simulation is compared with the measurement, noise and all).
+    pub fn sim_file(&self) -> ModelFile {
+        let mut f = self.file.clone();
+        let get = |k: &str| self.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
+        match &mut f.plant {
+            PlantParams::Rigid(p) => {
+                p.mass_kg = get("mass_kg").unwrap_or(p.mass_kg);
+                p.viscous_ns_per_m = get("viscous_ns_per_m").unwrap_or(p.viscous_ns_per_m);
+            }
+            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
+                t.jm_kgm2 = get("jm_kgm2").unwrap_or(t.jm_kgm2);
+                t.jl_kgm2 = get("jl_kgm2").unwrap_or(t.jl_kgm2);
+                t.dm_nms_per_rad = get("dm_nms_per_rad").unwrap_or(t.dm_nms_per_rad);
+                t.dl_nms_per_rad = get("dl_nms_per_rad").unwrap_or(t.dl_nms_per_rad);
+            }
+        }
+        f.effects = self.effects_table();
+        f.sensor = toml::Table::new();
+        f
+    }
+
+    /// Writes the model with the current base values and effects to `path`.
+    pub fn write(&self, path: &Path) -> Result<(), WorkbenchError> {
+        let mut t = self.table.clone();
+        for (k, v) in &self.base {
+            t.insert(k.clone(), toml::Value::Float(round_sig(*v)));
+        }
+        let eff = self.effects_table();
         if eff.is_empty() {
             t.remove("effects");
         } else {

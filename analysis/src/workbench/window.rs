@@ -4,16 +4,24 @@
 //! Closed loop from the command when the model file has a controller (`[controller]` with
 //! `kp_per_s` and a velocity gain): position P on the load position, velocity PI on the motor
 //! velocity, output limit; the integrator of each window starts so that the first output equals
-//! the recorded torque (bumpless). Open loop from the recorded torque otherwise. The simulated
-//! body is the model seen from the motor as one rigid inertia (motor + load), with the torque
-//! balance effects; dry friction sticks at zero velocity while the other forces stay within its
-//! level. A free run of a system with backlash or stick-slip drifts in phase even when the model
-//! is right; windows (50 ms by default) restart from the measured state and measure the local
-//! fit.
+//! the recorded torque (bumpless). Open loop from the recorded torque otherwise.
+//!
+//! The simulated plant is the plant simulator's axis (`feedloop-plant`) built from the model with
+//! its effects (no sensor model): the 2-mass chain with its spring, backlash, pitch error, a third
+//! mass, sticking dry friction, the drive's delay, lag and limit. Each window restarts it from the
+//! measured state: motor and load positions and velocities (a velocity inside the friction dead
+//! band counts as standstill), the delay line and current lag from the recorded torque, a third
+//! mass at rest relative to the load. When the simulator refuses the model (e.g. a fitted
+//! coefficient outside the library's range), the model seen from the motor as one rigid inertia
+//! with the torque-balance effects is simulated instead, and [`WindowSim::plant`] says so. A free
+//! run of a system with backlash or stick-slip drifts in phase even when the model is right;
+//! windows (50 ms by default) restart from the measured state and measure the local fit.
+
+use feedloop_plant::AxisPlant;
 
 use super::data::AxisData;
 use super::effects::{dead_band, WbModel};
-use super::signal::{nrmse_pct, rms};
+use super::signal::{filtfilt_butter4, nrmse_pct, rms};
 
 /// Error of one simulated channel.
 #[derive(Debug, Clone)]
@@ -43,6 +51,9 @@ pub struct WindowSim {
     pub simulated: Vec<f64>,
     /// `measured - simulated` of the headline channel.
     pub residual: Vec<f64>,
+    /// What was simulated: `plant` (the plant simulator's axis with the model's effects) or
+    /// `rigid_body: REASON` (the one-body approximation, and why the simulator was not used).
+    pub plant: String,
 }
 
 impl WindowSim {
@@ -161,11 +172,97 @@ impl Body {
     }
 }
 
+/// The simulated axis: the plant simulator's, or the one-body approximation.
+enum Sim {
+    /// The simulator's axis, and the friction dead bands of motor and load velocity.
+    Plant(Box<AxisPlant>, f64, f64),
+    Body {
+        body: Body,
+        q: f64,
+        v: f64,
+    },
+}
+
+impl Sim {
+    /// The plant simulator's axis for `model` at the trace's period, or the rigid body (with the
+    /// reason) when the simulator refuses the model.
+    fn new(model: &WbModel, d: &AxisData) -> (Self, String) {
+        match AxisPlant::new(&model.sim_file(), d.dt) {
+            Ok(p) => (
+                Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl)),
+                "plant".to_string(),
+            ),
+            Err(e) => (
+                Sim::Body {
+                    body: Body::new(model, d),
+                    q: 0.0,
+                    v: 0.0,
+                },
+                format!("rigid_body: the plant simulator refused the model ({e})"),
+            ),
+        }
+    }
+
+    /// Whether the drive's torque path (delay) is simulated inside.
+    fn has_torque_path(&self) -> bool {
+        matches!(self, Sim::Plant(..))
+    }
+
+    /// Restarts from the measured state at sample `k`; `past` holds the torque commands
+    /// recorded before it, `load_ref` whether the body's position is the load's (closed loop).
+    fn restart(&mut self, d: &AxisData, k: usize, past: &[f64], load_ref: bool) {
+        let still = |v: f64, eps: f64| if v.abs() <= eps { 0.0 } else { v };
+        match self {
+            Sim::Plant(p, em, el) => {
+                p.set_state(
+                    (d.qm[k], still(d.vm[k], *em)),
+                    (d.ql[k] / d.r, still(d.vl[k], *el) / d.r),
+                    past,
+                );
+            }
+            Sim::Body { q, v, .. } => {
+                *q = if load_ref { d.ql[k] } else { d.qm[k] };
+                *v = d.vm[k];
+            }
+        }
+    }
+
+    /// (motor position, motor velocity, load position), motor units.
+    fn state(&self, r: f64) -> (f64, f64, f64) {
+        match self {
+            Sim::Plant(p, ..) => {
+                let (mp, mv, lp, _) = p.true_state();
+                if p.kind() == feedloop_runtime::model::AxisKind::Rigid {
+                    (mp, mv, mp)
+                } else {
+                    (mp, mv, lp * r)
+                }
+            }
+            Sim::Body { q, v, .. } => (*q, *v, *q),
+        }
+    }
+
+    /// Advances one period of `dt` under torque `u`.
+    fn step(&mut self, u: f64, dt: f64) {
+        match self {
+            Sim::Plant(p, ..) => p.step_axis(u),
+            Sim::Body { body, q, v } => {
+                let sub = 4;
+                let h = dt / sub as f64;
+                for _ in 0..sub {
+                    body.step(q, v, u, h);
+                }
+            }
+        }
+    }
+}
+
 /// Runs the windowed and free-run simulations.
 pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
     let c = &model.file.controller;
     let closed = c.kp_per_s.is_some() && c.kv.is_some();
     let n = d.len();
+    let (mut sim, plant) = Sim::new(model, d);
     let none = WindowSim {
         mode: "none",
         window_s,
@@ -173,31 +270,42 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
         measured: vec![],
         simulated: vec![],
         residual: vec![0.0; n],
+        plant: plant.clone(),
     };
-    let body = Body::new(model, d);
     let wlen = ((window_s / d.dt).round() as usize).clamp(2, n);
-    let (a, b) = d.range;
     if closed {
         let Some(y) = d.torque.as_ref() else {
             // closed loop without a recorded torque: compare the following error only
-            let (fe_w, _) = run_closed(model, &body, d, wlen, None);
-            let (fe_f, _) = run_closed(model, &body, d, n, None);
+            let (fe_w, _) = run_closed(model, &mut sim, d, wlen, None);
+            let (fe_f, _) = run_closed(model, &mut sim, d, n, None);
             let meas: Vec<f64> = d.cmd.iter().zip(&d.ql).map(|(c, l)| c - l).collect();
             return finish(
                 "closed_loop",
                 window_s,
                 d,
+                plant,
                 vec![("following_error", meas, fe_w, fe_f)],
             );
         };
-        let (fe_w, u_w) = run_closed(model, &body, d, wlen, Some(y));
-        let (fe_f, u_f) = run_closed(model, &body, d, n, Some(y));
+        let (fe_w, u_w) = run_closed(model, &mut sim, d, wlen, Some(y));
+        let (fe_f, u_f) = run_closed(model, &mut sim, d, n, Some(y));
+        // the measured torque went through the zero-phase filter (parallel filtering): so do
+        // the simulated ones, so that the comparison is like with like
+        let (u_w, u_f) = if d.torque_filtered {
+            let fs = 1.0 / d.dt;
+            (
+                filtfilt_butter4(&u_w, d.cutoff_hz, fs),
+                filtfilt_butter4(&u_f, d.cutoff_hz, fs),
+            )
+        } else {
+            (u_w, u_f)
+        };
         let meas_fe: Vec<f64> = d.cmd.iter().zip(&d.ql).map(|(c, l)| c - l).collect();
-        let _ = (a, b);
         return finish(
             "closed_loop",
             window_s,
             d,
+            plant,
             vec![
                 ("torque", y.clone(), u_w, u_f),
                 ("following_error", meas_fe, fe_w, fe_f),
@@ -207,13 +315,20 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
     let Some(y) = d.torque.as_ref() else {
         return none;
     };
-    let applied = model.applied(d).unwrap_or_else(|| y.clone());
-    let v_w = run_open(&body, d, &applied, wlen);
-    let v_f = run_open(&body, d, &applied, n);
+    // the simulator applies the model's torque path itself; the one-body approximation gets
+    // the applied torque
+    let u: Vec<f64> = if sim.has_torque_path() {
+        d.torque_raw.clone().unwrap_or_else(|| y.clone())
+    } else {
+        model.applied(d).unwrap_or_else(|| y.clone())
+    };
+    let v_w = run_open(&mut sim, d, &u, wlen);
+    let v_f = run_open(&mut sim, d, &u, n);
     finish(
         "open_loop",
         window_s,
         d,
+        plant,
         vec![("velocity", d.vm.clone(), v_w, v_f)],
     )
 }
@@ -221,7 +336,13 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
 /// (channel name, measured, windowed simulation, free run).
 type SimSeries<'a> = (&'a str, Vec<f64>, Vec<f64>, Vec<f64>);
 
-fn finish(mode: &'static str, window_s: f64, d: &AxisData, ch: Vec<SimSeries<'_>>) -> WindowSim {
+fn finish(
+    mode: &'static str,
+    window_s: f64,
+    d: &AxisData,
+    plant: String,
+    ch: Vec<SimSeries<'_>>,
+) -> WindowSim {
     let (a, b) = d.range;
     let mut channels = Vec::new();
     let mut head: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = None;
@@ -246,25 +367,21 @@ fn finish(mode: &'static str, window_s: f64, d: &AxisData, ch: Vec<SimSeries<'_>
         measured,
         simulated,
         residual,
+        plant,
     }
 }
 
-/// Open loop: velocity of the body driven by the applied torque, restarted every `wlen` samples.
-fn run_open(body: &Body, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
+/// Open loop: motor velocity of the model driven by the torque `u`, restarted every `wlen`
+/// samples.
+fn run_open(sim: &mut Sim, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
     let n = d.len();
-    let sub = 4;
-    let h = d.dt / sub as f64;
     let mut out = vec![0.0; n];
-    let (mut q, mut v) = (0.0, 0.0);
     for k in 0..n {
         if k % wlen == 0 {
-            q = d.qm[k];
-            v = d.vm[k];
+            sim.restart(d, k, &u[..k], false);
         }
-        out[k] = v;
-        for _ in 0..sub {
-            body.step(&mut q, &mut v, u[k], h);
-        }
+        out[k] = sim.state(d.r).1;
+        sim.step(u[k], d.dt);
     }
     out
 }
@@ -273,7 +390,7 @@ fn run_open(body: &Body, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
 /// `wlen` samples from the measured state.
 fn run_closed(
     model: &WbModel,
-    body: &Body,
+    sim: &mut Sim,
     d: &AxisData,
     wlen: usize,
     y: Option<&Vec<f64>>,
@@ -284,37 +401,50 @@ fn run_closed(
     let tv = c.tv_s.unwrap_or(0.0);
     let lim = c.torque_limit.unwrap_or(f64::INFINITY);
     let n = d.len();
-    let sub = 4;
-    let h = d.dt / sub as f64;
     let mut fe = vec![0.0; n];
     let mut tq = vec![0.0; n];
-    let (mut q, mut v, mut integ) = (0.0, 0.0, 0.0);
-    // torque-path delay of the model, in cycles
-    let delay = model
-        .effects
-        .iter()
-        .filter(|e| e.id == "delay")
-        .map(|e| e.hyper[0].round().max(0.0) as usize)
-        .sum::<usize>();
+    let mut integ = 0.0;
+    // torque-path delay of the model, in cycles, when the one-body approximation runs (the
+    // simulator has its own delay line)
+    let delay = if sim.has_torque_path() {
+        0
+    } else {
+        model
+            .effects
+            .iter()
+            .filter(|e| e.id == "delay")
+            .map(|e| e.hyper[0].round().max(0.0) as usize)
+            .sum::<usize>()
+    };
+    let past: &[f64] = d.torque_raw.as_deref().unwrap_or(&[]);
     let mut hist: Vec<f64> = Vec::new();
     for k in 0..n {
         let restart = k % wlen == 0;
         if restart {
-            q = d.ql[k];
-            v = d.vm[k];
+            sim.restart(d, k, &past[..k.min(past.len())], true);
             hist.clear();
         }
+        let (_, v, q) = sim.state(d.r);
         let e = kp * (d.cmd[k] - q) - v;
         if restart {
-            integ = match (y, tv > 0.0) {
-                (Some(y), true) => (y[k] / kv - e) * tv,
-                _ => 0.0,
+            integ = if tv > 0.0 {
+                // bumpless: the first output equals the recorded torque
+                y.map(|y| (y[k] / kv - e) * tv).unwrap_or(0.0)
+            } else {
+                0.0
             };
-        } else if tv > 0.0 {
+        }
+        let prev = integ;
+        if !restart && tv > 0.0 {
             integ += d.dt * e;
         }
         let raw = kv * (e + if tv > 0.0 { integ / tv } else { 0.0 });
         let u = raw.clamp(-lim, lim);
+        // anti-windup by conditional integration (as the velocity loop does): while the output
+        // is clamped and the error pushes further into the limit, the integrator step is undone
+        if u != raw && e * raw > 0.0 {
+            integ = prev;
+        }
         fe[k] = d.cmd[k] - q;
         tq[k] = u;
         hist.push(u);
@@ -323,9 +453,7 @@ fn run_closed(
         } else {
             y.map(|y| y[k.saturating_sub(delay)]).unwrap_or(0.0)
         };
-        for _ in 0..sub {
-            body.step(&mut q, &mut v, applied, h);
-        }
+        sim.step(applied, d.dt);
     }
     (fe, tq)
 }
