@@ -573,6 +573,22 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     if let Some(s) = &sched_info {
         extra.insert("swaps".into(), s["swaps"].clone());
         extra.insert("rejected_requests".into(), s["rejected_requests"].clone());
+        let swap_cycles: Vec<u64> = s["swaps"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|w| w["cycle"].as_u64()).collect())
+            .unwrap_or_default();
+        if !swap_cycles.is_empty() {
+            let (near, elsewhere) = misses_near(&plant_recs.records, &swap_cycles, SWAP_WINDOW);
+            let stats = |c: &WindowCount| {
+                json!({"cycles": c.cycles, "misses": c.misses,
+                       "rate": c.misses as f64 / c.cycles.max(1) as f64,
+                       "late_cycles": c.late, "late_rate": c.late as f64 / c.cycles.max(1) as f64})
+            };
+            let mut n = stats(&near);
+            n["window_cycles"] = json!(SWAP_WINDOW);
+            extra.insert("deadline_misses_near_swaps".into(), n);
+            extra.insert("deadline_misses_elsewhere".into(), stats(&elsewhere));
+        }
         extra.insert("scheduler".into(), s.clone());
     }
     let v = summary_json(&SummaryInput {
@@ -595,4 +611,65 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
         ExitCode::from(1)
     };
     Ok((v, code))
+}
+
+/// Cycles after a swap (the swap cycle and the next ones) counted as "near" it.
+const SWAP_WINDOW: u64 = 10;
+
+/// Cycle counts of one part of a run.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+struct WindowCount {
+    cycles: u64,
+    /// Deadline misses as the summary defines them: no command while the plant was on time.
+    misses: u64,
+    /// Cycles with a miss or a plant overrun (any timing fault, also when the machine is busy).
+    late: u64,
+}
+
+/// Counts within `window` cycles from each swap cycle on (a union: overlapping windows count
+/// once), and in all other cycles.
+fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCount, WindowCount) {
+    use feedloop_runtime::record::{REC_MISSED, REC_OVERRUN};
+    let mut sorted = swaps.to_vec();
+    sorted.sort_unstable();
+    let mut near = WindowCount::default();
+    let mut far = WindowCount::default();
+    let mut next = 0usize;
+    for r in records {
+        while next < sorted.len() && sorted[next] + window < r.seq {
+            next += 1;
+        }
+        let is_near =
+            next < sorted.len() && sorted[next] <= r.seq && r.seq <= sorted[next] + window;
+        let slot = if is_near { &mut near } else { &mut far };
+        slot.cycles += 1;
+        slot.misses += u64::from(r.flags & REC_MISSED != 0 && r.flags & REC_OVERRUN == 0);
+        slot.late += u64::from(r.flags & (REC_MISSED | REC_OVERRUN) != 0);
+    }
+    (near, far)
+}
+
+#[cfg(test)]
+mod swap_window_tests {
+    use super::*;
+    use feedloop_runtime::record::{REC_MISSED, REC_OVERRUN};
+
+    #[test]
+    fn misses_are_split_into_swap_windows_and_the_rest() {
+        let recs: Vec<PlantRecord> = (0..100u64)
+            .map(|k| PlantRecord {
+                seq: k,
+                flags: match k {
+                    12 | 50 | 95 => REC_MISSED,
+                    13 => REC_MISSED | REC_OVERRUN,
+                    _ => 0,
+                },
+                ..Default::default()
+            })
+            .collect();
+        // Windows [10, 20] and [15, 25] overlap: 16 cycles; [90, 100] is cut at 99: 10 cycles.
+        let (near, far) = misses_near(&recs, &[15, 10, 90], 10);
+        assert_eq!((near.cycles, near.misses, near.late), (16 + 10, 2, 3));
+        assert_eq!((far.cycles, far.misses, far.late), (100 - 26, 1, 1));
+    }
 }
