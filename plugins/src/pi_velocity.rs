@@ -281,6 +281,8 @@ pub struct PiVelocity {
     params: PiVelocityParams,
     /// Integral of the velocity error, motor units (rad or m).
     integral: f64,
+    /// Kv / Tv (0 without integral action), precomputed: the cycle does no division.
+    ki: f64,
     terms: PiTerms,
     filters: LoopFilters,
 }
@@ -293,6 +295,11 @@ impl PiVelocity {
     pub fn new(params: PiVelocityParams) -> Self {
         Self {
             filters: LoopFilters::new(&params.filters),
+            ki: if params.tv_s > 0.0 {
+                params.kv / params.tv_s
+            } else {
+                0.0
+            },
             params,
             integral: 0.0,
             terms: PiTerms::default(),
@@ -324,11 +331,7 @@ impl Controller for PiVelocity {
         if use_i {
             self.integral += ctx.period_s * e;
         }
-        let i_term = if use_i {
-            p.kv * self.integral / p.tv_s
-        } else {
-            0.0
-        };
+        let i_term = self.ki * self.integral;
         let feedback = self.filters.torque(p.kv * e + i_term);
         let raw = feedback + io.torque_ff;
         let lim = p.torque_limit;
@@ -360,11 +363,7 @@ impl Controller for PiVelocity {
         }
         self.terms = PiTerms {
             p: p.kv * e,
-            i: if use_i {
-                p.kv * self.integral / p.tv_s
-            } else {
-                0.0
-            },
+            i: self.ki * self.integral,
             saturated,
         };
         io.torque = out;

@@ -54,7 +54,7 @@ impl Trajectory for Circle {
                 let k = self.direction / self.radius_m;
                 let w = k * feed;
                 let phi = self.start_angle_rad + k * (sigma0 + feed * (t_s - t0));
-                let (sn, cs) = phi.sin_cos();
+                let (sn, cs) = super::trig::sin_cos(phi);
                 let r = self.radius_m;
                 let (w2, w3) = (w * w, w * w * w);
                 let (w4, w5) = (w2 * w2, w2 * w3);

@@ -111,7 +111,7 @@ pub fn sqrt(u: &Jet) -> Jet {
 pub fn sin_cos(u: &Jet) -> (Jet, Jet) {
     let mut s = [0.0; N];
     let mut c = [0.0; N];
-    (s[0], c[0]) = u[0].sin_cos();
+    (s[0], c[0]) = super::trig::sin_cos(u[0]);
     for k in 1..N {
         let (mut sa, mut ca) = (0.0, 0.0);
         for j in 1..=k {

@@ -40,6 +40,7 @@ pub mod gcode;
 pub mod jet;
 mod moves;
 pub mod poly;
+pub mod trig;
 
 pub use excitation::write_excitation_csv;
 pub use from_trace::{differentiate, TraceCommand};
