@@ -235,15 +235,35 @@ struct BuildJob {
     lib: Option<String>,
 }
 
+/// A stage's plugin id and the parameters it was built from.
+type StageEntry = (String, toml::Table);
+
+/// What the builder thread is asked to do.
+enum ToBuilder {
+    /// Build a controller.
+    Build(BuildJob),
+    /// A swap passed its probation: its plugin and parameters are now the stage's current ones
+    /// (the base a later retune of the same plugin merges its keys into). A rolled-back swap
+    /// sends nothing, so the previous entry stays.
+    Settled {
+        axis: usize,
+        stage: Stage,
+        entry: (String, toml::Table),
+    },
+}
+
 struct Built {
     axis: usize,
     stage: Stage,
     controller: Result<Box<dyn Controller>, String>,
+    /// The stage's current (plugin, parameters) once this controller is confirmed.
+    entry: (String, toml::Table),
 }
 
 struct Probation {
     axis: usize,
     stage: Stage,
+    entry: Option<(String, toml::Table)>,
     old: Option<Box<dyn Controller>>,
     left: u32,
     event: usize,
@@ -257,7 +277,7 @@ const PROBATION_CYCLES: u32 = 10;
 pub struct ControlPlane {
     server: CtlServer,
     _node: iceoryx2::node::Node<ipc::Service>,
-    to_builder: mpsc::Sender<BuildJob>,
+    to_builder: mpsc::Sender<ToBuilder>,
     from_builder: mpsc::Receiver<Built>,
     graveyard: mpsc::Sender<Box<dyn Controller>>,
     pending: Option<(CtlActive, usize, Stage)>,
@@ -327,7 +347,7 @@ impl ControlPlane {
             current.push(cur);
             plugin_ids.push(ids);
         }
-        let (to_builder, jobs) = mpsc::channel::<BuildJob>();
+        let (to_builder, jobs) = mpsc::channel::<ToBuilder>();
         let (done_tx, from_builder) = mpsc::channel::<Built>();
         let (graveyard, dead) = mpsc::channel::<Box<dyn Controller>>();
         let job_path: PathBuf = job.path.clone();
@@ -414,6 +434,7 @@ impl ControlPlane {
                 self.probation = Some(Probation {
                     axis,
                     stage,
+                    entry: Some(built.entry),
                     old,
                     left: PROBATION_CYCLES,
                     event: self.swaps.len() - 1,
@@ -481,9 +502,16 @@ impl ControlPlane {
                     );
                 }
             } else if p.left == 0 {
-                let p = self.probation.take().unwrap_or_else(|| unreachable!());
+                let mut p = self.probation.take().unwrap_or_else(|| unreachable!());
                 if let Some(old) = p.old {
                     let _ = self.graveyard.send(old);
+                }
+                if let Some(entry) = p.entry.take() {
+                    let _ = self.to_builder.send(ToBuilder::Settled {
+                        axis: p.axis,
+                        stage: p.stage,
+                        entry,
+                    });
                 }
                 if let Some((req, _, _)) = self.pending.take() {
                     respond(&req, 0, &json!({"swap": self.swaps[p.event]}));
@@ -541,7 +569,7 @@ impl ControlPlane {
                 Err(e) => self.refuse(&req, seq, "swap", e),
                 Ok(job) => {
                     let (axis, stage) = (job.axis, job.stage);
-                    if self.to_builder.send(job).is_err() {
+                    if self.to_builder.send(ToBuilder::Build(job)).is_err() {
                         respond(
                             &req,
                             1,
@@ -616,7 +644,7 @@ fn respond(req: &CtlActive, code: u32, v: &Value) {
 }
 
 fn builder(
-    jobs: mpsc::Receiver<BuildJob>,
+    jobs: mpsc::Receiver<ToBuilder>,
     done: mpsc::Sender<Built>,
     dead: mpsc::Receiver<Box<dyn Controller>>,
     registry: Arc<dyn PluginRegistry>,
@@ -628,16 +656,27 @@ fn builder(
         // Old controllers are dropped here, not in the cycle.
         while dead.try_recv().is_ok() {}
         let job = match jobs.recv_timeout(Duration::from_millis(50)) {
-            Ok(j) => j,
+            Ok(ToBuilder::Build(j)) => j,
+            Ok(ToBuilder::Settled { axis, stage, entry }) => {
+                if let Some(slot) = current.get_mut(axis) {
+                    slot[stage.index()] = entry;
+                }
+                continue;
+            }
             Err(mpsc::RecvTimeoutError::Timeout) => continue,
             Err(mpsc::RecvTimeoutError::Disconnected) => return,
         };
-        let result = build_one(&job, registry.as_ref(), &contexts, &mut current, &job_path);
+        let (result, entry) =
+            match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
+                Ok((c, entry)) => (Ok(c), entry),
+                Err(e) => (Err(e), Default::default()),
+            };
         if done
             .send(Built {
                 axis: job.axis,
                 stage: job.stage,
                 controller: result,
+                entry,
             })
             .is_err()
         {
@@ -650,9 +689,9 @@ fn build_one(
     job: &BuildJob,
     registry: &dyn PluginRegistry,
     contexts: &[AxisContext],
-    current: &mut [[(String, toml::Table); 4]],
+    current: &[[(String, toml::Table); 4]],
     job_path: &Path,
-) -> Result<Box<dyn Controller>, String> {
+) -> Result<(Box<dyn Controller>, StageEntry), String> {
     if let Some(lib) = &job.lib {
         let c = crate::abi::LibController::load(
             Path::new(lib),
@@ -661,7 +700,11 @@ fn build_one(
             &contexts[job.axis],
         )
         .map_err(|e| e.to_string())?;
-        return Ok(Box::new(c));
+        // A library's parameters are its own text: a later built-in retune starts afresh.
+        return Ok((
+            Box::new(c),
+            (format!("{}@{lib}", job.plugin), toml::Table::new()),
+        ));
     }
     let src = Path::new("<swap --params>");
     let (cur_id, cur_params) = &current[job.axis][job.stage.index()];
@@ -680,6 +723,5 @@ fn build_one(
         .create(&job.plugin, &params, &contexts[job.axis], src)
         .map_err(|e| e.to_string())?;
     let _ = job_path;
-    current[job.axis][job.stage.index()] = (job.plugin.clone(), params);
-    Ok(c)
+    Ok((c, (job.plugin.clone(), params)))
 }

@@ -21,11 +21,15 @@ const Q_MAX: f64 = 1_048_576.0;
 /// (sin x, cos x).
 #[inline]
 pub fn sin_cos(x: f64) -> (f64, f64) {
-    let q = (x * FRAC_2_PI).round();
-    // Also catches a NaN q (non-finite x): the comparison is false.
-    if q.abs().partial_cmp(&Q_MAX) != Some(std::cmp::Ordering::Less) {
+    let t = x * FRAC_2_PI;
+    // Also catches a non-finite x: the comparison is then not `Less`.
+    if t.abs().partial_cmp(&Q_MAX) != Some(std::cmp::Ordering::Less) {
         return x.sin_cos();
     }
+    // Nearest integer (ties to even) by the 1.5 * 2^52 shift: exact for |t| < 2^51, and no call
+    // to `round` (not an instruction on baseline x86-64).
+    const SHIFT: f64 = 6_755_399_441_055_744.0;
+    let q = (t + SHIFT) - SHIFT;
     let r = ((x - q * PIO2_A) - q * PIO2_B) - q * PIO2_C;
     let (s, c) = kernel(r);
     match (q as i64) & 3 {
@@ -60,13 +64,17 @@ fn kernel(r: f64) -> (f64, f64) {
         1.0 / 20_922_789_888_000.0,
         -1.0 / 6_402_373_705_728_000.0,
     ];
+    // Estrin's scheme: the same polynomials in fewer dependent steps than Horner's.
     let z = r * r;
-    let mut ps = S[7];
-    let mut pc = C[7];
-    for k in (0..7).rev() {
-        ps = ps * z + S[k];
-        pc = pc * z + C[k];
-    }
+    let z2 = z * z;
+    let z4 = z2 * z2;
+    let est = |c: &[f64; 8]| {
+        let a = (c[0] + c[1] * z) + z2 * (c[2] + c[3] * z);
+        let b = (c[4] + c[5] * z) + z2 * (c[6] + c[7] * z);
+        a + z4 * b
+    };
+    let ps = est(&S);
+    let pc = est(&C);
     let s = r + r * z * ps;
     // cos r = 1 - z/2 + z^2 (1/24 - ...): the small tail is added to the exactly rounded head.
     let c = 1.0 - 0.5 * z + z * z * pc;
