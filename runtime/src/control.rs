@@ -250,6 +250,8 @@ enum ToBuilder {
         stage: Stage,
         entry: (String, toml::Table),
     },
+    /// A controller taken out of the chain: dropped here, not in the cycle.
+    Retire(Box<dyn Controller>),
 }
 
 struct Built {
@@ -279,7 +281,7 @@ pub struct ControlPlane {
     _node: iceoryx2::node::Node<ipc::Service>,
     to_builder: mpsc::Sender<ToBuilder>,
     from_builder: mpsc::Receiver<Built>,
-    graveyard: mpsc::Sender<Box<dyn Controller>>,
+    graveyard: mpsc::Sender<ToBuilder>,
     pending: Option<(CtlActive, usize, Stage)>,
     probation: Option<Probation>,
     /// Every swap so far.
@@ -349,11 +351,11 @@ impl ControlPlane {
         }
         let (to_builder, jobs) = mpsc::channel::<ToBuilder>();
         let (done_tx, from_builder) = mpsc::channel::<Built>();
-        let (graveyard, dead) = mpsc::channel::<Box<dyn Controller>>();
+        let graveyard = to_builder.clone();
         let job_path: PathBuf = job.path.clone();
         std::thread::Builder::new()
             .name("feedloop-builder".into())
-            .spawn(move || builder(jobs, done_tx, dead, registry, contexts, current, job_path))
+            .spawn(move || builder(jobs, done_tx, registry, contexts, current, job_path))
             .map_err(|e| IpcError::Setup {
                 what: "start the plugin builder thread".into(),
                 detail: e.to_string(),
@@ -488,7 +490,7 @@ impl ControlPlane {
                     .as_ref()
                     .map(|c| c.id().to_string());
                     if let Some(f) = failed {
-                        let _ = self.graveyard.send(f);
+                        let _ = self.graveyard.send(ToBuilder::Retire(f));
                     }
                 }
                 let ev = &mut self.swaps[p.event];
@@ -504,7 +506,7 @@ impl ControlPlane {
             } else if p.left == 0 {
                 let mut p = self.probation.take().unwrap_or_else(|| unreachable!());
                 if let Some(old) = p.old {
-                    let _ = self.graveyard.send(old);
+                    let _ = self.graveyard.send(ToBuilder::Retire(old));
                 }
                 if let Some(entry) = p.entry.take() {
                     let _ = self.to_builder.send(ToBuilder::Settled {
@@ -646,25 +648,26 @@ fn respond(req: &CtlActive, code: u32, v: &Value) {
 fn builder(
     jobs: mpsc::Receiver<ToBuilder>,
     done: mpsc::Sender<Built>,
-    dead: mpsc::Receiver<Box<dyn Controller>>,
     registry: Arc<dyn PluginRegistry>,
     contexts: Vec<AxisContext>,
     mut current: Vec<[(String, toml::Table); 4]>,
     job_path: PathBuf,
 ) {
+    // Blocks until there is work: no periodic wake-ups to preempt a spinning loop.
     loop {
-        // Old controllers are dropped here, not in the cycle.
-        while dead.try_recv().is_ok() {}
-        let job = match jobs.recv_timeout(Duration::from_millis(50)) {
+        let job = match jobs.recv() {
             Ok(ToBuilder::Build(j)) => j,
+            Ok(ToBuilder::Retire(old)) => {
+                drop(old);
+                continue;
+            }
             Ok(ToBuilder::Settled { axis, stage, entry }) => {
                 if let Some(slot) = current.get_mut(axis) {
                     slot[stage.index()] = entry;
                 }
                 continue;
             }
-            Err(mpsc::RecvTimeoutError::Timeout) => continue,
-            Err(mpsc::RecvTimeoutError::Disconnected) => return,
+            Err(mpsc::RecvError) => return,
         };
         let (result, entry) =
             match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {

@@ -34,6 +34,9 @@ pub struct AxisRecord {
     pub torque: f64,
 }
 
+/// How often the writer thread drains the ring to the log.
+const WRITER_PERIOD: Duration = Duration::from_millis(50);
+
 /// `PlantRecord::flags`: the command for this cycle did not arrive in time (held the last one).
 pub const REC_MISSED: u8 = 1;
 /// `PlantRecord::flags`: the plant itself woke late (more than half a period).
@@ -201,7 +204,9 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                     if finishing {
                         return Ok(written);
                     }
-                    std::thread::sleep(Duration::from_millis(20));
+                    // Few wake-ups: each one preempts whatever runs on that core (on a small
+                    // machine, a spinning loop). The ring holds seconds of records.
+                    std::thread::sleep(WRITER_PERIOD);
                 }
             })?;
         Ok(Self {

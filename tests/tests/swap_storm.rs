@@ -93,7 +93,7 @@ ramp_s = 0.1
     let far = &sum["deadline_misses_elsewhere"];
     let near_cycles = near["cycles"].as_u64().unwrap() as f64;
     // "No higher than elsewhere", with room for chance only: the count near swaps may exceed
-    // what the rate elsewhere predicts by at most three Poisson standard deviations (plus one).
+    // what the rate elsewhere predicts by at most three Poisson standard deviations (plus three).
     // If swapping cost a miss per swap, this would be about 100 against a bound of a few. The
     // same check runs on all late cycles (misses and plant overruns), which stays meaningful
     // when a busy machine makes the plant itself late and misses are not counted.
@@ -103,7 +103,7 @@ ramp_s = 0.1
     ] {
         let n = near[count].as_u64().unwrap() as f64;
         let expected = far[rate].as_f64().unwrap() * near_cycles;
-        let bound = expected + 3.0 * expected.sqrt() + 1.0;
+        let bound = expected + 3.0 * expected.sqrt() + 3.0;
         eprintln!(
             "{what} near swaps: {n} in {near_cycles} cycles; expected {expected:.2} at the rate elsewhere ({:.4} %); bound {bound:.2}",
             far[rate].as_f64().unwrap() * 100.0
