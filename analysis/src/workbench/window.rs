@@ -386,6 +386,55 @@ fn run_open(sim: &mut Sim, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
     out
 }
 
+/// The velocity-loop error of the recorded loop at sample `k`, from the measured state.
+fn e_meas(d: &AxisData, k: usize, kp: f64) -> f64 {
+    kp * (d.cmd[k] - d.ql[k]) - d.vm[k]
+}
+
+/// The recorded loop's integrator state at every sample (the value after that sample's update),
+/// for restarting windows. Where the recorded torque is inside the output limit it follows from
+/// the output (`u / kv - e) tv`, the bumpless value); where the loop sat at its limit the output
+/// says nothing about it, so it is carried by the controller's own law (integration of the
+/// measured error, held while the clamped output and the error point the same way) from the last
+/// sample where it was known. `y` is the torque compared with the model (filtered with the
+/// positions when the torque column is), `raw` the column as recorded (it tells saturation).
+fn integrator_track(
+    d: &AxisData,
+    y: &[f64],
+    raw: &[f64],
+    kp: f64,
+    kv: f64,
+    tv: f64,
+    lim: f64,
+) -> Vec<f64> {
+    let n = d.len();
+    let mut out = vec![0.0; n];
+    if tv <= 0.0 || kv == 0.0 {
+        return out;
+    }
+    // a recorded output within 0.5 % of the limit counts as clamped
+    let clamped = |u: f64| lim.is_finite() && u.abs() >= 0.995 * lim;
+    let mut integ = 0.0;
+    let mut known = false;
+    for k in 0..n {
+        let e = e_meas(d, k, kp);
+        let u_rec = raw.get(k).copied().unwrap_or(y[k]);
+        if !clamped(u_rec) || !known {
+            integ = (y[k] / kv - e) * tv;
+            known = !clamped(u_rec);
+        } else {
+            let prev = integ;
+            integ += d.dt * e;
+            let out_raw = kv * (e + integ / tv);
+            if out_raw.abs() > lim && e * out_raw > 0.0 {
+                integ = prev;
+            }
+        }
+        out[k] = integ;
+    }
+    out
+}
+
 /// Closed loop: (following error, torque) of the model under its controller, restarted every
 /// `wlen` samples from the measured state.
 fn run_closed(
@@ -417,6 +466,7 @@ fn run_closed(
             .sum::<usize>()
     };
     let past: &[f64] = d.torque_raw.as_deref().unwrap_or(&[]);
+    let integ_meas = y.map(|y| integrator_track(d, y, past, kp, kv, tv, lim));
     let mut hist: Vec<f64> = Vec::new();
     for k in 0..n {
         let restart = k % wlen == 0;
@@ -427,11 +477,11 @@ fn run_closed(
         let (_, v, q) = sim.state(d.r);
         let e = kp * (d.cmd[k] - q) - v;
         if restart {
-            integ = if tv > 0.0 {
-                // bumpless: the first output equals the recorded torque
-                y.map(|y| (y[k] / kv - e) * tv).unwrap_or(0.0)
-            } else {
-                0.0
+            // bumpless: the first output equals the recorded torque (and where the recorded
+            // loop was at its limit, the integrator tracked through the clamped stretch)
+            integ = match &integ_meas {
+                Some(im) if tv > 0.0 => im[k] + (e_meas(d, k, kp) - e) * tv,
+                _ => 0.0,
             };
         }
         let prev = integ;
