@@ -369,7 +369,6 @@ fn hidden_torque_saturation_is_ranked_first_and_adding_it_cuts_the_error_by_70_p
 }
 
 #[test]
-#[ignore = "known gap: backlash is named on the deflection (gap 19.0 um for 20 um, 57 % of the deflection misfit) but a third_mass fitting 76 % of the tiny (0.16 % NRMSE) impact-excited torque residual still ranks above it"]
 fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
     let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
     let top = &dg.candidates[0];

@@ -27,7 +27,7 @@ use super::effects::{
     base_class, base_column, base_keys, channel, Channel, Effect, Side, WbModel, EFFECT_IDS,
 };
 use super::lsq::{blocks, cross_validate, normals, Cv};
-use super::signal::{autocorrelation, mean, quantile, rms};
+use super::signal::{autocorrelation, mean, quantile, rms, std_dev};
 use feedloop_runtime::model::AxisKind;
 
 /// Effects that may appear several times in a model file.
@@ -110,6 +110,42 @@ pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize
     let mut cols: Vec<&[f64]> = base.to_vec();
     cols.extend_from_slice(extra);
     cross_validate(&normals(&cols, y, bl))
+}
+
+/// The common scale on which candidates of different channels are ranked.
+///
+/// Each channel's misfit is measured as an NRMSE (its RMS error over the spread of the
+/// measured quantity: the applied torque; the deflection between motor and load); the
+/// misfit of the model is their root sum of squares. A candidate lowers its own channel's
+/// error by some percentage (which decides its significance, on that channel alone), and is
+/// ranked by how much that lowers the combined misfit. So a candidate that explains most of a
+/// channel the model already fits to a fraction of a percent does not outrank one that explains
+/// most of a channel the model misses badly. With one channel (no deflection) the two scales are
+/// the same.
+#[derive(Debug, Clone, Copy)]
+struct Scale {
+    /// Torque-channel NRMSE of the model.
+    torque: f64,
+    /// Deflection-channel NRMSE after its base refit (compliance and zero offset), 0 without it.
+    deflection: f64,
+}
+
+impl Scale {
+    /// Reduction of the combined misfit, %, when a candidate on `channel` lowers that channel's
+    /// error by `own_pct` %.
+    fn common(&self, channel: &str, own_pct: f64) -> f64 {
+        let e0 = self.torque.hypot(self.deflection);
+        if !(e0 > 0.0) || !own_pct.is_finite() {
+            return own_pct;
+        }
+        let f = 1.0 - own_pct / 100.0;
+        let e = if channel == "deflection" {
+            self.torque.hypot(self.deflection * f)
+        } else {
+            (self.torque * f).hypot(self.deflection)
+        };
+        100.0 * (e0 - e) / e0
+    }
 }
 
 fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
@@ -428,6 +464,18 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let cv0 = cv_cols(&[], &[], &res, &bl);
     let e0 = cv0.rms.max(1e-300);
     let cvb = cv_cols(&base_cols, &[], &res, &bl);
+    let defl = deflection(model, d);
+    let scale = Scale {
+        torque: e0 / std_dev(&y_app[a..b]).max(1e-300),
+        deflection: match &defl {
+            Some((rd, dcols)) => {
+                let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
+                let spread: Vec<f64> = (a..b).map(|k| d.qm[k] - d.ql[k]).collect();
+                cv_cols(&dref, &[], rd, &bl).rms / std_dev(&spread).max(1e-300)
+            }
+            None => 0.0,
+        },
+    };
     let mut cands = Vec::new();
     // base parameters, one at a time
     for k in &free_keys {
@@ -445,7 +493,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: true,
             class: base_class(k).to_string(),
             significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-            error_reduction_pct: red,
+            error_reduction_pct: scale.common("torque", red),
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({:+.1} %)",
                 fmt(old),
@@ -464,7 +512,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     let mut untested = Vec::new();
-    let defl = deflection(model, d);
     for id in EFFECT_IDS {
         if !REPEATABLE.contains(&id) && model.effects.iter().any(|e| e.id == id) {
             untested.push((
@@ -510,10 +557,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             let rd = &masked(rd);
             let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
             let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-            let d0 = cv_cols(&[], &[], rd, &bl);
             let dbase = cv_cols(&dref, &[], rd, &bl);
             if let Some((e, cv)) = best_effect(id, model, d, &dref, rd, &bl) {
-                let red = 100.0 * (dbase.rms - cv.rms) / d0.rms.max(1e-300);
+                // % of the deflection's misfit after its base refit (compliance, zero offset)
+                let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
                 let wins = fold_wins(&cv, &dbase.fold_mse);
                 let params = flat(&e.to_table(kind, d.r));
                 let contribution = decimate(&e.contribution(d), a, b);
@@ -522,7 +569,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                     is_param: false,
                     class: class_of(id).into(),
                     significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                    error_reduction_pct: red,
+                    error_reduction_pct: scale.common("deflection", red),
                     evidence: evidence(&e, d, &params),
                     params,
                     same_as: vec![],
@@ -548,7 +595,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 is_param: false,
                 class: "damping".into(),
                 significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                error_reduction_pct: red,
+                error_reduction_pct: scale.common("torque", red),
                 evidence: evidence(&e, d, &params),
                 params,
                 same_as: vec![],
@@ -630,7 +677,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: false,
             class: class_of(id).into(),
             significant,
-            error_reduction_pct: red,
+            error_reduction_pct: scale.common("torque", red),
             evidence: ev,
             params,
             same_as: vec![],
@@ -640,7 +687,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0);
+    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0, &scale);
     // candidates the data cannot tell apart
     for i in 0..cands.len() {
         let mut same = Vec::new();
@@ -739,6 +786,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
 /// (a clamp of the torque where friction steps, an offset the first one already carries) is
 /// credited with its extra only; when the first candidate already includes its effect, it is
 /// reported in the first one's class.
+#[allow(clippy::too_many_arguments)]
 fn condition_on_top(
     cands: &mut [Candidate],
     model: &WbModel,
@@ -747,6 +795,7 @@ fn condition_on_top(
     res: &[f64],
     bl: &[(usize, usize)],
     e0: f64,
+    scale: &Scale,
 ) {
     let Some(top) = cands.first() else { return };
     if top.is_param || !top.significant || top.channel != "torque" {
@@ -800,7 +849,7 @@ fn condition_on_top(
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
         if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {
             c.significant = false;
-            c.error_reduction_pct = extra;
+            c.error_reduction_pct = scale.common("torque", extra);
             if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
                 c.class = top_class.clone();
                 if !c.same_as.contains(&top_name) {
