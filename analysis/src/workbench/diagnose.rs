@@ -134,16 +134,37 @@ impl Scale {
     /// Reduction of the combined misfit, %, when a candidate on `channel` lowers that channel's
     /// error by `own_pct` %.
     fn common(&self, channel: &str, own_pct: f64) -> f64 {
+        if channel == "deflection" {
+            self.with(
+                self.torque,
+                self.deflection * (1.0 - own_pct / 100.0),
+                own_pct,
+            )
+        } else {
+            self.with(
+                self.torque * (1.0 - own_pct / 100.0),
+                self.deflection,
+                own_pct,
+            )
+        }
+    }
+
+    /// As [`Scale::common`] for a torque-path candidate, which changes the applied torque and so
+    /// the deflection the spring must show too: `deflection` is that channel's NRMSE with it.
+    fn common_both(&self, own_pct: f64, deflection: f64) -> f64 {
+        self.with(
+            self.torque * (1.0 - own_pct / 100.0),
+            deflection.min(self.deflection),
+            own_pct,
+        )
+    }
+
+    fn with(&self, torque: f64, deflection: f64, own_pct: f64) -> f64 {
         let e0 = self.torque.hypot(self.deflection);
-        if !(e0 > 0.0) || !own_pct.is_finite() {
+        let e = torque.hypot(deflection);
+        if !(e0 > 0.0) || !e.is_finite() {
             return own_pct;
         }
-        let f = 1.0 - own_pct / 100.0;
-        let e = if channel == "deflection" {
-            self.torque.hypot(self.deflection * f)
-        } else {
-            (self.torque * f).hypot(self.deflection)
-        };
         100.0 * (e0 - e) / e0
     }
 }
@@ -465,16 +486,21 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let e0 = cv0.rms.max(1e-300);
     let cvb = cv_cols(&base_cols, &[], &res, &bl);
     let defl = deflection(model, d);
-    let scale = Scale {
-        torque: e0 / std_dev(&y_app[a..b]).max(1e-300),
-        deflection: match &defl {
+    let spread: Vec<f64> = (a..b).map(|k| d.qm[k] - d.ql[k]).collect();
+    let spread = std_dev(&spread).max(1e-300);
+    // the deflection channel's NRMSE of a model (after its base refit), 0 without that channel
+    let defl_nrmse = |m: &WbModel| -> f64 {
+        match deflection(m, d) {
             Some((rd, dcols)) => {
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                let spread: Vec<f64> = (a..b).map(|k| d.qm[k] - d.ql[k]).collect();
-                cv_cols(&dref, &[], rd, &bl).rms / std_dev(&spread).max(1e-300)
+                cv_cols(&dref, &[], &rd, &bl).rms / spread
             }
             None => 0.0,
-        },
+        }
+    };
+    let scale = Scale {
+        torque: e0 / std_dev(&y_app[a..b]).max(1e-300),
+        deflection: defl_nrmse(model),
     };
     let mut cands = Vec::new();
     // base parameters, one at a time
@@ -658,10 +684,14 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             extra
         };
         let mut contribution = vec![0.0; d.len()];
+        let mut common = scale.common("torque", red);
         for e in &add {
             if channel(&e.id) == Channel::TorquePath {
                 let mut with = model.clone();
                 with.effects.push(e.clone());
+                if defl.is_some() {
+                    common = scale.common_both(red, defl_nrmse(&with));
+                }
                 let t = with.applied(d).unwrap_or_else(|| y_app.clone());
                 for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&y_app)) {
                     *c += x - z;
@@ -677,7 +707,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: false,
             class: class_of(id).into(),
             significant,
-            error_reduction_pct: scale.common("torque", red),
+            error_reduction_pct: common,
             evidence: ev,
             params,
             same_as: vec![],
