@@ -162,7 +162,7 @@ impl Scale {
     fn with(&self, torque: f64, deflection: f64, own_pct: f64) -> f64 {
         let e0 = self.torque.hypot(self.deflection);
         let e = torque.hypot(deflection);
-        if !(e0 > 0.0) || !e.is_finite() {
+        if e0.is_nan() || e0 <= 0.0 || !e.is_finite() {
             return own_pct;
         }
         100.0 * (e0 - e) / e0
