@@ -637,6 +637,25 @@ impl AxisPlant {
         })
     }
 
+    /// Puts the third mass (if present) at position `pos` and velocity `vel` in load units
+    /// (as [`AxisPlant::third_mass_state`] reports them), e.g. after [`AxisPlant::set_state`]
+    /// when its motion was estimated from the measured load motion. Non-finite values leave it
+    /// where it was.
+    pub fn set_third_mass_state(&mut self, pos: f64, vel: f64) {
+        if !(pos.is_finite() && vel.is_finite()) {
+            return;
+        }
+        if let Some((i, ..)) = self.st.third {
+            let r = if self.st.two_mass {
+                self.motor_per_load
+            } else {
+                1.0
+            };
+            self.x[i] = pos * r;
+            self.x[i + 1] = vel * r;
+        }
+    }
+
     /// Torque (N m) or force (N) applied to the motor during the previous period, before sensor
     /// noise (the mean over the period when a current lag is present).
     pub fn applied_torque(&self) -> f64 {

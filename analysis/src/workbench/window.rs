@@ -20,7 +20,7 @@
 use feedloop_plant::AxisPlant;
 
 use super::data::AxisData;
-use super::effects::{dead_band, WbModel};
+use super::effects::{dead_band, third_mass_track, WbModel};
 use super::signal::{filtfilt_butter4, nrmse_pct, rms};
 
 /// Error of one simulated channel.
@@ -174,8 +174,9 @@ impl Body {
 
 /// The simulated axis: the plant simulator's, or the one-body approximation.
 enum Sim {
-    /// The simulator's axis, and the friction dead bands of motor and load velocity.
-    Plant(Box<AxisPlant>, f64, f64),
+    /// The simulator's axis, the friction dead bands of motor and load velocity, and the
+    /// third mass's motion estimated from the measured load motion (motor units), if any.
+    Plant(Box<AxisPlant>, f64, f64, Option<(Vec<f64>, Vec<f64>)>),
     Body {
         body: Body,
         q: f64,
@@ -188,10 +189,22 @@ impl Sim {
     /// reason) when the simulator refuses the model.
     fn new(model: &WbModel, d: &AxisData) -> (Self, String) {
         match AxisPlant::new(&model.sim_file(), d.dt) {
-            Ok(p) => (
-                Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl)),
-                "plant".to_string(),
-            ),
+            Ok(p) => {
+                // a third mass is not measured: its motion follows from the load's, through
+                // its own spring (as in its regressor), so each window restarts it there
+                let third = model
+                    .effects
+                    .iter()
+                    .find(|e| e.id == "third_mass" && e.hyper.len() >= 2)
+                    .map(|e| {
+                        let (x, v, _) = third_mass_track(d, e.hyper[0], e.hyper[1]);
+                        (x, v)
+                    });
+                (
+                    Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl), third),
+                    "plant".to_string(),
+                )
+            }
             Err(e) => (
                 Sim::Body {
                     body: Body::new(model, d),
@@ -213,12 +226,20 @@ impl Sim {
     fn restart(&mut self, d: &AxisData, k: usize, past: &[f64], load_ref: bool) {
         let still = |v: f64, eps: f64| if v.abs() <= eps { 0.0 } else { v };
         match self {
-            Sim::Plant(p, em, el) => {
+            Sim::Plant(p, em, el, third) => {
                 p.set_state(
                     (d.qm[k], still(d.vm[k], *em)),
                     (d.ql[k] / d.r, still(d.vl[k], *el) / d.r),
                     past,
                 );
+                if let Some((x, v)) = third {
+                    let f = if p.kind() == feedloop_runtime::model::AxisKind::Rigid {
+                        1.0
+                    } else {
+                        d.r
+                    };
+                    p.set_third_mass_state(x[k] / f, v[k] / f);
+                }
             }
             Sim::Body { q, v, .. } => {
                 *q = if load_ref { d.ql[k] } else { d.qm[k] };
