@@ -27,7 +27,7 @@ use super::effects::{
     base_class, base_column, base_keys, channel, Channel, Effect, Side, WbModel, EFFECT_IDS,
 };
 use super::lsq::{blocks, cross_validate, normals, Cv};
-use super::signal::{autocorrelation, mean, quantile, rms, std_dev};
+use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_runtime::model::AxisKind;
 
 /// Effects that may appear several times in a model file.
@@ -110,63 +110,6 @@ pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize
     let mut cols: Vec<&[f64]> = base.to_vec();
     cols.extend_from_slice(extra);
     cross_validate(&normals(&cols, y, bl))
-}
-
-/// The common scale on which candidates of different channels are ranked.
-///
-/// Each channel's misfit is measured as an NRMSE (its RMS error over the spread of the
-/// measured quantity: the applied torque; the deflection between motor and load); the
-/// misfit of the model is their root sum of squares. A candidate lowers its own channel's
-/// error by some percentage (which decides its significance, on that channel alone), and is
-/// ranked by how much that lowers the combined misfit. So a candidate that explains most of a
-/// channel the model already fits to a fraction of a percent does not outrank one that explains
-/// most of a channel the model misses badly. With one channel (no deflection) the two scales are
-/// the same.
-#[derive(Debug, Clone, Copy)]
-struct Scale {
-    /// Torque-channel NRMSE of the model.
-    torque: f64,
-    /// Deflection-channel NRMSE after its base refit (compliance and zero offset), 0 without it.
-    deflection: f64,
-}
-
-impl Scale {
-    /// Reduction of the combined misfit, %, when a candidate on `channel` lowers that channel's
-    /// error by `own_pct` %.
-    fn common(&self, channel: &str, own_pct: f64) -> f64 {
-        if channel == "deflection" {
-            self.with(
-                self.torque,
-                self.deflection * (1.0 - own_pct / 100.0),
-                own_pct,
-            )
-        } else {
-            self.with(
-                self.torque * (1.0 - own_pct / 100.0),
-                self.deflection,
-                own_pct,
-            )
-        }
-    }
-
-    /// As [`Scale::common`] for a torque-path candidate, which changes the applied torque and so
-    /// the deflection the spring must show too: `deflection` is that channel's NRMSE with it.
-    fn common_both(&self, own_pct: f64, deflection: f64) -> f64 {
-        self.with(
-            self.torque * (1.0 - own_pct / 100.0),
-            deflection.min(self.deflection),
-            own_pct,
-        )
-    }
-
-    fn with(&self, torque: f64, deflection: f64, own_pct: f64) -> f64 {
-        let e0 = self.torque.hypot(self.deflection);
-        let e = torque.hypot(deflection);
-        if e0.is_nan() || e0 <= 0.0 || !e.is_finite() {
-            return own_pct;
-        }
-        100.0 * (e0 - e) / e0
-    }
 }
 
 fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
@@ -278,25 +221,24 @@ pub fn best_effect(
     bl: &[(usize, usize)],
 ) -> Option<(Effect, Cv)> {
     let side = default_side(d.kind);
-    let mut best: Option<(Effect, Cv)> = None;
     let mut grid = hyper_grid(id, d);
     if id == "backlash" {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
         }
     }
-    for h in grid {
+    let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
+    let eval = |h: Vec<f64>| -> Option<(Effect, Cv)> {
         let e = Effect::new(id, side, h);
-        let cv = match channel(id) {
-            Channel::TorquePath => {
+        let cv = match &needed {
+            Some(needed) => {
                 let mut with = model.clone();
                 with.effects.push(e.clone());
-                let needed = model.torque_needed(d);
                 let t = with.applied(d)?;
-                let r: Vec<f64> = t.iter().zip(&needed).map(|(a, b)| a - b).collect();
+                let r: Vec<f64> = t.iter().zip(needed).map(|(a, b)| a - b).collect();
                 cv_cols(base, &[], &r, bl)
             }
-            _ => {
+            None => {
                 let cols = e.columns(d);
                 let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
                 cv_cols(base, &refs, y, bl)
@@ -305,19 +247,61 @@ pub fn best_effect(
         // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         let nb = base.len();
         if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
-            continue;
+            return None;
         }
         // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
         if id == "third_mass" && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
-            continue;
+            return None;
         }
-        if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
-            let mut e = e;
-            let nb = base.len();
-            for (i, c) in e.coef.iter_mut().enumerate() {
-                *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        let mut e = e;
+        for (i, c) in e.coef.iter_mut().enumerate() {
+            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        }
+        Some((e, cv))
+    };
+    let mut best: Option<(Effect, Cv)> = None;
+    let mut best_i = 0;
+    for (i, h) in grid.iter().enumerate() {
+        if let Some((e, cv)) = eval(h.clone()) {
+            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
+                best = Some((e, cv));
+                best_i = i;
             }
-            best = Some((e, cv));
+        }
+    }
+    // a continuous time constant: refine between the grid's neighbours of the best point
+    // (golden-section search on its logarithm)
+    if id == "current_lag" && best.is_some() && grid.len() >= 3 {
+        let lo = grid[best_i.saturating_sub(1)][0].ln();
+        let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut a, mut b) = (lo, hi);
+        let score = |x: f64| {
+            eval(vec![x.exp()])
+                .map(|r| r.1.rms)
+                .unwrap_or(f64::INFINITY)
+        };
+        let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
+        let (mut fc, mut fd) = (score(c), score(dd));
+        for _ in 0..12 {
+            if fc < fd {
+                b = dd;
+                dd = c;
+                fd = fc;
+                c = b - g * (b - a);
+                fc = score(c);
+            } else {
+                a = c;
+                c = dd;
+                fc = fd;
+                dd = a + g * (b - a);
+                fd = score(dd);
+            }
+        }
+        if let Some((e, cv)) = eval(vec![(0.5 * (a + b)).exp()]) {
+            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
+                best = Some((e, cv));
+            }
         }
     }
     best
@@ -486,22 +470,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let e0 = cv0.rms.max(1e-300);
     let cvb = cv_cols(&base_cols, &[], &res, &bl);
     let defl = deflection(model, d);
-    let spread: Vec<f64> = (a..b).map(|k| d.qm[k] - d.ql[k]).collect();
-    let spread = std_dev(&spread).max(1e-300);
-    // the deflection channel's NRMSE of a model (after its base refit), 0 without that channel
-    let defl_nrmse = |m: &WbModel| -> f64 {
-        match deflection(m, d) {
-            Some((rd, dcols)) => {
-                let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                cv_cols(&dref, &[], &rd, &bl).rms / spread
-            }
-            None => 0.0,
-        }
-    };
-    let scale = Scale {
-        torque: e0 / std_dev(&y_app[a..b]).max(1e-300),
-        deflection: defl_nrmse(model),
-    };
     let mut cands = Vec::new();
     // base parameters, one at a time
     for k in &free_keys {
@@ -519,7 +487,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: true,
             class: base_class(k).to_string(),
             significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-            error_reduction_pct: scale.common("torque", red),
+            error_reduction_pct: red.min(100.0),
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({:+.1} %)",
                 fmt(old),
@@ -595,7 +563,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                     is_param: false,
                     class: class_of(id).into(),
                     significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                    error_reduction_pct: scale.common("deflection", red),
+                    error_reduction_pct: red.min(100.0),
                     evidence: evidence(&e, d, &params),
                     params,
                     same_as: vec![],
@@ -621,7 +589,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 is_param: false,
                 class: "damping".into(),
                 significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                error_reduction_pct: scale.common("torque", red),
+                error_reduction_pct: red.min(100.0),
                 evidence: evidence(&e, d, &params),
                 params,
                 same_as: vec![],
@@ -684,14 +652,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             extra
         };
         let mut contribution = vec![0.0; d.len()];
-        let mut common = scale.common("torque", red);
         for e in &add {
             if channel(&e.id) == Channel::TorquePath {
                 let mut with = model.clone();
                 with.effects.push(e.clone());
-                if defl.is_some() {
-                    common = scale.common_both(red, defl_nrmse(&with));
-                }
                 let t = with.applied(d).unwrap_or_else(|| y_app.clone());
                 for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&y_app)) {
                     *c += x - z;
@@ -707,7 +671,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: false,
             class: class_of(id).into(),
             significant,
-            error_reduction_pct: common,
+            error_reduction_pct: red.min(100.0),
             evidence: ev,
             params,
             same_as: vec![],
@@ -717,7 +681,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0, &scale);
+    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0);
     // candidates the data cannot tell apart
     for i in 0..cands.len() {
         let mut same = Vec::new();
@@ -816,7 +780,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
 /// (a clamp of the torque where friction steps, an offset the first one already carries) is
 /// credited with its extra only; when the first candidate already includes its effect, it is
 /// reported in the first one's class.
-#[allow(clippy::too_many_arguments)]
 fn condition_on_top(
     cands: &mut [Candidate],
     model: &WbModel,
@@ -825,7 +788,6 @@ fn condition_on_top(
     res: &[f64],
     bl: &[(usize, usize)],
     e0: f64,
-    scale: &Scale,
 ) {
     let Some(top) = cands.first() else { return };
     if top.is_param || !top.significant || top.channel != "torque" {
@@ -879,7 +841,7 @@ fn condition_on_top(
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
         if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {
             c.significant = false;
-            c.error_reduction_pct = scale.common("torque", extra);
+            c.error_reduction_pct = extra;
             if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
                 c.class = top_class.clone();
                 if !c.same_as.contains(&top_name) {
