@@ -106,10 +106,14 @@ fn model_file(text: &str) -> ModelFile {
 
 /// Runs the plant in closed loop (position P on the scale, PI velocity on the motor).
 fn simulate(plant_text: &str) -> Trace {
+    simulate_cmd(plant_text, command())
+}
+
+/// [`simulate`] with a given command (load position, m).
+fn simulate_cmd(plant_text: &str, cmd: Vec<f64>) -> Trace {
     let mf = model_file(plant_text);
     let r = mf.plant.motor_per_load();
     let mut plant = AxisPlant::new(&mf, DT).unwrap();
-    let cmd = command();
     plant.set_initial_position(cmd[0]);
     let ax = AxisContext {
         name: "x".into(),
@@ -404,4 +408,31 @@ fn a_wrong_load_damping_is_named_as_a_damping_parameter() {
         "{}",
         dg.verdict
     );
+}
+
+#[test]
+fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
+    // the varied command, then 10 s of hold: with dry friction on motor and table and a noisy
+    // velocity measurement the velocity loop hunts below the breakaway level while nothing moves
+    // (the torque wanders, the motion does not), which a low torque clamp would claim if
+    // standstills counted
+    let mut cmd = command();
+    let last = *cmd.last().unwrap();
+    cmd.extend(std::iter::repeat(last).take((10.0 / DT) as usize));
+    let hidden = "[[effects.coulomb_friction]]\nside = \"motor\"\nfc_nm = 0.3\n[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 200.0\n";
+    let sensor = SENSOR.replace("seed = 7", "motor_vel_noise_rad_per_s = 0.01\nseed = 7");
+    let tr = simulate_cmd(&format!("{BASE}{hidden}{sensor}"), cmd);
+    let y = tr.column("x.torque").unwrap();
+    let n = y.len();
+    let hold = &y[n - (9.0 / DT) as usize..];
+    let (lo, hi) = hold
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(*v), h.max(*v))
+        });
+    println!("hold torque range {lo:.3} .. {hi:.3} N m");
+    let (_, _, dg) = diagnose_trace(&tr, BASE);
+    let top = &dg.candidates[0];
+    println!("long hold: {} {:.1} %", top.effect, top.error_reduction_pct);
+    assert_eq!(top.class, "friction", "{}", dg.verdict);
 }

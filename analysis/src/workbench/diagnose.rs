@@ -127,7 +127,8 @@ pub fn cv_cols_masked(
 /// standstills (below 2 % of the top speed for more than 20 ms, as `compare` classifies them).
 /// At a standstill dry friction takes whatever torque the loop applies below its breakaway level
 /// (a hunting velocity loop moves it about while nothing moves), which no velocity-driven law
-/// describes and a torque clamp would wrongly claim. `None` when fewer than half the rows move.
+/// describes and a torque clamp would wrongly claim. `None` when fewer than a fifth of the rows
+/// move (or all do).
 pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
     let kinds = super::compare::classify(d);
     let (a, b) = d.range;
@@ -142,7 +143,7 @@ pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
         })
         .collect();
     let moving = mask[a..b].iter().filter(|w| **w != 0.0).count();
-    (moving < b - a && 2 * moving >= b - a).then_some(mask)
+    (moving < b - a && 5 * moving >= b - a).then_some(mask)
 }
 
 fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
