@@ -418,7 +418,7 @@ fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
     // standstills counted
     let mut cmd = command();
     let last = *cmd.last().unwrap();
-    cmd.extend(std::iter::repeat(last).take((10.0 / DT) as usize));
+    cmd.extend(std::iter::repeat_n(last, (10.0 / DT) as usize));
     let hidden = "[[effects.coulomb_friction]]\nside = \"motor\"\nfc_nm = 0.3\n[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 200.0\n";
     let sensor = SENSOR.replace("seed = 7", "motor_vel_noise_rad_per_s = 0.01\nseed = 7");
     let tr = simulate_cmd(&format!("{BASE}{hidden}{sensor}"), cmd);
