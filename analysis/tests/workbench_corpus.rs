@@ -93,6 +93,12 @@ fn command() -> Vec<f64> {
     x
 }
 
+/// The same axis with its velocity loop tuned for a drive that has a delay or a current lag
+/// (lower gain: with the stiff tuning a 1 ms delay makes the loop unstable).
+fn soft() -> String {
+    BASE.replace("kv_nms_per_rad = 5.0", "kv_nms_per_rad = 1.5")
+}
+
 fn model_file(text: &str) -> ModelFile {
     let t: toml::Table = text.parse().unwrap();
     ModelFile::from_table(&t, Path::new("mem.toml")).unwrap()
@@ -100,10 +106,14 @@ fn model_file(text: &str) -> ModelFile {
 
 /// Runs the plant in closed loop (position P on the scale, PI velocity on the motor).
 fn simulate(plant_text: &str) -> Trace {
+    simulate_cmd(plant_text, command())
+}
+
+/// [`simulate`] with a given command (load position, m).
+fn simulate_cmd(plant_text: &str, cmd: Vec<f64>) -> Trace {
     let mf = model_file(plant_text);
     let r = mf.plant.motor_per_load();
     let mut plant = AxisPlant::new(&mf, DT).unwrap();
-    let cmd = command();
     plant.set_initial_position(cmd[0]);
     let ax = AxisContext {
         name: "x".into(),
@@ -158,7 +168,10 @@ fn simulate(plant_text: &str) -> Trace {
 }
 
 fn run(hidden: &str, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
-    let tr = simulate(&format!("{BASE}{hidden}{SENSOR}"));
+    diagnose_trace(&simulate(&format!("{BASE}{hidden}{SENSOR}")), nominal)
+}
+
+fn diagnose_trace(tr: &Trace, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
     let text = nominal.to_string();
     let t: toml::Table = text.parse().unwrap();
     let m = WbModel::from_parts(
@@ -166,28 +179,22 @@ fn run(hidden: &str, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
         t,
     )
     .unwrap();
-    let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+    let d = load_axis(tr, &m.file, "x", &Prep::default()).unwrap();
     let dg = diagnose(&m, &d, &DiagOptions::default());
     (m, d, dg)
 }
 
-/// What the windowed simulation (50 ms windows restarted from the measured state, the plant
-/// simulator's 2-mass axis with the model's effects) must show when the top candidate is added.
-#[derive(Debug, Clone, Copy)]
-enum Window {
-    /// Its NRMSE falls by at least 70 %.
-    Cut70,
-    /// Its NRMSE falls, but the effect's own windowed error is of the order of the restart
-    /// floor: the windowed error of the true model on the trace without a hidden effect is
-    /// about 3.9 % (restarting a 2-mass axis from filtered positions and velocities leaves a
-    /// spring and velocity-loop transient in every window), so a 70 % cut is not reachable.
-    Falls,
-    /// Not asserted (see the test's comment).
-    Unchecked,
+/// Diagnoses the trace with `hidden` on the nominal axis, checks that the top candidate is in
+/// `class` and significant, adds it, and checks that both the equation error and the windowed
+/// simulation error (50 ms windows restarted from the measured state, the plant simulator's
+/// 2-mass axis with the model's effects) fall by at least 70 %.
+fn check_effect(hidden: &str, class: &str) {
+    check_effect_on(BASE, hidden, class);
 }
 
-fn check_effect(hidden: &str, class: &str, window: Window) {
-    let (m, d, dg) = run(hidden, BASE);
+fn check_effect_on(base: &str, hidden: &str, class: &str) {
+    let tr = simulate(&format!("{base}{hidden}{SENSOR}"));
+    let (m, d, dg) = diagnose_trace(&tr, base);
     let top = &dg.candidates[0];
     let table: Vec<String> = dg
         .candidates
@@ -199,6 +206,7 @@ fn check_effect(hidden: &str, class: &str, window: Window) {
             )
         })
         .collect();
+    println!("{hidden:?}: ranking {:?}", &table[..table.len().min(8)]);
     assert_eq!(top.class, class, "hidden {hidden}: ranking {table:#?}");
     assert!(top.significant, "{table:#?}");
     let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
@@ -219,35 +227,23 @@ fn check_effect(hidden: &str, class: &str, window: Window) {
         "hidden {hidden}: equation NRMSE {b} -> {a}; params {:?}",
         r.params
     );
-    match window {
-        Window::Cut70 => assert!(
-            wa < 0.3 * wb,
-            "hidden {hidden}: windowed simulation NRMSE {wb} -> {wa}"
-        ),
-        Window::Falls => assert!(
-            wa < wb,
-            "hidden {hidden}: windowed simulation NRMSE {wb} -> {wa}"
-        ),
-        Window::Unchecked => {}
-    }
+    assert!(
+        wa < 0.3 * wb,
+        "hidden {hidden}: windowed simulation NRMSE {wb} -> {wa}"
+    );
 }
 
 #[test]
 fn hidden_coulomb_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
     check_effect(
-        "[effects.coulomb_friction]\nside = \"load\"\nfc_n = 100.0\n",
+        "[effects.coulomb_friction]\nside = \"load\"\nfc_n = 400.0\n",
         "friction",
-        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_constant_force_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    check_effect(
-        "[effects.constant_force]\nforce_n = -300.0\n",
-        "offset",
-        Window::Falls,
-    );
+    check_effect("[effects.constant_force]\nforce_n = -300.0\n", "offset");
 }
 
 #[test]
@@ -255,29 +251,23 @@ fn hidden_viscous_friction_is_ranked_first_and_adding_it_cuts_the_error_by_70_pe
     check_effect(
         "[effects.viscous_friction]\nside = \"load\"\nc_ns_per_m = 3000.0\n",
         "damping",
-        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_cogging_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
     check_effect(
-        "[effects.cogging]\namplitude_nm = 0.2\nperiods_per_rev = 12\n",
+        "[effects.cogging]\namplitude_nm = 0.6\nperiods_per_rev = 12\n",
         "cogging",
-        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_delay_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    // Not asserted: with 3 cycles of delay the recorded loop rides its torque limit in the fast
-    // sweep and jogs, and the windowed simulation of even the true model (delay added) does
-    // not follow it (its NRMSE stays above 100 %): a known gap.
-    check_effect(
-        "[effects.delay]\ndelay_cycles = 3\n",
-        "delay",
-        Window::Unchecked,
-    );
+    // One cycle on the softer velocity loop: with the stiff tuning (or two cycles here) the
+    // delay destabilises the motor-load mode and the recorded loop rides its torque limit in a
+    // limit cycle above the filter's cut-off, which no restart from filtered positions follows.
+    check_effect_on(&soft(), "[effects.delay]\ndelay_cycles = 1\n", "delay");
 }
 
 #[test]
@@ -332,6 +322,10 @@ fn hidden_stribeck_friction_is_ranked_first_and_its_levels_are_recovered() {
         r.before.equation_nrmse_pct.unwrap(),
         r.after.equation_nrmse_pct.unwrap(),
     );
+    println!(
+        "stribeck: equation {b} -> {a}; window {:?} -> {:?}",
+        r.before.window_sim_nrmse_pct, r.after.window_sim_nrmse_pct
+    );
     assert!(a < 0.6 * b, "{b} -> {a}");
     if top.effect == "stribeck_friction" {
         assert!((r.params["fc_n"] - 60.0).abs() < 6.0, "{:?}", r.params);
@@ -344,19 +338,13 @@ fn hidden_third_mass_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent(
     check_effect(
         "[effects.third_mass]\nmass_kg = 30.0\nstiffness_n_per_m = 4.26e6\ndamping_ns_per_m = 1130.0\n",
         "mode",
-        Window::Falls,
     );
 }
 
 #[test]
 fn hidden_current_lag_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
-    // Not asserted: as with the delay, the windowed simulation of the lagged loop does not
-    // follow the recorded one (its NRMSE rises when the lag is added): a known gap.
-    check_effect(
-        "[effects.current_lag]\ntau_s = 0.0015\n",
-        "delay",
-        Window::Unchecked,
-    );
+    // On the softer velocity loop (a 1 ms lag on the stiff tuning leaves it barely damped).
+    check_effect_on(&soft(), "[effects.current_lag]\ntau_s = 0.001\n", "delay");
 }
 
 #[test]
@@ -364,38 +352,46 @@ fn hidden_torque_saturation_is_ranked_first_and_adding_it_cuts_the_error_by_70_p
     check_effect(
         "[effects.torque_saturation]\nlimit_nm = 15.0\n",
         "saturation",
-        Window::Cut70,
     );
 }
 
 #[test]
-#[ignore = "known gap: backlash is named on the deflection (gap 19.0 um for 20 um, 57 % of the deflection misfit) but a third_mass fitting 76 % of the tiny (0.16 % NRMSE) impact-excited torque residual still ranks above it"]
 fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
-    let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
+    let (m, d, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
     let top = &dg.candidates[0];
     assert_eq!(top.class, "backlash", "{}", dg.verdict);
     let gap = top.params["gap_m"];
     assert!((gap - 20e-6).abs() < 5e-6, "gap {gap}");
+    let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
+    // the gap lives in the deflection: the torque balance barely sees it (equation NRMSE about
+    // 0.16 %), the windowed simulation does (the restart puts the flank in contact)
+    let (wb, wa) = (
+        r.before.window_sim_nrmse_pct.unwrap(),
+        r.after.window_sim_nrmse_pct.unwrap(),
+    );
+    println!("backlash: window {wb} -> {wa}");
+    assert!(wa < 0.3 * wb, "windowed simulation NRMSE {wb} -> {wa}");
 }
 
 #[test]
 fn hidden_pitch_error_is_ranked_first_with_its_amplitude() {
-    let (m, d, dg) = run("[effects.pitch_error]\namplitude_m = 5.0e-6\n", BASE);
+    let (m, d, dg) = run("[effects.pitch_error]\namplitude_m = 10.0e-6\n", BASE);
     let top = &dg.candidates[0];
     assert_eq!(top.class, "pitch", "{}", dg.verdict);
     let a = top.params["amplitude_m"];
-    assert!((a - 5e-6).abs() < 1e-6, "amplitude {a}");
+    assert!((a - 10e-6).abs() < 1e-6, "amplitude {a}");
     // the phase of the lead error as the plant library defines it (0 here)
     let ph = top.params["phase_rad"];
     assert!(ph.abs() < 0.1, "phase {ph}");
     // the lead error shows in the windowed simulation (the restart puts the measured deflection
-    // on the spring); its own share is of the order of the restart floor (see `Window::Falls`)
+    // on the spring)
     let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
     let (wb, wa) = (
         r.before.window_sim_nrmse_pct.unwrap(),
         r.after.window_sim_nrmse_pct.unwrap(),
     );
-    assert!(wa < wb, "windowed simulation NRMSE {wb} -> {wa}");
+    println!("pitch: window {wb} -> {wa}");
+    assert!(wa < 0.3 * wb, "windowed simulation NRMSE {wb} -> {wa}");
 }
 
 #[test]
@@ -412,4 +408,31 @@ fn a_wrong_load_damping_is_named_as_a_damping_parameter() {
         "{}",
         dg.verdict
     );
+}
+
+#[test]
+fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
+    // the varied command, then 10 s of hold: with dry friction on motor and table and a noisy
+    // velocity measurement the velocity loop hunts below the breakaway level while nothing moves
+    // (the torque wanders, the motion does not), which a low torque clamp would claim if
+    // standstills counted
+    let mut cmd = command();
+    let last = *cmd.last().unwrap();
+    cmd.extend(std::iter::repeat_n(last, (10.0 / DT) as usize));
+    let hidden = "[[effects.coulomb_friction]]\nside = \"motor\"\nfc_nm = 0.3\n[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 200.0\n";
+    let sensor = SENSOR.replace("seed = 7", "motor_vel_noise_rad_per_s = 0.01\nseed = 7");
+    let tr = simulate_cmd(&format!("{BASE}{hidden}{sensor}"), cmd);
+    let y = tr.column("x.torque").unwrap();
+    let n = y.len();
+    let hold = &y[n - (9.0 / DT) as usize..];
+    let (lo, hi) = hold
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(*v), h.max(*v))
+        });
+    println!("hold torque range {lo:.3} .. {hi:.3} N m");
+    let (_, _, dg) = diagnose_trace(&tr, BASE);
+    let top = &dg.candidates[0];
+    println!("long hold: {} {:.1} %", top.effect, top.error_reduction_pct);
+    assert_eq!(top.class, "friction", "{}", dg.verdict);
 }

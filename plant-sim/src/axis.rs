@@ -514,7 +514,9 @@ impl AxisPlant {
     /// rigid axis), load position and velocity (m, m/s on a ball screw, rad, rad/s on a rotary
     /// axis; ignored on a rigid axis). `past_torque` holds the torque commands of the periods
     /// before, oldest first: the latest fill the delay line (missing ones count as the oldest
-    /// given, or 0), and the last one is the current lag's state and the applied torque.
+    /// given, or 0), the current lag's state is its response to the commands that left the
+    /// delay line in the periods before (over the last 20 time constants), and without a lag
+    /// the last one is the applied torque.
     ///
     /// A third mass starts at rest relative to the load with its spring relaxed; dry friction
     /// sticks on a body whose velocity is exactly 0 and slides in the direction of its velocity
@@ -543,8 +545,30 @@ impl AxisPlant {
             self.x[i3 + 1] = lv;
         }
         let last = past_torque.last().copied().map(fin).unwrap_or(0.0);
-        if let Some((il, _)) = self.st.lag {
-            self.x[il] = last.clamp(-self.limit, self.limit);
+        let mut applied = last;
+        if let Some((il, tau)) = self.st.lag {
+            // the lag's state is its response to the commands that left the delay line and the
+            // limit in the past periods: run it over the last 20 time constants (before them
+            // the oldest command given is taken as held)
+            let m = past_torque.len();
+            let dlen = self.delay.len();
+            let back = ((20.0 * tau / self.period_s).ceil() as usize).min(m);
+            let input = |j: usize| -> f64 {
+                let v = if j >= dlen {
+                    past_torque[j - dlen]
+                } else {
+                    past_torque.first().copied().unwrap_or(0.0)
+                };
+                fin(v).clamp(-self.limit, self.limit)
+            };
+            let decay = (-self.period_s / tau).exp();
+            let mut x = if m > 0 { input(m - back) } else { 0.0 };
+            for j in m - back..m {
+                let u = input(j);
+                applied = u + (x - u) * self.lag_mean;
+                x = u + (x - u) * decay;
+            }
+            self.x[il] = x;
         }
         // the delay line holds the commands of the last `len` periods; the next one read is the
         // oldest
@@ -581,7 +605,7 @@ impl AxisPlant {
             b.stuck = b.dry && v == 0.0;
             b.dir = if v < 0.0 { -1.0 } else { 1.0 };
         }
-        self.applied = last;
+        self.applied = applied;
         self.sensor.reset_position(self.x[0]);
         self.measure();
     }
@@ -611,6 +635,25 @@ impl AxisPlant {
             };
             (self.x[i] / r, self.x[i + 1] / r)
         })
+    }
+
+    /// Puts the third mass (if present) at position `pos` and velocity `vel` in load units
+    /// (as [`AxisPlant::third_mass_state`] reports them), e.g. after [`AxisPlant::set_state`]
+    /// when its motion was estimated from the measured load motion. Non-finite values leave it
+    /// where it was.
+    pub fn set_third_mass_state(&mut self, pos: f64, vel: f64) {
+        if !(pos.is_finite() && vel.is_finite()) {
+            return;
+        }
+        if let Some((i, ..)) = self.st.third {
+            let r = if self.st.two_mass {
+                self.motor_per_load
+            } else {
+                1.0
+            };
+            self.x[i] = pos * r;
+            self.x[i + 1] = vel * r;
+        }
     }
 
     /// Torque (N m) or force (N) applied to the motor during the previous period, before sensor

@@ -26,7 +26,7 @@ use super::data::AxisData;
 use super::effects::{
     base_class, base_column, base_keys, channel, Channel, Effect, Side, WbModel, EFFECT_IDS,
 };
-use super::lsq::{blocks, cross_validate, normals, Cv};
+use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_runtime::model::AxisKind;
 
@@ -107,9 +107,43 @@ fn corr(a: &[f64], b: &[f64]) -> f64 {
 
 /// Cross-validates `extra` columns together with `base` columns on target `y`.
 pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize)]) -> Cv {
+    cv_cols_masked(base, extra, y, bl, None)
+}
+
+/// [`cv_cols`] over the rows where `mask` (when given) is not 0.
+pub fn cv_cols_masked(
+    base: &[&[f64]],
+    extra: &[&[f64]],
+    y: &[f64],
+    bl: &[(usize, usize)],
+    mask: Option<&[f64]>,
+) -> Cv {
     let mut cols: Vec<&[f64]> = base.to_vec();
     cols.extend_from_slice(extra);
-    cross_validate(&normals(&cols, y, bl))
+    cross_validate(&normals_masked(&cols, y, bl, mask))
+}
+
+/// Rows of the torque channel that carry information about the candidates: all but the
+/// standstills (below 2 % of the top speed for more than 20 ms, as `compare` classifies them).
+/// At a standstill dry friction takes whatever torque the loop applies below its breakaway level
+/// (a hunting velocity loop moves it about while nothing moves), which no velocity-driven law
+/// describes and a torque clamp would wrongly claim. `None` when fewer than a fifth of the rows
+/// move (or all do).
+pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
+    let kinds = super::compare::classify(d);
+    let (a, b) = d.range;
+    let mask: Vec<f64> = kinds
+        .iter()
+        .map(|k| {
+            if *k == super::compare::SegKind::Standstill {
+                0.0
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let moving = mask[a..b].iter().filter(|w| **w != 0.0).count();
+    (moving < b - a && 5 * moving >= b - a).then_some(mask)
 }
 
 fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
@@ -219,48 +253,90 @@ pub fn best_effect(
     base: &[&[f64]],
     y: &[f64],
     bl: &[(usize, usize)],
+    mask: Option<&[f64]>,
 ) -> Option<(Effect, Cv)> {
     let side = default_side(d.kind);
-    let mut best: Option<(Effect, Cv)> = None;
     let mut grid = hyper_grid(id, d);
     if id == "backlash" {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
         }
     }
-    for h in grid {
+    let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
+    let eval = |h: Vec<f64>| -> Option<(Effect, Cv)> {
         let e = Effect::new(id, side, h);
-        let cv = match channel(id) {
-            Channel::TorquePath => {
+        let cv = match &needed {
+            Some(needed) => {
                 let mut with = model.clone();
                 with.effects.push(e.clone());
-                let needed = model.torque_needed(d);
                 let t = with.applied(d)?;
-                let r: Vec<f64> = t.iter().zip(&needed).map(|(a, b)| a - b).collect();
-                cv_cols(base, &[], &r, bl)
+                let r: Vec<f64> = t.iter().zip(needed).map(|(a, b)| a - b).collect();
+                cv_cols_masked(base, &[], &r, bl, mask)
             }
-            _ => {
+            None => {
                 let cols = e.columns(d);
                 let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-                cv_cols(base, &refs, y, bl)
+                cv_cols_masked(base, &refs, y, bl, mask)
             }
         };
         // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         let nb = base.len();
         if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
-            continue;
+            return None;
         }
         // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
         if id == "third_mass" && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
-            continue;
+            return None;
         }
-        if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
-            let mut e = e;
-            let nb = base.len();
-            for (i, c) in e.coef.iter_mut().enumerate() {
-                *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        let mut e = e;
+        for (i, c) in e.coef.iter_mut().enumerate() {
+            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        }
+        Some((e, cv))
+    };
+    let mut best: Option<(Effect, Cv)> = None;
+    let mut best_i = 0;
+    for (i, h) in grid.iter().enumerate() {
+        if let Some((e, cv)) = eval(h.clone()) {
+            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
+                best = Some((e, cv));
+                best_i = i;
             }
-            best = Some((e, cv));
+        }
+    }
+    // a continuous time constant: refine between the grid's neighbours of the best point
+    // (golden-section search on its logarithm)
+    if id == "current_lag" && best.is_some() && grid.len() >= 3 {
+        let lo = grid[best_i.saturating_sub(1)][0].ln();
+        let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut a, mut b) = (lo, hi);
+        let score = |x: f64| {
+            eval(vec![x.exp()])
+                .map(|r| r.1.rms)
+                .unwrap_or(f64::INFINITY)
+        };
+        let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
+        let (mut fc, mut fd) = (score(c), score(dd));
+        for _ in 0..12 {
+            if fc < fd {
+                b = dd;
+                dd = c;
+                fd = fc;
+                c = b - g * (b - a);
+                fc = score(c);
+            } else {
+                a = c;
+                c = dd;
+                fc = fd;
+                dd = a + g * (b - a);
+                fd = score(dd);
+            }
+        }
+        if let Some((e, cv)) = eval(vec![(0.5 * (a + b)).exp()]) {
+            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
+                best = Some((e, cv));
+            }
         }
     }
     best
@@ -425,14 +501,17 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         .filter(|k| d.has_motor() || !matches!(*k, "jl_kgm2" | "dl_nms_per_rad"))
         .collect();
     let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
-    let cv0 = cv_cols(&[], &[], &res, &bl);
+    let mask = moving_mask(d);
+    let mk = mask.as_deref();
+    let cv0 = cv_cols_masked(&[], &[], &res, &bl, mk);
     let e0 = cv0.rms.max(1e-300);
-    let cvb = cv_cols(&base_cols, &[], &res, &bl);
+    let cvb = cv_cols_masked(&base_cols, &[], &res, &bl, mk);
+    let defl = deflection(model, d);
     let mut cands = Vec::new();
     // base parameters, one at a time
     for k in &free_keys {
         let col = base_column(k, d);
-        let cv = cv_cols(&[col], &[], &res, &bl);
+        let cv = cv_cols_masked(&[col], &[], &res, &bl, mk);
         let red = 100.0 * (e0 - cv.rms) / e0;
         let wins = fold_wins(&cv, &cv0.fold_mse);
         let delta = cv.theta[0];
@@ -445,7 +524,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: true,
             class: base_class(k).to_string(),
             significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-            error_reduction_pct: red,
+            error_reduction_pct: red.min(100.0),
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({:+.1} %)",
                 fmt(old),
@@ -464,7 +543,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     let mut untested = Vec::new();
-    let defl = deflection(model, d);
     for id in EFFECT_IDS {
         if !REPEATABLE.contains(&id) && model.effects.iter().any(|e| e.id == id) {
             untested.push((
@@ -510,10 +588,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             let rd = &masked(rd);
             let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
             let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-            let d0 = cv_cols(&[], &[], rd, &bl);
             let dbase = cv_cols(&dref, &[], rd, &bl);
-            if let Some((e, cv)) = best_effect(id, model, d, &dref, rd, &bl) {
-                let red = 100.0 * (dbase.rms - cv.rms) / d0.rms.max(1e-300);
+            if let Some((e, cv)) = best_effect(id, model, d, &dref, rd, &bl, None) {
+                // % of the deflection's misfit after its base refit (compliance, zero offset)
+                let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
                 let wins = fold_wins(&cv, &dbase.fold_mse);
                 let params = flat(&e.to_table(kind, d.r));
                 let contribution = decimate(&e.contribution(d), a, b);
@@ -522,7 +600,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                     is_param: false,
                     class: class_of(id).into(),
                     significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                    error_reduction_pct: red,
+                    error_reduction_pct: red.min(100.0),
                     evidence: evidence(&e, d, &params),
                     params,
                     same_as: vec![],
@@ -537,7 +615,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             // the same column as the damping parameter: scored the same way, one class
             let e = Effect::new(id, default_side(kind), vec![]);
             let cols = e.columns(d);
-            let cv = cv_cols(&[], &[&cols[0]], &res, &bl);
+            let cv = cv_cols_masked(&[], &[&cols[0]], &res, &bl, mk);
             let mut e = e;
             e.coef = vec![cv.theta[0]];
             let red = 100.0 * (e0 - cv.rms) / e0;
@@ -548,7 +626,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 is_param: false,
                 class: "damping".into(),
                 significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                error_reduction_pct: red,
+                error_reduction_pct: red.min(100.0),
                 evidence: evidence(&e, d, &params),
                 params,
                 same_as: vec![],
@@ -558,7 +636,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             });
             continue;
         }
-        let Some((e, cv)) = best_effect(id, model, d, &base_cols, &res, &bl) else {
+        let Some((e, cv)) = best_effect(id, model, d, &base_cols, &res, &bl, mk) else {
             continue;
         };
         let mut add = vec![e.clone()];
@@ -570,7 +648,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             // fit them together and report both.
             let cols = e.columns(d);
             let one = vec![1.0; d.len()];
-            let cv2 = cv_cols(&base_cols, &[&cols[0], &one], &res, &bl);
+            let cv2 = cv_cols_masked(&base_cols, &[&cols[0], &one], &res, &bl, mk);
             if cv2.rms <= cv.rms * 1.02 {
                 let nb = base_cols.len();
                 let mut ec = e.clone();
@@ -630,7 +708,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             is_param: false,
             class: class_of(id).into(),
             significant,
-            error_reduction_pct: red,
+            error_reduction_pct: red.min(100.0),
             evidence: ev,
             params,
             same_as: vec![],
@@ -640,7 +718,13 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-    condition_on_top(&mut cands, model, d, &base_cols, &res, &bl, e0);
+    let tf = TorqueFit {
+        base_cols: &base_cols,
+        res: &res,
+        bl: &bl,
+        mask: mk,
+    };
+    condition_on_top(&mut cands, model, d, &tf, e0);
     // candidates the data cannot tell apart
     for i in 0..cands.len() {
         let mut same = Vec::new();
@@ -731,6 +815,15 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     }
 }
 
+/// What the torque channel's candidates are scored with: the base columns, the residual, the
+/// cross-validation blocks and the rows used (see [`moving_mask`]).
+struct TorqueFit<'a> {
+    base_cols: &'a [&'a [f64]],
+    res: &'a [f64],
+    bl: &'a [(usize, usize)],
+    mask: Option<&'a [f64]>,
+}
+
 /// Forward selection: once the first candidate (an effect on the torque channel) is
 /// significant, every other torque-channel effect must earn its significance beyond it: it is
 /// refitted together with the base parameters and the first candidate, and keeps its
@@ -743,11 +836,10 @@ fn condition_on_top(
     cands: &mut [Candidate],
     model: &WbModel,
     d: &AxisData,
-    base_cols: &[&[f64]],
-    res: &[f64],
-    bl: &[(usize, usize)],
+    tf: &TorqueFit<'_>,
     e0: f64,
 ) {
+    let (base_cols, res, bl, mk) = (tf.base_cols, tf.res, tf.bl, tf.mask);
     let Some(top) = cands.first() else { return };
     if top.is_param || !top.significant || top.channel != "torque" {
         return;
@@ -774,7 +866,7 @@ fn condition_on_top(
     let t_ref = target_of(&with_top);
     let mut cols: Vec<&[f64]> = base_cols.to_vec();
     cols.extend(top_cols.iter().map(|c| c.as_slice()));
-    let cv_ref = cv_cols(&cols, &[], &t_ref, bl);
+    let cv_ref = cv_cols_masked(&cols, &[], &t_ref, bl, mk);
     let mut included = Vec::new();
     for c in cands.iter_mut().skip(1) {
         if c.is_param || !c.significant || c.channel != "torque" || c.add.is_empty() {
@@ -795,7 +887,7 @@ fn condition_on_top(
             t_ref.clone()
         };
         let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
-        let cv = cv_cols(&cols, &refs, &t, bl);
+        let cv = cv_cols_masked(&cols, &refs, &t, bl, mk);
         let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
         if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {

@@ -519,16 +519,27 @@ pub fn round_sig(v: f64) -> f64 {
 /// Acceleration of a third mass on a spring (natural frequency `f_hz`, damping ratio `zeta`)
 /// driven by the measured load motion: `x3'' = w^2 (xL - x3) + 2 zeta w (vL - v3)`.
 fn third_mass_accel(d: &AxisData, f_hz: f64, zeta: f64) -> Vec<f64> {
+    third_mass_track(d, f_hz, zeta).2
+}
+
+/// Motion of a mass on a spring (natural frequency `f_hz`, damping ratio `zeta`) driven by the
+/// measured load motion: (position, velocity, acceleration) at every sample, motor units. It
+/// starts at rest relative to the load.
+pub fn third_mass_track(d: &AxisData, f_hz: f64, zeta: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let w = 2.0 * PI * f_hz;
     let n = d.len();
     let sub = ((d.dt * w * 8.0).ceil() as usize).max(1);
     let h = d.dt / sub as f64;
-    let mut x = d.ql[0];
-    let mut v = d.vl[0];
+    let mut x = d.ql.first().copied().unwrap_or(0.0);
+    let mut v = d.vl.first().copied().unwrap_or(0.0);
     let mut out = Vec::with_capacity(n);
+    let mut pos = Vec::with_capacity(n);
+    let mut vel = Vec::with_capacity(n);
     for k in 0..n {
         let acc = |x: f64, v: f64, xl: f64, vl: f64| w * w * (xl - x) + 2.0 * zeta * w * (vl - v);
         out.push(acc(x, v, d.ql[k], d.vl[k]));
+        pos.push(x);
+        vel.push(v);
         if k + 1 < n {
             for s in 0..sub {
                 let f = s as f64 / sub as f64;
@@ -540,7 +551,7 @@ fn third_mass_accel(d: &AxisData, f_hz: f64, zeta: f64) -> Vec<f64> {
             }
         }
     }
-    out
+    (pos, vel, out)
 }
 
 /// The model as the workbench uses it: base parameters by key, and effects in regressor form.

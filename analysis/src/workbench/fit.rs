@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 
 use super::compare::equation_error;
 use super::data::AxisData;
-use super::diagnose::{best_effect, deflection, flat, FOLDS};
+use super::diagnose::{best_effect, deflection, flat, moving_mask, FOLDS};
 use super::effects::{base_column, base_keys, channel, Channel, Effect, WbModel, EFFECT_IDS};
 use super::lsq::{blocks, cross_validate, normals};
 use super::window::window_sim;
@@ -114,6 +114,7 @@ pub fn fit(
     let free_keys = free_keys(model, d, free)?;
     let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
     let bl = blocks(d.range, FOLDS);
+    let moving = moving_mask(d);
     let mut effects = Vec::new();
     for id in add {
         match channel(id) {
@@ -128,7 +129,7 @@ pub fn fit(
                         present: String::new(),
                     })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                if let Some((e, _)) = best_effect(id, model, d, &dref, &rd, &bl) {
+                if let Some((e, _)) = best_effect(id, model, d, &dref, &rd, &bl, None) {
                     effects.push(e);
                 }
             }
@@ -143,7 +144,9 @@ pub fn fit(
                         present: String::new(),
                     })?;
                 let res = residual(model, d, y);
-                if let Some((mut e, _)) = best_effect(id, model, d, &base_cols, &res, &bl) {
+                if let Some((mut e, _)) =
+                    best_effect(id, model, d, &base_cols, &res, &bl, moving.as_deref())
+                {
                     if e.id == "coulomb_friction" {
                         e.coef[1] = 0.0;
                     }

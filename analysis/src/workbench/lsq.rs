@@ -90,39 +90,83 @@ pub fn blocks(range: (usize, usize), k: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
+/// Dot product, four partial sums (so the compiler can vectorise it).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut s = [0.0f64; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        s[0] += x[0] * y[0];
+        s[1] += x[1] * y[1];
+        s[2] += x[2] * y[2];
+        s[3] += x[3] * y[3];
+    }
+    let mut t = (s[0] + s[1]) + (s[2] + s[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        t += x * y;
+    }
+    t
+}
+
+/// Dot product of `a` and `b` over the rows where the 0/1 mask `w` is 1, four partial sums.
+fn dot_masked(a: &[f64], b: &[f64], w: &[f64]) -> f64 {
+    let n = a.len().min(b.len()).min(w.len());
+    let (a, b, w) = (&a[..n], &b[..n], &w[..n]);
+    let mut s = [0.0f64; 4];
+    let (ca, cb, cw) = (a.chunks_exact(4), b.chunks_exact(4), w.chunks_exact(4));
+    let (ra, rb, rw) = (ca.remainder(), cb.remainder(), cw.remainder());
+    for ((x, y), m) in ca.zip(cb).zip(cw) {
+        s[0] += x[0] * y[0] * m[0];
+        s[1] += x[1] * y[1] * m[1];
+        s[2] += x[2] * y[2] * m[2];
+        s[3] += x[3] * y[3] * m[3];
+    }
+    let mut t = (s[0] + s[1]) + (s[2] + s[3]);
+    for ((x, y), m) in ra.iter().zip(rb).zip(rw) {
+        t += x * y * m;
+    }
+    t
+}
+
 /// Normal equations of regressors `cols` and target `y` over each block.
 pub fn normals(cols: &[&[f64]], y: &[f64], blocks: &[(usize, usize)]) -> Vec<Normal> {
+    normals_masked(cols, y, blocks, None)
+}
+
+/// [`normals`] over the rows where the 0/1 `mask` (when given) is 1: the other rows are left out
+/// of every block.
+pub fn normals_masked(
+    cols: &[&[f64]],
+    y: &[f64],
+    blocks: &[(usize, usize)],
+    mask: Option<&[f64]>,
+) -> Vec<Normal> {
     let p = cols.len();
     blocks
         .iter()
         .map(|&(a, b)| {
             let mut ne = Normal::zeros(p);
-            let mut row = vec![0.0; p];
-            let mut xtx = vec![0.0; p * p];
-            let mut xty = vec![0.0; p];
-            let mut yty = 0.0;
-            for k in a..b {
-                for (j, c) in cols.iter().enumerate() {
-                    row[j] = c[k];
-                }
-                let yk = y[k];
-                yty += yk * yk;
-                for i in 0..p {
-                    xty[i] += row[i] * yk;
-                    for j in i..p {
-                        xtx[i * p + j] += row[i] * row[j];
-                    }
-                }
-            }
+            let yb = &y[a..b];
+            let d = |u: &[f64], v: &[f64]| match mask {
+                Some(m) => dot_masked(u, v, &m[a..b]),
+                None => dot(u, v),
+            };
             for i in 0..p {
-                ne.xty[i] = xty[i];
-                for j in i..p {
-                    ne.xtx[(i, j)] = xtx[i * p + j];
-                    ne.xtx[(j, i)] = xtx[i * p + j];
+                let ci = &cols[i][a..b];
+                ne.xty[i] = d(ci, yb);
+                for (j, cj) in cols.iter().enumerate().skip(i) {
+                    let v = d(ci, &cj[a..b]);
+                    ne.xtx[(i, j)] = v;
+                    ne.xtx[(j, i)] = v;
                 }
             }
-            ne.yty = yty;
-            ne.n = b - a;
+            ne.yty = d(yb, yb);
+            ne.n = match mask {
+                Some(m) => m[a..b].iter().filter(|w| **w != 0.0).count(),
+                None => b - a,
+            };
             ne
         })
         .collect()

@@ -36,6 +36,15 @@ impl Biquad {
             let yi = self.b[0] * xi + z1;
             z1 = self.b[1] * xi - self.a[0] * yi + z2;
             z2 = self.b[2] * xi - self.a[1] * yi;
+            // a state decaying towards zero (a signal that stopped, e.g. a friction column at a
+            // long standstill) would enter the subnormal range, where arithmetic is many times
+            // slower: flush it (the error is below 1e-200)
+            if z1.abs() < 1e-200 {
+                z1 = 0.0;
+            }
+            if z2.abs() < 1e-200 {
+                z2 = 0.0;
+            }
             *v = yi;
         }
     }

@@ -20,7 +20,7 @@
 use feedloop_plant::AxisPlant;
 
 use super::data::AxisData;
-use super::effects::{dead_band, WbModel};
+use super::effects::{dead_band, third_mass_track, WbModel};
 use super::signal::{filtfilt_butter4, nrmse_pct, rms};
 
 /// Error of one simulated channel.
@@ -174,8 +174,9 @@ impl Body {
 
 /// The simulated axis: the plant simulator's, or the one-body approximation.
 enum Sim {
-    /// The simulator's axis, and the friction dead bands of motor and load velocity.
-    Plant(Box<AxisPlant>, f64, f64),
+    /// The simulator's axis, the friction dead bands of motor and load velocity, and the
+    /// third mass's motion estimated from the measured load motion (motor units), if any.
+    Plant(Box<AxisPlant>, f64, f64, Option<(Vec<f64>, Vec<f64>)>),
     Body {
         body: Body,
         q: f64,
@@ -188,10 +189,22 @@ impl Sim {
     /// reason) when the simulator refuses the model.
     fn new(model: &WbModel, d: &AxisData) -> (Self, String) {
         match AxisPlant::new(&model.sim_file(), d.dt) {
-            Ok(p) => (
-                Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl)),
-                "plant".to_string(),
-            ),
+            Ok(p) => {
+                // a third mass is not measured: its motion follows from the load's, through
+                // its own spring (as in its regressor), so each window restarts it there
+                let third = model
+                    .effects
+                    .iter()
+                    .find(|e| e.id == "third_mass" && e.hyper.len() >= 2)
+                    .map(|e| {
+                        let (x, v, _) = third_mass_track(d, e.hyper[0], e.hyper[1]);
+                        (x, v)
+                    });
+                (
+                    Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl), third),
+                    "plant".to_string(),
+                )
+            }
             Err(e) => (
                 Sim::Body {
                     body: Body::new(model, d),
@@ -213,12 +226,20 @@ impl Sim {
     fn restart(&mut self, d: &AxisData, k: usize, past: &[f64], load_ref: bool) {
         let still = |v: f64, eps: f64| if v.abs() <= eps { 0.0 } else { v };
         match self {
-            Sim::Plant(p, em, el) => {
+            Sim::Plant(p, em, el, third) => {
                 p.set_state(
                     (d.qm[k], still(d.vm[k], *em)),
                     (d.ql[k] / d.r, still(d.vl[k], *el) / d.r),
                     past,
                 );
+                if let Some((x, v)) = third {
+                    let f = if p.kind() == feedloop_runtime::model::AxisKind::Rigid {
+                        1.0
+                    } else {
+                        d.r
+                    };
+                    p.set_third_mass_state(x[k] / f, v[k] / f);
+                }
             }
             Sim::Body { q, v, .. } => {
                 *q = if load_ref { d.ql[k] } else { d.qm[k] };
@@ -386,6 +407,55 @@ fn run_open(sim: &mut Sim, d: &AxisData, u: &[f64], wlen: usize) -> Vec<f64> {
     out
 }
 
+/// The velocity-loop error of the recorded loop at sample `k`, from the measured state.
+fn e_meas(d: &AxisData, k: usize, kp: f64) -> f64 {
+    kp * (d.cmd[k] - d.ql[k]) - d.vm[k]
+}
+
+/// The recorded loop's integrator state at every sample (the value after that sample's update),
+/// for restarting windows. Where the recorded torque is inside the output limit it follows from
+/// the output (`u / kv - e) tv`, the bumpless value); where the loop sat at its limit the output
+/// says nothing about it, so it is carried by the controller's own law (integration of the
+/// measured error, held while the clamped output and the error point the same way) from the last
+/// sample where it was known. `y` is the torque compared with the model (filtered with the
+/// positions when the torque column is), `raw` the column as recorded (it tells saturation).
+fn integrator_track(
+    d: &AxisData,
+    y: &[f64],
+    raw: &[f64],
+    kp: f64,
+    kv: f64,
+    tv: f64,
+    lim: f64,
+) -> Vec<f64> {
+    let n = d.len();
+    let mut out = vec![0.0; n];
+    if tv <= 0.0 || kv == 0.0 {
+        return out;
+    }
+    // a recorded output within 0.5 % of the limit counts as clamped
+    let clamped = |u: f64| lim.is_finite() && u.abs() >= 0.995 * lim;
+    let mut integ = 0.0;
+    let mut known = false;
+    for k in 0..n {
+        let e = e_meas(d, k, kp);
+        let u_rec = raw.get(k).copied().unwrap_or(y[k]);
+        if !clamped(u_rec) || !known {
+            integ = (y[k] / kv - e) * tv;
+            known = !clamped(u_rec);
+        } else {
+            let prev = integ;
+            integ += d.dt * e;
+            let out_raw = kv * (e + integ / tv);
+            if out_raw.abs() > lim && e * out_raw > 0.0 {
+                integ = prev;
+            }
+        }
+        out[k] = integ;
+    }
+    out
+}
+
 /// Closed loop: (following error, torque) of the model under its controller, restarted every
 /// `wlen` samples from the measured state.
 fn run_closed(
@@ -417,6 +487,7 @@ fn run_closed(
             .sum::<usize>()
     };
     let past: &[f64] = d.torque_raw.as_deref().unwrap_or(&[]);
+    let integ_meas = y.map(|y| integrator_track(d, y, past, kp, kv, tv, lim));
     let mut hist: Vec<f64> = Vec::new();
     for k in 0..n {
         let restart = k % wlen == 0;
@@ -427,11 +498,11 @@ fn run_closed(
         let (_, v, q) = sim.state(d.r);
         let e = kp * (d.cmd[k] - q) - v;
         if restart {
-            integ = if tv > 0.0 {
-                // bumpless: the first output equals the recorded torque
-                y.map(|y| (y[k] / kv - e) * tv).unwrap_or(0.0)
-            } else {
-                0.0
+            // bumpless: the first output equals the recorded torque (and where the recorded
+            // loop was at its limit, the integrator tracked through the clamped stretch)
+            integ = match &integ_meas {
+                Some(im) if tv > 0.0 => im[k] + (e_meas(d, k, kp) - e) * tv,
+                _ => 0.0,
             };
         }
         let prev = integ;
