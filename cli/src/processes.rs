@@ -643,7 +643,7 @@ fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCo
             next < sorted.len() && sorted[next] <= r.seq && r.seq <= sorted[next] + window;
         let slot = if is_near { &mut near } else { &mut far };
         slot.cycles += 1;
-        slot.misses += u64::from(r.flags & REC_MISSED != 0 && r.flags & REC_OVERRUN == 0);
+        slot.misses += u64::from(feedloop_runtime::record::is_deadline_miss(r.flags));
         slot.late += u64::from(r.flags & (REC_MISSED | REC_OVERRUN) != 0);
     }
     (near, far)

@@ -301,8 +301,7 @@ pub fn run_plant<P: PlantDevice>(
             if latency_ns == u64::MAX {
                 flags |= REC_MISSED;
                 seqs.missing += 1;
-                if flags & REC_OVERRUN == 0 {
-                    // The summary's definition: a miss while the plant itself was on time.
+                if crate::record::is_deadline_miss(flags) {
                     deadline_misses = deadline_misses.saturating_add(1);
                 }
                 // Only a machine-wide stall excuses silence: a merely busy machine still counts.

@@ -52,6 +52,14 @@ pub const REC_LATE_CMD: u8 = 16;
 /// and dropped.
 pub const REC_DUP_CMD: u8 = 32;
 
+/// Whether a cycle's `flags` make it a deadline miss: no command arrived in time while the plant
+/// itself was on time (a late plant is an overrun, not a miss). The one definition used by the
+/// plant's running count, the summary and the swap-window statistics.
+#[inline]
+pub fn is_deadline_miss(flags: u8) -> bool {
+    flags & REC_MISSED != 0 && flags & REC_OVERRUN == 0
+}
+
 /// What the plant logs each cycle.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct PlantRecord {

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use crate::record::{AxisRecord, PlantRecord, REC_MISSED, REC_OVERRUN, REC_STALL};
+use crate::record::{AxisRecord, PlantRecord, REC_OVERRUN, REC_STALL};
 
 /// Latency percentiles, microseconds.
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
@@ -72,7 +72,7 @@ pub fn timing(records: &[PlantRecord]) -> Timing {
     let mut lat: Vec<u64> = Vec::with_capacity(records.len());
     let mut in_stall = false;
     for r in records {
-        if r.flags & REC_MISSED != 0 && r.flags & REC_OVERRUN == 0 {
+        if crate::record::is_deadline_miss(r.flags) {
             t.deadline_misses += 1;
         }
         if r.flags & REC_OVERRUN != 0 {
@@ -275,6 +275,7 @@ pub fn contour_distances(path: &[[f64; 4]]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::record::REC_MISSED;
 
     #[test]
     fn percentiles_pick_the_right_ranks() {

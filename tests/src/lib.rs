@@ -209,3 +209,10 @@ pub fn build_example_plugin(target: &Path, wrong_abi: bool) -> PathBuf {
     assert!(st.success(), "building the example plugin failed");
     target.join("release/libfeedloop_plugin_pi_velocity_c.so")
 }
+
+/// `feedloop status --instance INST`, parsed (the test fails when the command does).
+pub fn status(instance: &str) -> serde_json::Value {
+    let o = feedloop(&["status", "--instance", instance]);
+    assert!(o.status.success(), "{}", describe(&o));
+    serde_json::from_slice(&o.stdout).expect("status prints JSON")
+}

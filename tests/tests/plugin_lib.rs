@@ -76,12 +76,7 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
     }
     // The refusals below must not disturb the loop: the plant's deadline-miss count, as the
     // status service reports it, is the same before and after.
-    let status = || -> serde_json::Value {
-        let o = feedloop(&["status", "--instance", &inst]);
-        assert!(o.status.success(), "{}", feedloop_tests::describe(&o));
-        serde_json::from_slice(&o.stdout).unwrap()
-    };
-    let before = status();
+    let before = feedloop_tests::status(&inst);
     let bad_params = dir.join("bad.toml");
     std::fs::write(
         &bad_params,
@@ -123,7 +118,7 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
             "{text}"
         );
     }
-    let after = status();
+    let after = feedloop_tests::status(&inst);
     assert!(after["cycle"].as_u64() > before["cycle"].as_u64());
     assert_eq!(
         after["deadline_misses"], before["deadline_misses"],

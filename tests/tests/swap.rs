@@ -74,12 +74,7 @@ ramp_s = 0.1
     }
     // Refused requests, answered with a reason, loop undisturbed: the plant's deadline-miss
     // count (reported through the status service) is the same before and after them.
-    let status = |inst: &str| -> serde_json::Value {
-        let o = feedloop(&["status", "--instance", inst]);
-        assert!(o.status.success(), "{}", feedloop_tests::describe(&o));
-        serde_json::from_slice(&o.stdout).unwrap()
-    };
-    let before = status(&inst);
+    let before = feedloop_tests::status(&inst);
     let mut refused = 0;
     for (args, why) in [
         (
@@ -124,7 +119,7 @@ ramp_s = 0.1
         assert!(text.contains(why), "{text}");
         refused += 1;
     }
-    let st = status(&inst);
+    let st = feedloop_tests::status(&inst);
     assert!(
         st["cycle"].as_u64() > before["cycle"].as_u64(),
         "the loop kept running: {before} -> {st}"
