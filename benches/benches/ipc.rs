@@ -5,7 +5,9 @@
 //! - a Unix domain socket carrying bincode frames (ordinary IPC);
 //! - a raw shared-memory cache line with atomics (the practical floor).
 //!
-//! The echo peer is this same bench binary, re-executed with `FEEDLOOP_BENCH_PEER` set.
+//! The echo peer is this same bench binary, re-executed with `FEEDLOOP_BENCH_PEER` set. The bench
+//! pins itself to CPU 0 and the peer to CPU 1, so every transport is measured across cores (the
+//! case the loop runs in); `FEEDLOOP_BENCH_CPUS=a,b` picks other CPUs (`a,a` for one core).
 //! `cargo bench -p feedloop-benches --bench ipc`
 
 use std::io::{Read, Write};
@@ -18,9 +20,36 @@ use criterion::Criterion;
 use feedloop_runtime::clock::now_ns;
 use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
 use feedloop_runtime::job::WaitKind;
+use feedloop_runtime::rt;
 use feedloop_runtime::wire::{ActuatorCommand, SensorSample, FLAG_END};
 
 const PEER_ENV: &str = "FEEDLOOP_BENCH_PEER";
+const CPUS_ENV: &str = "FEEDLOOP_BENCH_CPUS";
+
+/// The CPUs of the bench (index 0) and of the echo peer (index 1).
+fn cpus() -> [usize; 2] {
+    let spec = std::env::var(CPUS_ENV).unwrap_or_else(|_| "0,1".into());
+    let v: Vec<usize> = spec
+        .split(',')
+        .map(|c| {
+            c.trim()
+                .parse()
+                .expect("FEEDLOOP_BENCH_CPUS: two CPU numbers, e.g. 0,1")
+        })
+        .collect();
+    assert_eq!(v.len(), 2, "FEEDLOOP_BENCH_CPUS: two CPU numbers, e.g. 0,1");
+    [v[0], v[1]]
+}
+
+fn pin(cpu: usize) {
+    let applied = rt::apply(&rt::RtRequest {
+        cpu: Some(cpu),
+        ..Default::default()
+    });
+    if !applied.notes.is_empty() {
+        eprintln!("not pinned: {}", applied.notes.join("; "));
+    }
+}
 
 fn spawn_peer(spec: &str) -> Child {
     Command::new(std::env::current_exe().expect("bench exe"))
@@ -276,6 +305,7 @@ fn bench_shm(c: &mut Criterion) {
 
 fn main() {
     if let Ok(spec) = std::env::var(PEER_ENV) {
+        pin(cpus()[1]);
         let (kind, arg) = spec.split_once(':').expect("peer spec kind:arg");
         match kind {
             "iox-busy" => iox_peer(arg, WaitKind::Busy),
@@ -286,6 +316,7 @@ fn main() {
         }
         return;
     }
+    pin(cpus()[0]);
     let mut c = Criterion::default()
         .measurement_time(Duration::from_secs(3))
         .warm_up_time(Duration::from_secs(1))

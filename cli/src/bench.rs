@@ -11,7 +11,9 @@ use hdrhistogram::Histogram;
 use serde_json::{json, Value};
 
 use feedloop_runtime::job::{Mode, WaitKind};
-use feedloop_runtime::record::{read_log, PlantRecord, REC_MISSED, REC_OVERRUN, REC_STALL};
+use feedloop_runtime::record::{
+    read_log, PlantRecord, SchedRecord, REC_MISSED, REC_OVERRUN, REC_STALL,
+};
 
 use crate::processes::{read_json, spawn, write_json};
 
@@ -38,6 +40,11 @@ pub enum BenchCmd {
         /// Output folder (latency.json, latency.svg, the run's logs).
         #[arg(long)]
         out: PathBuf,
+        /// Seconds of each reference measurement taken on the same CPUs just before the run: a
+        /// cyclictest-style sleeping loop at the same period (SCHED_FIFO 80 when permitted) and
+        /// a bare spinning loop that counts how often the machine takes a core away. 0 skips them.
+        #[arg(long, default_value_t = 10.0)]
+        reference_s: f64,
     },
 }
 
@@ -51,7 +58,16 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             pin,
             fifo,
             out,
-        } => latency(cycles, period_s, &wait, pin.as_deref(), fifo, &out),
+            reference_s,
+        } => latency(
+            cycles,
+            period_s,
+            &wait,
+            pin.as_deref(),
+            fifo,
+            &out,
+            reference_s,
+        ),
     }
 }
 
@@ -90,6 +106,7 @@ fn latency(
     pin: Option<&str>,
     fifo: Option<i32>,
     out: &Path,
+    reference_s: f64,
 ) -> Result<ExitCode> {
     let wait_kind = WaitKind::parse(wait)
         .with_context(|| format!("--wait `{wait}`: expected busy, block or hybrid"))?;
@@ -98,6 +115,9 @@ fn latency(
     }
     if cycles == 0 {
         bail!("--cycles must be > 0");
+    }
+    if !(reference_s.is_finite() && (0.0..=3600.0).contains(&reference_s)) {
+        bail!("--reference-s {reference_s}: must be within [0, 3600] s");
     }
     let cpus: Vec<usize> = match pin {
         None => vec![],
@@ -129,6 +149,40 @@ fn latency(
     for f in ["plant.log", "plant.json", "scheduler.log", "scheduler.json"] {
         let _ = std::fs::remove_file(out.join(f));
     }
+    let period_ns = (period_s * 1e9).round() as u64;
+    let probe_cpus: Vec<usize> = if cpus.is_empty() {
+        (0..std::thread::available_parallelism()
+            .map_or(1, |n| n.get())
+            .min(2))
+            .collect()
+    } else {
+        cpus.clone()
+    };
+    let reference = if reference_s > 0.0 {
+        eprintln!(
+            "reference: a sleeping loop, then a spinning loop, {reference_s} s each on CPUs {probe_cpus:?}"
+        );
+        let secs = Duration::from_secs_f64(reference_s);
+        let sleeping = probe::sleeping_loop(&probe_cpus, period_ns, secs)?;
+        let spinning = probe::spinning_loop(&probe_cpus, period_ns / 2, secs)?;
+        json!({
+            "seconds": reference_s,
+            "cpus": probe_cpus,
+            "sleeping_loop": {
+                "jitter_us": hist_json(&sleeping.lateness),
+                "sched_fifo": sleeping.sched_fifo,
+            },
+            "spinning_loop": {
+                "threshold_us": (period_ns / 2) as f64 / 1000.0,
+                "interruptions": spinning.count,
+                "interruptions_per_s": spinning.count as f64 / reference_s,
+                "interrupted_share": spinning.lost_ns as f64 / (reference_s * 1e9 * probe_cpus.len() as f64),
+                "max_us": spinning.max_ns as f64 / 1000.0,
+            },
+        })
+    } else {
+        Value::Null
+    };
     eprintln!(
         "bench latency: {cycles} cycles at {:.1} kHz, wait {wait}, about {:.1} s",
         1e-3 / period_s,
@@ -194,6 +248,12 @@ fn latency(
         }
         in_stall = stalled;
     }
+    // Which misses fell while the scheduler had lost its core (it records, per answered cycle,
+    // the longest stretch without a poll): such a miss is the machine's, not the loop's.
+    let sched = read_log::<SchedRecord>(&out.join("scheduler.log"))
+        .map(|l| l.records)
+        .unwrap_or_default();
+    let attribution = attribute_misses(&recs, &sched, period_ns);
     let plant_info = read_json(&out.join("plant.json")).unwrap_or(Value::Null);
     let sched_info = read_json(&out.join("scheduler.json")).unwrap_or(Value::Null);
     let v = json!({
@@ -206,6 +266,14 @@ fn latency(
         "plant_overruns": overruns,
         "stalls": {"count": stall_count, "max_ms": stall_max},
         "misses_outside_stalls": miss_outside,
+        "scheduler_interruptions": {
+            "threshold_us": (period_ns / 2) as f64 / 1000.0,
+            "count": attribution.interruptions,
+            "max_us": attribution.max_gap_ns as f64 / 1000.0,
+        },
+        "misses_during_scheduler_interruptions": attribution.explained,
+        "misses_outside_stalls_and_interruptions": attribution.unexplained,
+        "reference": reference,
         "realtime": {
             "mlockall": plant_info["realtime"]["mlockall"].as_bool().unwrap_or(false)
                 && sched_info["realtime"]["mlockall"].as_bool().unwrap_or(false),
@@ -235,11 +303,201 @@ fn latency(
         "deadline misses {misses} ({miss_outside} outside stalls), overruns {overruns}, stalls {stall_count} (max {stall_max:.2} ms)"
     );
     println!(
+        "scheduler lost its core for >= {:.0} us {} times (max {:.0} us); misses then: {}; misses outside stalls and those: {}",
+        period_ns as f64 / 2000.0,
+        attribution.interruptions,
+        attribution.max_gap_ns as f64 / 1000.0,
+        attribution.explained,
+        attribution.unexplained
+    );
+    if !v["reference"].is_null() {
+        let r = &v["reference"];
+        println!(
+            "reference on the same CPUs: sleeping loop jitter p50 {:.2} p99 {:.2} p99.9 {:.2} max {:.2} us (SCHED_FIFO {}); \
+             a bare spinning loop lost its core for >= {:.0} us {} times ({:.1}/s, max {:.0} us)",
+            r["sleeping_loop"]["jitter_us"]["p50"],
+            r["sleeping_loop"]["jitter_us"]["p99"],
+            r["sleeping_loop"]["jitter_us"]["p999"],
+            r["sleeping_loop"]["jitter_us"]["max"],
+            r["sleeping_loop"]["sched_fifo"],
+            period_ns as f64 / 2000.0,
+            r["spinning_loop"]["interruptions"],
+            r["spinning_loop"]["interruptions_per_s"].as_f64().unwrap_or(0.0),
+            r["spinning_loop"]["max_us"].as_f64().unwrap_or(0.0),
+        );
+    }
+    println!(
         "wrote {} and {}",
         out.join("latency.json").display(),
         out.join("latency.svg").display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// Deadline misses split by whether the scheduler had lost its core when they happened.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Attribution {
+    /// Answered cycles before which the scheduler went at least half a period without a poll.
+    interruptions: u64,
+    /// Longest such stretch, ns.
+    max_gap_ns: u64,
+    /// Misses (outside plant stalls) covered by such a stretch.
+    explained: u64,
+    /// Misses outside plant stalls and outside such stretches.
+    unexplained: u64,
+}
+
+/// A miss of cycle `s` is covered when the first cycle the scheduler answered at or after `s`
+/// was preceded by a stretch without a poll (or a computation) of at least half a period that
+/// reaches back to `s`'s period: the scheduler could not have answered `s` in time.
+fn attribute_misses(plant: &[PlantRecord], sched: &[SchedRecord], period_ns: u64) -> Attribution {
+    let half = period_ns / 2;
+    let mut a = Attribution::default();
+    let lost = |r: &SchedRecord| u64::from(r.poll_gap_ns).max(u64::from(r.compute_ns));
+    for r in sched {
+        if lost(r) >= half {
+            a.interruptions += 1;
+            a.max_gap_ns = a.max_gap_ns.max(lost(r));
+        }
+    }
+    let mut j = 0usize;
+    for p in plant {
+        if p.flags & REC_MISSED == 0 || p.flags & REC_STALL != 0 {
+            continue;
+        }
+        // scheduler records are in cycle order: advance to the first at or after this cycle
+        while j < sched.len() && sched[j].seq < p.seq {
+            j += 1;
+        }
+        let covered = sched.get(j).is_some_and(|r| {
+            let g = lost(r);
+            g >= half && (r.seq - p.seq) * period_ns <= g + period_ns
+        });
+        if covered {
+            a.explained += 1;
+        } else {
+            a.unexplained += 1;
+        }
+    }
+    a
+}
+
+/// Reference loops run on the benchmark's CPUs before the run, one thread per CPU.
+mod probe {
+    use std::time::Duration;
+
+    use anyhow::Result;
+    use hdrhistogram::Histogram;
+
+    use feedloop_runtime::clock::{now_ns, sleep_until_ns};
+    use feedloop_runtime::rt::{apply, RtRequest};
+
+    /// Result of [`sleeping_loop`].
+    pub struct Sleeping {
+        /// Wake-up lateness of every period on every CPU, ns.
+        pub lateness: Histogram<u64>,
+        /// Whether SCHED_FIFO was granted on every CPU.
+        pub sched_fifo: bool,
+    }
+
+    /// A cyclictest-style loop on each CPU: sleep to an absolute deadline every `period_ns`
+    /// (SCHED_FIFO 80 when permitted, memory locked), record how late each wake-up is.
+    pub fn sleeping_loop(cpus: &[usize], period_ns: u64, time: Duration) -> Result<Sleeping> {
+        let results: Vec<(Histogram<u64>, bool)> = std::thread::scope(|sc| {
+            let handles: Vec<_> = cpus
+                .iter()
+                .map(|&cpu| {
+                    sc.spawn(move || -> Result<(Histogram<u64>, bool)> {
+                        let applied = apply(&RtRequest {
+                            mlockall: true,
+                            fifo_priority: Some(80),
+                            cpu: Some(cpu),
+                        });
+                        let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
+                        let start = now_ns() + 1_000_000;
+                        let end = start + time.as_nanos() as u64;
+                        let mut next = start;
+                        while next < end {
+                            sleep_until_ns(next);
+                            h.saturating_record(now_ns().saturating_sub(next).max(1));
+                            next += period_ns;
+                        }
+                        Ok((h, applied.sched_fifo))
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|t| {
+                    t.join()
+                        .unwrap_or_else(|_| Err(anyhow::anyhow!("probe thread panicked")))
+                })
+                .collect::<Result<Vec<_>>>()
+        })?;
+        let mut lateness = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
+        let mut fifo = !results.is_empty();
+        for (h, f) in &results {
+            lateness.add(h)?;
+            fifo &= *f;
+        }
+        Ok(Sleeping {
+            lateness,
+            sched_fifo: fifo,
+        })
+    }
+
+    /// Result of [`spinning_loop`].
+    pub struct Spinning {
+        /// Stretches of at least the threshold between two clock readings, all CPUs.
+        pub count: u64,
+        /// Their total length, ns.
+        pub lost_ns: u64,
+        /// The longest, ns.
+        pub max_ns: u64,
+    }
+
+    /// A bare spinning loop on each CPU (what a busy-polling process does, without any IPC):
+    /// counts the stretches of at least `threshold_ns` between two consecutive clock readings,
+    /// i.e. the times the OS or the hypervisor took the core away.
+    pub fn spinning_loop(cpus: &[usize], threshold_ns: u64, time: Duration) -> Result<Spinning> {
+        let results: Vec<(u64, u64, u64)> = std::thread::scope(|sc| {
+            let handles: Vec<_> = cpus
+                .iter()
+                .map(|&cpu| {
+                    sc.spawn(move || {
+                        apply(&RtRequest {
+                            mlockall: false,
+                            fifo_priority: None,
+                            cpu: Some(cpu),
+                        });
+                        let (mut count, mut lost, mut max) = (0u64, 0u64, 0u64);
+                        let end = now_ns() + time.as_nanos() as u64;
+                        let mut prev = now_ns();
+                        while prev < end {
+                            let now = now_ns();
+                            let gap = now - prev;
+                            if gap >= threshold_ns {
+                                count += 1;
+                                lost += gap;
+                                max = max.max(gap);
+                            }
+                            prev = now;
+                        }
+                        (count, lost, max)
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|t| t.join().unwrap_or((0, 0, 0)))
+                .collect()
+        });
+        Ok(Spinning {
+            count: results.iter().map(|r| r.0).sum(),
+            lost_ns: results.iter().map(|r| r.1).sum(),
+            max_ns: results.iter().map(|r| r.2).max().unwrap_or(0),
+        })
+    }
 }
 
 /// A percentile plot (latency and jitter, log-scaled tail axis) as a standalone SVG.
@@ -316,4 +574,74 @@ fn percentile_svg(lat: &Histogram<u64>, jit: &Histogram<u64>) -> String {
         h - 12.0
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plant(seq: u64, flags: u8) -> PlantRecord {
+        PlantRecord {
+            seq,
+            flags,
+            ..Default::default()
+        }
+    }
+
+    fn sched(seq: u64, poll_gap_us: u32) -> SchedRecord {
+        SchedRecord {
+            seq,
+            compute_ns: 300,
+            poll_gap_ns: poll_gap_us * 1000,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn misses_are_explained_only_by_a_core_loss_that_reaches_back_to_them() {
+        let period = 100_000;
+        // cycles 10..=12 missed; the scheduler answered 13 after 350 us without a poll: all three
+        // are covered. Cycle 20 missed, but 21 was answered after only 2 us: not covered. Cycle 30
+        // missed during a plant stall: neither. Cycle 40 missed and the next answer (45) came
+        // after a 120 us loss that cannot reach back five periods: not covered.
+        let mut p: Vec<PlantRecord> = (0..50).map(|k| plant(k, 0)).collect();
+        for k in [10, 11, 12, 20, 40] {
+            p[k].flags = REC_MISSED;
+        }
+        p[30].flags = REC_MISSED | REC_STALL;
+        let mut s: Vec<SchedRecord> = (0..50)
+            .filter(|k| ![10, 11, 12, 20, 30, 40, 41, 42, 43, 44].contains(k))
+            .map(|k| sched(k, 1))
+            .collect();
+        for r in s.iter_mut() {
+            match r.seq {
+                13 => r.poll_gap_ns = 350_000,
+                21 => r.poll_gap_ns = 2_000,
+                45 => r.poll_gap_ns = 120_000,
+                _ => {}
+            }
+        }
+        let a = attribute_misses(&p, &s, period);
+        assert_eq!(a.interruptions, 2);
+        assert_eq!(a.max_gap_ns, 350_000);
+        assert_eq!(a.explained, 3);
+        assert_eq!(a.unexplained, 2);
+        // a long computation counts like a long stretch without a poll
+        s.iter_mut().find(|r| r.seq == 21).unwrap().compute_ns = 90_000;
+        let b = attribute_misses(&p, &s, period);
+        assert_eq!((b.explained, b.unexplained, b.interruptions), (4, 1, 3));
+    }
+
+    #[test]
+    fn a_spinning_probe_sees_a_forced_gap_and_a_sleeping_probe_records_every_period() {
+        // with a zero threshold every stretch between two clock readings counts, and together
+        // they cover the whole window; with an unreachable threshold none does
+        let all = probe::spinning_loop(&[0], 0, Duration::from_millis(20)).unwrap();
+        assert!(all.count > 1000, "{} stretches", all.count);
+        assert!(all.lost_ns > 10_000_000 && all.lost_ns <= 40_000_000);
+        let none = probe::spinning_loop(&[0], u64::MAX, Duration::from_millis(20)).unwrap();
+        assert_eq!((none.count, none.lost_ns, none.max_ns), (0, 0, 0));
+        let s = probe::sleeping_loop(&[0], 1_000_000, Duration::from_millis(50)).unwrap();
+        assert_eq!(s.lateness.len(), 50);
+    }
 }

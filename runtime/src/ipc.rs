@@ -9,6 +9,7 @@
 //! working directory or on config files lying around, so processes started from different
 //! folders always meet.
 
+use std::cell::Cell;
 use std::time::Duration;
 
 use crate::clock::now_ns;
@@ -22,7 +23,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 
 use crate::job::WaitKind;
-use crate::wire::{ActuatorCommand, SensorSample};
+use crate::wire::{ActuatorCommand, SensorSample, WireMessage};
 
 thread_local! {
     static IN_SEND: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
@@ -153,6 +154,10 @@ pub struct Endpoint<
     in_service: PsFactory<In>,
     wait: WaitKind,
     spin_ns: u64,
+    /// Longest stretch without a poll while spinning in the last `receive_until`, ns.
+    poll_gap_ns: Cell<u64>,
+    /// Clock reading of the last poll of the last `receive_until`, ns.
+    last_poll_ns: Cell<u64>,
     // keep the node alive as long as the ports
     _node: Node<ipc::Service>,
 }
@@ -208,7 +213,7 @@ pub enum WaitOutcome<T> {
 impl<Out, In> Endpoint<Out, In>
 where
     Out: std::fmt::Debug + ZeroCopySend + Copy + 'static,
-    In: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+    In: std::fmt::Debug + ZeroCopySend + WireMessage + 'static,
 {
     fn open(
         node: Node<ipc::Service>,
@@ -246,6 +251,8 @@ where
             in_service,
             wait,
             spin_ns,
+            poll_gap_ns: Cell::new(0),
+            last_poll_ns: Cell::new(0),
             _node: node,
         })
     }
@@ -281,7 +288,7 @@ where
     #[inline]
     pub fn try_receive(&self) -> Result<Option<In>, IpcError> {
         match self.subscriber.receive() {
-            Ok(Some(s)) => Ok(Some(*s.payload())),
+            Ok(Some(s)) => Ok(Some(s.payload().copy_used())),
             Ok(None) => Ok(None),
             Err(e) => Err(IpcError::Receive(format!("{e:?}"))),
         }
@@ -296,12 +303,23 @@ where
             WaitKind::Block => start,
             WaitKind::Hybrid => start.saturating_add(self.spin_ns).min(deadline_ns),
         };
+        // A spinning process polls every few hundred nanoseconds; a longer stretch between two
+        // polls means the OS (or the hypervisor) took the core away. Kept for the caller's
+        // records (`poll_gap_ns`), never acted upon here.
+        let mut prev = start;
+        let mut gap = 0u64;
         loop {
             if let Some(m) = self.try_receive()? {
+                self.poll_gap_ns.set(gap);
+                self.last_poll_ns.set(prev);
                 return Ok(WaitOutcome::Got(m));
             }
             let now = now_ns();
+            gap = gap.max(now.saturating_sub(prev));
+            prev = now;
             if now >= deadline_ns {
+                self.poll_gap_ns.set(gap);
+                self.last_poll_ns.set(prev);
                 return Ok(WaitOutcome::TimedOut);
             }
             if now < spin_until {
@@ -317,7 +335,22 @@ where
                 Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => {}
                 Err(e) => return Err(IpcError::Receive(format!("{e:?}"))),
             }
+            // the time spent blocked was given away on purpose
+            prev = now_ns();
         }
+    }
+
+    /// The longest time between two polls of the last [`Endpoint::receive_until`] while it
+    /// spun, ns (time blocked in a wait excluded). Together with [`Endpoint::last_poll_ns`] it
+    /// tells whether the process lost its core while waiting.
+    pub fn poll_gap_ns(&self) -> u64 {
+        self.poll_gap_ns.get()
+    }
+
+    /// Clock reading ([`crate::clock::now_ns`]) of the last poll of the last
+    /// [`Endpoint::receive_until`].
+    pub fn last_poll_ns(&self) -> u64 {
+        self.last_poll_ns.get()
     }
 
     /// Drops any queued messages and event notifications.

@@ -34,8 +34,12 @@ pub struct AxisRecord {
     pub torque: f64,
 }
 
-/// How often the writer thread drains the ring to the log.
-const WRITER_PERIOD: Duration = Duration::from_millis(50);
+/// How often the writer thread looks at the ring when it has caught up.
+const WRITER_PERIOD: Duration = Duration::from_millis(2);
+/// Most records the writer encodes and writes in one go before it lets the core go again.
+const WRITER_CHUNK: usize = 64;
+/// Pause between two chunks while a small backlog is left.
+const WRITER_GAP: Duration = Duration::from_micros(100);
 
 /// `PlantRecord::flags`: the command for this cycle did not arrive in time (held the last one).
 pub const REC_MISSED: u8 = 1;
@@ -86,6 +90,11 @@ pub struct SchedRecord {
     pub compute_ns: u32,
     /// Samples skipped because a newer one was already there (realtime catch-up).
     pub skipped: u32,
+    /// Longest time the scheduler went without looking for this sample while it spun waiting for
+    /// it, up to the start of the cycle's computation, ns (saturating): a few hundred ns
+    /// normally; tens of microseconds or more when the OS or the hypervisor took its core away.
+    /// Time blocked in a wait on purpose is not counted.
+    pub poll_gap_ns: u32,
     /// Per-axis torque commanded and reference, (N m or N, m or rad).
     pub axes: [(f64, f64); MAX_AXES],
 }
@@ -192,16 +201,14 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
         let thread = std::thread::Builder::new()
             .name("feedloop-recorder".into())
             .spawn(move || -> std::io::Result<u64> {
-                let mut block: Vec<T> = Vec::with_capacity(4096);
+                let mut block: Vec<T> = Vec::with_capacity(WRITER_CHUNK);
                 let mut written = 0u64;
                 loop {
                     let finishing = stop2.load(Ordering::Acquire);
-                    while let Ok(r) = consumer.pop() {
-                        block.push(r);
-                        if block.len() == block.capacity() {
-                            writer.write_block(&block)?;
-                            written += block.len() as u64;
-                            block.clear();
+                    while block.len() < WRITER_CHUNK {
+                        match consumer.pop() {
+                            Ok(r) => block.push(r),
+                            Err(_) => break,
                         }
                     }
                     if !block.is_empty() {
@@ -209,12 +216,23 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                         written += block.len() as u64;
                         block.clear();
                     }
-                    if finishing {
+                    let backlog = consumer.slots();
+                    if backlog == 0 && finishing {
                         return Ok(written);
                     }
-                    // Few wake-ups: each one preempts whatever runs on that core (on a small
-                    // machine, a spinning loop). The ring holds seconds of records.
-                    std::thread::sleep(WRITER_PERIOD);
+                    // On a small machine this thread preempts a spinning loop whenever it runs,
+                    // and a loop preempted for more than a period misses its deadline. So it
+                    // writes short chunks (tens of microseconds each) and lets the core go in
+                    // between, unless the backlog grows (a lockstep run goes as fast as it can):
+                    // then it writes without pausing, so that nothing is dropped.
+                    if finishing || backlog > capacity / 8 {
+                        continue;
+                    }
+                    std::thread::sleep(if backlog >= WRITER_CHUNK {
+                        WRITER_GAP
+                    } else {
+                        WRITER_PERIOD
+                    });
                 }
             })?;
         Ok(Self {

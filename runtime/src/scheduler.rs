@@ -222,6 +222,10 @@ pub fn run_scheduler(
             c.before_cycle(cycle, s.seq);
         }
         let c0 = now_ns();
+        let poll_gap_ns = ep
+            .poll_gap_ns()
+            .max(c0.saturating_sub(ep.last_poll_ns()))
+            .min(u32::MAX as u64) as u32;
         cycle.step(&s, &mut cmd);
         if stop_now {
             cmd.flags |= FLAG_STOP;
@@ -251,6 +255,7 @@ pub fn run_scheduler(
             seq: s.seq,
             compute_ns,
             skipped,
+            poll_gap_ns,
             ..Default::default()
         };
         for i in 0..axis_count {
