@@ -20,7 +20,8 @@ use crate::processes::{read_json, spawn, write_json};
 /// Benchmark subcommands.
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchCmd {
-    /// Round-trip latency and period jitter of a realtime run (2 axes, full chain).
+    /// Round-trip latency and period jitter of a realtime run: the X-C grinder of
+    /// `examples/jobs/xc-full-chain.toml`, all four seed controllers on two axes.
     Latency {
         /// Cycles to run.
         #[arg(long, default_value_t = 100_000)]
@@ -71,18 +72,38 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
     }
 }
 
-const MODEL_X: &str = include_str!("../../examples/models/xy-x.toml");
-const MODEL_Y: &str = include_str!("../../examples/models/xy-y.toml");
+const JOB: &str = include_str!("../../examples/jobs/xc-full-chain.toml");
+const MODEL_X: &str = include_str!("../../examples/models/xc-x.toml");
+const MODEL_C: &str = include_str!("../../examples/models/xc-c.toml");
+const QUADRANT_TABLE: &str = include_str!("../../examples/tables/xy-circle-quadrant.toml");
 
-fn bench_job(dir: &Path, period_s: f64, wait: WaitKind) -> Result<PathBuf> {
+/// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
+/// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
+/// `cycles`.
+fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<PathBuf> {
     std::fs::write(dir.join("bench-x.toml"), MODEL_X)?;
-    std::fs::write(dir.join("bench-y.toml"), MODEL_Y)?;
-    let job = format!(
-        "# written by `feedloop bench latency`\nname = \"bench-latency\"\nperiod_s = {period_s:e}\n\
-         [run]\nmode = \"realtime\"\nwait = \"{}\"\n[axes.x]\nmodel = \"bench-x.toml\"\n\
-         [axes.y]\nmodel = \"bench-y.toml\"\n[trajectory]\nkind = \"dwell\"\nduration_s = 1.0\n",
-        wait.id()
-    );
+    std::fs::write(dir.join("bench-c.toml"), MODEL_C)?;
+    std::fs::write(dir.join("bench-quadrant.toml"), QUADRANT_TABLE)?;
+    // one revolution per second: enough turns to keep the cam turning through the whole run
+    let turns = (cycles as f64 * period_s).ceil() + 1.0;
+    let mut job = String::new();
+    for line in JOB.lines() {
+        let key = line.split('=').next().unwrap_or("").trim();
+        let line = match key {
+            "name" => "name = \"bench-latency\"".to_string(),
+            "period_s" => format!(
+                "period_s = {period_s:e}\n\n[run]\nmode = \"realtime\"\nwait = \"{}\"",
+                wait.id()
+            ),
+            "turns" => format!("turns = {turns}"),
+            _ => line
+                .replace("../models/xc-x.toml", "bench-x.toml")
+                .replace("../models/xc-c.toml", "bench-c.toml")
+                .replace("../tables/xy-circle-quadrant.toml", "bench-quadrant.toml"),
+        };
+        job.push_str(&line);
+        job.push('\n');
+    }
     let p = dir.join("bench-job.toml");
     std::fs::write(&p, job)?;
     Ok(p)
@@ -134,7 +155,7 @@ fn latency(
         bail!("--pin takes two CPUs (plant,scheduler), got {}", cpus.len());
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let job = bench_job(out, period_s, wait_kind)?;
+    let job = bench_job(out, period_s, wait_kind, cycles)?;
     let instance = format!("bench{}", std::process::id());
     let extra = |i: usize| {
         let mut v = vec!["--cycles".to_string(), cycles.to_string()];

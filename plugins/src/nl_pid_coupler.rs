@@ -36,7 +36,7 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{AxisContext, AxisSignals, Coupler, CycleContext, REF_DERIVS};
+use feedloop_runtime::controller::{AxisContext, AxisSignals, Coupler, CycleContext};
 use feedloop_runtime::model::AxisKind;
 use feedloop_runtime::params::{ConfigError, Fields, Range};
 use feedloop_runtime::trajectory::cam::XcGeometry;
@@ -168,6 +168,8 @@ pub struct NlPidCoupler {
     scale: [f64; 2],
     /// Contact angle of the last cycle, rad (Newton warm start); NaN before the first.
     phi: f64,
+    /// Change of the contact angle over the last cycle, rad (extrapolates the warm start).
+    dphi: f64,
     /// Integral term, m/s.
     integral: f64,
     terms: CouplerTerms,
@@ -211,6 +213,7 @@ impl NlPidCoupler {
             axes: [axes[0], axes[1]],
             scale: [x.plant.motor_per_load(), c.plant.motor_per_load()],
             phi: f64::NAN,
+            dphi: 0.0,
             integral: 0.0,
             terms: CouplerTerms::default(),
         })
@@ -222,21 +225,24 @@ impl NlPidCoupler {
     }
 
     /// Contact angle whose C command is `c_cmd`, by Newton's method from `guess`.
+    ///
+    /// Newton converges quadratically here (`c(phi)` is smooth and monotonic): once a step is
+    /// below 1e-6 rad, the error left after taking it is of the order of the step squared
+    /// (< 1e-11 rad, under 1e-12 m on the profile), so it is taken without a further check. With
+    /// the warm start extrapolated from the last two cycles that is usually the first step.
     fn contact_angle(&self, c_cmd: f64, guess: f64) -> f64 {
         let g = &self.params.geometry;
         let mut phi = if guess.is_finite() { guess } else { -c_cmd };
-        let mut jet = [0.0; REF_DERIVS];
-        for _ in 0..4 {
-            jet[0] = phi;
-            jet[1] = 1.0;
-            let (_, c) = g.axis_jets(&jet);
+        for _ in 0..6 {
+            // value and first derivative are all Newton needs
+            let (_, c) = g.axis_jets::<2>(&[phi, 1.0]);
             let dc = c[1];
             if !(dc.is_finite() && dc.abs() > 1e-6) {
                 break;
             }
             let step = ((c[0] - c_cmd) / dc).clamp(-0.5, 0.5);
             phi -= step;
-            if step.abs() < 1e-13 {
+            if step.abs() < 1e-6 {
                 break;
             }
         }
@@ -246,6 +252,7 @@ impl NlPidCoupler {
     fn reset(&mut self) {
         self.integral = 0.0;
         self.phi = f64::NAN;
+        self.dphi = 0.0;
         self.terms = CouplerTerms::default();
     }
 }
@@ -267,7 +274,7 @@ impl Coupler for NlPidCoupler {
         let [kx, kc] = self.scale;
         let (sx, sc) = (&axes[ix], &axes[ic]);
         let c_cmd = sc.reference[0] / kc;
-        let phi = self.contact_angle(c_cmd, self.phi);
+        let phi = self.contact_angle(c_cmd, self.phi + self.dphi);
         let (gx, gc) = self.params.geometry.gains(phi);
         // actual - command, load units
         let ex = (sx.load_pos - sx.reference[0]) / kx;
@@ -281,6 +288,11 @@ impl Coupler for NlPidCoupler {
             self.reset();
             return;
         }
+        self.dphi = if self.phi.is_finite() {
+            phi - self.phi
+        } else {
+            0.0
+        };
         self.phi = phi;
         let lim = self.params.max_correction_m_per_s;
         let (kp, ki, kd) = self.params.gains.at(eps);

@@ -24,7 +24,7 @@ use std::f64::consts::PI;
 use crate::controller::REF_DERIVS;
 use crate::params::{ConfigError, Fields, Range};
 
-use super::jet::{self, Jet};
+use super::jet;
 use super::poly::{taylor_all, Builder, PiecewisePoly, SMOOTHSTEP};
 use super::{Contour, ContourShape, Ctx, RefState, Trajectory};
 
@@ -94,8 +94,9 @@ impl CamProfile {
         }
     }
 
-    /// Jets of `r(phi)` and `r'(phi) = dr/dphi` for the jet `phi`.
-    pub fn jets(&self, phi: &Jet) -> (Jet, Jet) {
+    /// Jets of `r(phi)` and `r'(phi) = dr/dphi` for the jet `phi` (any length `L`, see
+    /// [`jet`]; `L` at most 6).
+    pub fn jets<const L: usize>(&self, phi: &[f64; L]) -> ([f64; L], [f64; L]) {
         match self {
             CamProfile::Eccentric {
                 eccentricity_m: e,
@@ -121,18 +122,19 @@ impl CamProfile {
                 dwell_rad,
                 fall_rad,
             } => {
-                let psi = (phi[0] - rise_start_rad).rem_euclid(2.0 * PI);
-                let mut delta = *phi;
-                delta[0] = 0.0;
+                let phi0 = phi.first().copied().unwrap_or(0.0);
+                let psi = (phi0 - rise_start_rad).rem_euclid(2.0 * PI);
+                let delta = jet::add_const(phi, -phi0);
                 // Jets of s(u0 + delta / beta) and of ds/dphi.
-                let smooth = |u0: f64, beta: f64| -> (Jet, Jet) {
+                let smooth = |u0: f64, beta: f64| -> ([f64; L], [f64; L]) {
                     let t = taylor_all(&SMOOTHSTEP, u0);
+                    let coef = |d: usize| t.get(d).copied().unwrap_or(0.0);
                     let mut c = [0.0; REF_DERIVS];
                     let mut dc = [0.0; REF_DERIVS];
                     let mut k = 1.0;
                     for d in 0..REF_DERIVS {
-                        c[d] = t[d] * k;
-                        dc[d] = (d + 1) as f64 * t[d + 1] * k / beta;
+                        c[d] = coef(d) * k;
+                        dc[d] = (d + 1) as f64 * coef(d + 1) * k / beta;
                         k /= beta;
                     }
                     (
@@ -145,7 +147,7 @@ impl CamProfile {
                     let (s, ds) = smooth(psi / rise_rad, *rise_rad);
                     (jet::add_const(&jet::scale(&s, h), r0), jet::scale(&ds, h))
                 } else if psi < rise_rad + dwell_rad {
-                    (jet::constant(r0 + h), [0.0; REF_DERIVS])
+                    (jet::constant(r0 + h), [0.0; L])
                 } else if psi < rise_rad + dwell_rad + fall_rad {
                     let (s, ds) = smooth((psi - rise_rad - dwell_rad) / fall_rad, *fall_rad);
                     (
@@ -153,7 +155,7 @@ impl CamProfile {
                         jet::scale(&ds, -h),
                     )
                 } else {
-                    (jet::constant(r0), [0.0; REF_DERIVS])
+                    (jet::constant(r0), [0.0; L])
                 }
             }
             CamProfile::Fourier {
@@ -162,7 +164,7 @@ impl CamProfile {
                 sin_m,
             } => {
                 let mut r = jet::constant(*mean_m);
-                let mut dr = [0.0; REF_DERIVS];
+                let mut dr = [0.0; L];
                 let (s1, c1) = jet::sin_cos(phi);
                 let (mut sk, mut ck) = (s1, c1);
                 for (k, (a, b)) in cos_m.iter().zip(sin_m).enumerate() {
@@ -184,10 +186,7 @@ impl CamProfile {
 
     /// `r`, `r'`, `r''` at `phi` (m, m/rad, m/rad^2).
     pub fn derivatives(&self, phi: f64) -> [f64; 3] {
-        let mut v = [0.0; REF_DERIVS];
-        v[0] = phi;
-        v[1] = 1.0;
-        let (r, dr) = self.jets(&v);
+        let (r, dr) = self.jets::<3>(&jet::variable(phi));
         [r[0], dr[0], 2.0 * r[2]]
     }
 }
@@ -202,8 +201,9 @@ pub struct XcGeometry {
 }
 
 impl XcGeometry {
-    /// Jets of the X (m) and C (rad) commands for the contact-angle jet `phi`.
-    pub fn axis_jets(&self, phi: &Jet) -> (Jet, Jet) {
+    /// Jets of the X (m) and C (rad) commands for the contact-angle jet `phi` (any length `L`
+    /// up to 6: 6 for the references, 2 for a Newton step on the contact angle).
+    pub fn axis_jets<const L: usize>(&self, phi: &[f64; L]) -> ([f64; L], [f64; L]) {
         let rw = self.wheel_radius_m;
         let (r, dr) = self.profile.jets(phi);
         let r2 = jet::mul(&r, &r);
@@ -221,17 +221,20 @@ impl XcGeometry {
 
     /// X (m) and C (rad) that put the wheel on contact angle `phi_rad`.
     pub fn axes_at(&self, phi_rad: f64) -> (f64, f64) {
-        let (x, c) = self.axis_jets(&jet::constant(phi_rad));
-        (x[0], c[0])
+        let ([x], [c]) = self.axis_jets::<1>(&[phi_rad]);
+        (x, c)
     }
 
     /// Linearised coupling gains at `phi_rad`: `Gx = (R + r^2/S) / X` (m of profile error per m
     /// of X error) and `Gc = r r' / S` (m per rad of C error).
     pub fn gains(&self, phi_rad: f64) -> (f64, f64) {
-        let [r, dr, _] = self.profile.derivatives(phi_rad);
+        let ([r], [dr]) = self.profile.jets::<1>(&[phi_rad]);
         let s = r.hypot(dr);
-        let (x, _) = self.axes_at(phi_rad);
-        ((self.wheel_radius_m + r * r / s) / x, r * dr / s)
+        // X as `axis_jets` forms it (the same operations in the same order)
+        let rw = self.wheel_radius_m;
+        let r2 = r * r;
+        let x = ((r2 + 2.0 * rw * (r2 / (r2 + dr * dr).sqrt())) + rw * rw).sqrt();
+        ((rw + r2 / s) / x, r * dr / s)
     }
 
     /// Exact profile error (m, positive = material left) for the measured `x_m`, `c_rad`:

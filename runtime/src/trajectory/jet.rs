@@ -41,38 +41,51 @@ pub fn to_derivs(j: &Jet) -> RefState {
 }
 
 /// A constant.
-pub fn constant(c: f64) -> Jet {
-    let mut j = [0.0; N];
-    j[0] = c;
+pub fn constant<const L: usize>(c: f64) -> [f64; L] {
+    let mut j = [0.0; L];
+    if let Some(j0) = j.first_mut() {
+        *j0 = c;
+    }
+    j
+}
+
+/// The independent variable at `x0` (value `x0`, first derivative 1).
+pub fn variable<const L: usize>(x0: f64) -> [f64; L] {
+    let mut j = constant(x0);
+    if let Some(j1) = j.get_mut(1) {
+        *j1 = 1.0;
+    }
     j
 }
 
 /// `u + v`.
-pub fn add(u: &Jet, v: &Jet) -> Jet {
+pub fn add<const L: usize>(u: &[f64; L], v: &[f64; L]) -> [f64; L] {
     std::array::from_fn(|k| u[k] + v[k])
 }
 
 /// `u - v`.
-pub fn sub(u: &Jet, v: &Jet) -> Jet {
+pub fn sub<const L: usize>(u: &[f64; L], v: &[f64; L]) -> [f64; L] {
     std::array::from_fn(|k| u[k] - v[k])
 }
 
 /// `c u`.
-pub fn scale(u: &Jet, c: f64) -> Jet {
+pub fn scale<const L: usize>(u: &[f64; L], c: f64) -> [f64; L] {
     std::array::from_fn(|k| c * u[k])
 }
 
 /// `u + c`.
-pub fn add_const(u: &Jet, c: f64) -> Jet {
+pub fn add_const<const L: usize>(u: &[f64; L], c: f64) -> [f64; L] {
     let mut w = *u;
-    w[0] += c;
+    if let Some(w0) = w.first_mut() {
+        *w0 += c;
+    }
     w
 }
 
 /// `u v`.
-pub fn mul(u: &Jet, v: &Jet) -> Jet {
-    let mut w = [0.0; N];
-    for k in 0..N {
+pub fn mul<const L: usize>(u: &[f64; L], v: &[f64; L]) -> [f64; L] {
+    let mut w = [0.0; L];
+    for k in 0..L {
         for j in 0..=k {
             w[k] += u[j] * v[k - j];
         }
@@ -81,9 +94,9 @@ pub fn mul(u: &Jet, v: &Jet) -> Jet {
 }
 
 /// `u / v` (`v_0 != 0`).
-pub fn div(u: &Jet, v: &Jet) -> Jet {
-    let mut w = [0.0; N];
-    for k in 0..N {
+pub fn div<const L: usize>(u: &[f64; L], v: &[f64; L]) -> [f64; L] {
+    let mut w = [0.0; L];
+    for k in 0..L {
         let mut acc = u[k];
         for j in 1..=k {
             acc -= v[j] * w[k - j];
@@ -94,10 +107,13 @@ pub fn div(u: &Jet, v: &Jet) -> Jet {
 }
 
 /// `sqrt(u)` (`u_0 > 0`).
-pub fn sqrt(u: &Jet) -> Jet {
-    let mut w = [0.0; N];
+pub fn sqrt<const L: usize>(u: &[f64; L]) -> [f64; L] {
+    let mut w = [0.0; L];
+    if L == 0 {
+        return w;
+    }
     w[0] = u[0].sqrt();
-    for k in 1..N {
+    for k in 1..L {
         let mut acc = u[k];
         for j in 1..k {
             acc -= w[j] * w[k - j];
@@ -108,11 +124,14 @@ pub fn sqrt(u: &Jet) -> Jet {
 }
 
 /// `(sin u, cos u)`.
-pub fn sin_cos(u: &Jet) -> (Jet, Jet) {
-    let mut s = [0.0; N];
-    let mut c = [0.0; N];
+pub fn sin_cos<const L: usize>(u: &[f64; L]) -> ([f64; L], [f64; L]) {
+    let mut s = [0.0; L];
+    let mut c = [0.0; L];
+    if L == 0 {
+        return (s, c);
+    }
     (s[0], c[0]) = super::trig::sin_cos(u[0]);
-    for k in 1..N {
+    for k in 1..L {
         let (mut sa, mut ca) = (0.0, 0.0);
         for j in 1..=k {
             let ju = j as f64 * u[j];
@@ -127,44 +146,48 @@ pub fn sin_cos(u: &Jet) -> (Jet, Jet) {
 
 /// The jet of `w` given the value `w0` and the jet of its derivative `dw` (order one lower
 /// is enough: `w_k = dw_{k-1} / k`).
-fn integrate(w0: f64, dw: &Jet) -> Jet {
-    let mut w = [0.0; N];
-    w[0] = w0;
-    for k in 1..N {
+fn integrate<const L: usize>(w0: f64, dw: &[f64; L]) -> [f64; L] {
+    let mut w = constant(w0);
+    for k in 1..L {
         w[k] = dw[k - 1] / k as f64;
     }
     w
 }
 
 /// Derivative jet `u'` (the top coefficient is lost, which `integrate` never reads).
-fn derivative(u: &Jet) -> Jet {
-    let mut d = [0.0; N];
-    for k in 0..N - 1 {
+fn derivative<const L: usize>(u: &[f64; L]) -> [f64; L] {
+    let mut d = [0.0; L];
+    for k in 0..L.saturating_sub(1) {
         d[k] = (k + 1) as f64 * u[k + 1];
     }
     d
 }
 
 /// `atan2(y, x)` (not both zero), continuous in time around `t0`.
-pub fn atan2(y: &Jet, x: &Jet) -> Jet {
+pub fn atan2<const L: usize>(y: &[f64; L], x: &[f64; L]) -> [f64; L] {
+    if L == 0 {
+        return [0.0; L];
+    }
     let num = sub(&mul(x, &derivative(y)), &mul(y, &derivative(x)));
     let den = add(&mul(x, x), &mul(y, y));
     integrate(y[0].atan2(x[0]), &div(&num, &den))
 }
 
 /// `atan(u)`.
-pub fn atan(u: &Jet) -> Jet {
+pub fn atan<const L: usize>(u: &[f64; L]) -> [f64; L] {
+    if L == 0 {
+        return [0.0; L];
+    }
     let den = add_const(&mul(u, u), 1.0);
     integrate(u[0].atan(), &div(&derivative(u), &den))
 }
 
 /// `f(x0 + d)` for a function with Taylor coefficients `c_k = f^(k)(x0) / k!` at `x0`, where
 /// `d` is a jet with zero value (the deviation from `x0`): Horner's rule on jets.
-pub fn compose_taylor(c: &[f64], d: &Jet) -> Jet {
-    let mut acc = [0.0; N];
-    for ck in c.iter().take(N).rev() {
-        acc = mul(&acc, d);
-        acc[0] += ck;
+pub fn compose_taylor<const L: usize>(c: &[f64], d: &[f64; L]) -> [f64; L] {
+    let mut acc = [0.0; L];
+    for ck in c.iter().take(L).rev() {
+        acc = add_const(&mul(&acc, d), *ck);
     }
     acc
 }
@@ -199,6 +222,26 @@ mod tests {
         let expect_c = [ct, -st, -ct / 2.0, st / 6.0, ct / 24.0, -st / 120.0];
         close(&s, &expect_s, 1e-14);
         close(&c, &expect_c, 1e-14);
+    }
+
+    #[test]
+    fn short_jets_agree_with_the_leading_terms_of_long_ones() {
+        let x0 = 0.37;
+        let long: Jet = variable(x0);
+        let short: [f64; 2] = variable(x0);
+        let f6 = atan2(
+            &sqrt(&add_const(&mul(&long, &long), 2.0)),
+            &sin_cos(&long).1,
+        );
+        let f2 = atan2(
+            &sqrt(&add_const(&mul(&short, &short), 2.0)),
+            &sin_cos(&short).1,
+        );
+        assert_eq!(f2[0], f6[0]);
+        assert!((f2[1] - f6[1]).abs() < 1e-15 * (1.0 + f6[1].abs()));
+        // a one-term jet is the plain value
+        let v: [f64; 1] = div(&constant(3.0), &constant(4.0));
+        assert_eq!(v, [0.75]);
     }
 
     #[test]

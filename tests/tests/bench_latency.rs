@@ -1,0 +1,132 @@
+//! `feedloop bench latency` end to end: a short realtime run of the full-chain job, checked for
+//! the report's contract (the keys scripts read) and for consistency between its figures and the
+//! logs the two processes left.
+
+use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord, REC_MISSED};
+use feedloop_tests::{describe, feedloop, process_lock, read_json, scratch};
+
+#[test]
+fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
+    let _g = process_lock();
+    let dir = scratch("bench-latency");
+    let out = dir.join("lat");
+    let o = feedloop(&[
+        "bench",
+        "latency",
+        "--cycles",
+        "3000",
+        "--period-s",
+        "1e-3",
+        "--wait",
+        "hybrid",
+        "--reference-s",
+        "0.3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    let v = read_json(&out.join("latency.json"));
+
+    assert_eq!(v["cycles"], 3000, "{v}");
+    assert_eq!(v["period_s"], 1e-3);
+    assert_eq!(v["wait"], "hybrid");
+    for h in ["latency_us", "jitter_us"] {
+        let q: Vec<f64> = ["p50", "p99", "p999", "max"]
+            .iter()
+            .map(|k| v[h][k].as_f64().unwrap_or_else(|| panic!("{h}.{k}: {v}")))
+            .collect();
+        assert!(
+            q[0] > 0.0 && q.windows(2).all(|w| w[0] <= w[1]),
+            "{h}: {q:?}"
+        );
+    }
+    // a 1 kHz loop answers within the period nearly always
+    assert!(v["latency_us"]["p50"].as_f64().unwrap() < 1000.0, "{v}");
+    let misses = v["deadline_misses"].as_u64().unwrap();
+    let outside = v["misses_outside_stalls"].as_u64().unwrap();
+    let explained = v["misses_during_scheduler_interruptions"].as_u64().unwrap();
+    let rest = v["misses_outside_stalls_and_interruptions"]
+        .as_u64()
+        .unwrap();
+    assert!(outside <= misses && explained + rest == outside, "{v}");
+    assert!(v["stalls"]["count"].is_u64() && v["stalls"]["max_ms"].is_number());
+    assert!(v["realtime"]["mlockall"].is_boolean() && v["realtime"]["sched_fifo"].is_boolean());
+    assert!(v["realtime"]["pinned"].is_array());
+
+    // the figures agree with the logs
+    let plant = read_log::<PlantRecord>(&out.join("plant.log"))
+        .unwrap()
+        .records;
+    assert_eq!(plant.len(), 3000);
+    let logged_misses = plant.iter().filter(|r| r.flags & REC_MISSED != 0).count() as u64;
+    assert_eq!(logged_misses, misses);
+    let answered = plant.iter().filter(|r| r.latency_ns != u64::MAX).count() as u64;
+    assert_eq!(v["latency_us"]["count"].as_u64().unwrap(), answered);
+    let sched = read_log::<SchedRecord>(&out.join("scheduler.log"))
+        .unwrap()
+        .records;
+    assert!(
+        sched.len() as u64 >= answered,
+        "{} < {answered}",
+        sched.len()
+    );
+    // the full chain ran: the scheduler's job is the four-controller X-C grinder
+    let job = std::fs::read_to_string(out.join("bench-job.toml")).unwrap();
+    for id in [
+        "position_p",
+        "pi_velocity",
+        "inverse_feedforward",
+        "quadrant_compensator",
+        "nl_pid_coupler",
+    ] {
+        assert!(job.contains(id), "{id} missing from the bench job");
+    }
+    // and it moved: the commanded torques are not all zero
+    assert!(sched
+        .iter()
+        .any(|r| r.axes[0].0 != 0.0 && r.axes[1].0 != 0.0));
+
+    // the reference loops ran on the same CPUs
+    let r = &v["reference"];
+    assert_eq!(r["seconds"], 0.3, "{v}");
+    let sl = r["sleeping_loop"]["jitter_us"]["count"].as_u64().unwrap();
+    let cpus = r["cpus"].as_array().unwrap().len() as u64;
+    assert!(
+        cpus >= 1 && sl == 300 * cpus,
+        "{sl} wake-ups on {cpus} CPUs"
+    );
+    assert!(r["spinning_loop"]["interruptions"].is_u64());
+    assert!(r["spinning_loop"]["max_us"].is_number());
+    assert!(std::fs::read_to_string(out.join("latency.svg"))
+        .unwrap()
+        .starts_with("<svg"));
+}
+
+#[test]
+fn bad_arguments_are_refused_with_the_flag_named() {
+    let dir = scratch("bench-latency-bad");
+    let out = dir.join("x");
+    for (args, needle) in [
+        (vec!["--wait", "sometimes"], "--wait"),
+        (vec!["--period-s", "0"], "--period-s"),
+        (vec!["--pin", "0"], "--pin"),
+        (vec!["--reference-s=-1"], "--reference-s"),
+    ] {
+        let mut a = vec![
+            "bench",
+            "latency",
+            "--cycles",
+            "10",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        a.extend(args);
+        let o = feedloop(&a);
+        assert!(!o.status.success(), "{a:?} was accepted");
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(needle),
+            "{a:?}: {}",
+            describe(&o)
+        );
+    }
+}
