@@ -18,6 +18,8 @@ pub struct ControlCycle {
     map: Vec<Option<usize>>,
     traj_out: Vec<RefState>,
     refs: Vec<RefState>,
+    /// The cycle whose references `refs` hold (see [`ControlCycle::prepare`]).
+    refs_for: Option<u64>,
     period_s: f64,
     cycles: u64,
     identity: bool,
@@ -48,6 +50,7 @@ impl ControlCycle {
             identity,
             traj_out: vec![[0.0; REF_DERIVS]; trajectory.axes().len()],
             refs: vec![[0.0; REF_DERIVS]; names.len()],
+            refs_for: None,
             trajectory,
             chain,
             map,
@@ -119,11 +122,24 @@ impl ControlCycle {
         }
     }
 
+    /// Evaluates the references of cycle `seq` ahead of its sample: the trajectory depends on
+    /// time only, so a scheduler can do this in the slack after answering a cycle and take it
+    /// off the next round trip. [`ControlCycle::step`] uses them if its sample is cycle `seq`
+    /// (and evaluates them itself otherwise): the command is the same either way.
+    #[inline]
+    pub fn prepare(&mut self, seq: u64) {
+        self.eval(self.time_of(seq));
+        self.refs_for = Some(seq);
+    }
+
     /// Runs the cycle answering `sample`: writes the command (torques, references, seq).
     #[inline]
     pub fn step(&mut self, sample: &SensorSample, cmd: &mut ActuatorCommand) {
         let t = self.time_of(sample.seq);
-        self.eval(t);
+        if self.refs_for != Some(sample.seq) {
+            self.eval(t);
+        }
+        self.refs_for = None;
         let ctx = CycleContext {
             period_s: self.period_s,
             cycle: sample.seq,

@@ -262,6 +262,8 @@ pub fn run_scheduler(
             r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
         }
         rec.push(r);
+        // the next cycle's references, while the plant steps
+        cycle.prepare(next_seq);
         if let Some(h) = cfg.cycle_hook {
             h(s.seq);
         }
