@@ -12,7 +12,7 @@ use serde_json::{json, Value};
 
 use feedloop_runtime::job::{Mode, WaitKind};
 use feedloop_runtime::record::{
-    read_log, PlantRecord, SchedRecord, REC_MISSED, REC_OVERRUN, REC_STALL,
+    read_log, PlantRecord, SchedRecord, REC_MISSED, REC_OVERRUN, REC_STALL, REC_WAIT_INTERRUPTED,
 };
 
 use crate::processes::{read_json, spawn, write_json};
@@ -287,13 +287,14 @@ fn latency(
         "plant_overruns": overruns,
         "stalls": {"count": stall_count, "max_ms": stall_max},
         "misses_outside_stalls": miss_outside,
-        "scheduler_interruptions": {
+        "core_losses": {
             "threshold_us": (period_ns / 2) as f64 / 1000.0,
-            "count": attribution.interruptions,
-            "max_us": attribution.max_gap_ns as f64 / 1000.0,
+            "scheduler": attribution.scheduler_losses,
+            "scheduler_max_us": attribution.scheduler_max_ns as f64 / 1000.0,
+            "plant_waits": attribution.plant_losses,
         },
-        "misses_during_scheduler_interruptions": attribution.explained,
-        "misses_outside_stalls_and_interruptions": attribution.unexplained,
+        "misses_during_core_losses": attribution.explained,
+        "misses_outside_stalls_and_core_losses": attribution.unexplained,
         "reference": reference,
         "realtime": {
             "mlockall": plant_info["realtime"]["mlockall"].as_bool().unwrap_or(false)
@@ -324,10 +325,11 @@ fn latency(
         "deadline misses {misses} ({miss_outside} outside stalls), overruns {overruns}, stalls {stall_count} (max {stall_max:.2} ms)"
     );
     println!(
-        "scheduler lost its core for >= {:.0} us {} times (max {:.0} us); misses then: {}; misses outside stalls and those: {}",
+        "core lost for >= {:.0} us: scheduler {} times (max {:.0} us), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
         period_ns as f64 / 2000.0,
-        attribution.interruptions,
-        attribution.max_gap_ns as f64 / 1000.0,
+        attribution.scheduler_losses,
+        attribution.scheduler_max_ns as f64 / 1000.0,
+        attribution.plant_losses,
         attribution.explained,
         attribution.unexplained
     );
@@ -355,45 +357,56 @@ fn latency(
     Ok(ExitCode::SUCCESS)
 }
 
-/// Deadline misses split by whether the scheduler had lost its core when they happened.
+/// Deadline misses split by whether a process had lost its core when they happened.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Attribution {
-    /// Answered cycles before which the scheduler went at least half a period without a poll.
-    interruptions: u64,
+    /// Answered cycles around which the scheduler went at least half a period without progress.
+    scheduler_losses: u64,
     /// Longest such stretch, ns.
-    max_gap_ns: u64,
-    /// Misses (outside plant stalls) covered by such a stretch.
+    scheduler_max_ns: u64,
+    /// Missed cycles during whose wait the plant itself lost its core for half a period.
+    plant_losses: u64,
+    /// Misses (outside plant stalls) covered by a core loss of either process.
     explained: u64,
-    /// Misses outside plant stalls and outside such stretches.
+    /// Misses outside plant stalls and outside core losses.
     unexplained: u64,
 }
 
-/// A miss of cycle `s` is covered when the first cycle the scheduler answered at or after `s`
-/// was preceded by a stretch without a poll (or a computation) of at least half a period that
-/// reaches back to `s`'s period: the scheduler could not have answered `s` in time.
+/// A miss of cycle `s` is covered when the plant lost its core while waiting for it
+/// (`REC_WAIT_INTERRUPTED`), or when the first cycle the scheduler answered at or after `s` came
+/// after a stretch without progress (or a computation) of at least half a period that reaches
+/// back to `s`'s period: the scheduler could not have answered `s` in time.
 fn attribute_misses(plant: &[PlantRecord], sched: &[SchedRecord], period_ns: u64) -> Attribution {
     let half = period_ns / 2;
     let mut a = Attribution::default();
     let lost = |r: &SchedRecord| u64::from(r.poll_gap_ns).max(u64::from(r.compute_ns));
     for r in sched {
         if lost(r) >= half {
-            a.interruptions += 1;
-            a.max_gap_ns = a.max_gap_ns.max(lost(r));
+            a.scheduler_losses += 1;
+            a.scheduler_max_ns = a.scheduler_max_ns.max(lost(r));
         }
     }
     let mut j = 0usize;
     for p in plant {
-        if p.flags & REC_MISSED == 0 || p.flags & REC_STALL != 0 {
+        if p.flags & REC_MISSED == 0 {
+            continue;
+        }
+        let plant_lost = p.flags & REC_WAIT_INTERRUPTED != 0;
+        if plant_lost {
+            a.plant_losses += 1;
+        }
+        if p.flags & REC_STALL != 0 {
             continue;
         }
         // scheduler records are in cycle order: advance to the first at or after this cycle
         while j < sched.len() && sched[j].seq < p.seq {
             j += 1;
         }
-        let covered = sched.get(j).is_some_and(|r| {
-            let g = lost(r);
-            g >= half && (r.seq - p.seq) * period_ns <= g + period_ns
-        });
+        let covered = plant_lost
+            || sched.get(j).is_some_and(|r| {
+                let g = lost(r);
+                g >= half && (r.seq - p.seq) * period_ns <= g + period_ns
+            });
         if covered {
             a.explained += 1;
         } else {
@@ -643,14 +656,18 @@ mod tests {
             }
         }
         let a = attribute_misses(&p, &s, period);
-        assert_eq!(a.interruptions, 2);
-        assert_eq!(a.max_gap_ns, 350_000);
+        assert_eq!(a.scheduler_losses, 2);
+        assert_eq!(a.scheduler_max_ns, 350_000);
         assert_eq!(a.explained, 3);
         assert_eq!(a.unexplained, 2);
         // a long computation counts like a long stretch without a poll
         s.iter_mut().find(|r| r.seq == 21).unwrap().compute_ns = 90_000;
         let b = attribute_misses(&p, &s, period);
-        assert_eq!((b.explained, b.unexplained, b.interruptions), (4, 1, 3));
+        assert_eq!((b.explained, b.unexplained, b.scheduler_losses), (4, 1, 3));
+        // and so does the plant losing its core while it waited for cycle 40
+        p[40].flags |= REC_WAIT_INTERRUPTED;
+        let c = attribute_misses(&p, &s, period);
+        assert_eq!((c.explained, c.unexplained, c.plant_losses), (5, 0, 1));
     }
 
     #[test]

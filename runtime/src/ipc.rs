@@ -158,6 +158,8 @@ pub struct Endpoint<
     poll_gap_ns: Cell<u64>,
     /// Clock reading of the last poll of the last `receive_until`, ns.
     last_poll_ns: Cell<u64>,
+    /// Clock reading at the start of the last `receive_until`, ns.
+    wait_start_ns: Cell<u64>,
     // keep the node alive as long as the ports
     _node: Node<ipc::Service>,
 }
@@ -253,6 +255,7 @@ where
             spin_ns,
             poll_gap_ns: Cell::new(0),
             last_poll_ns: Cell::new(0),
+            wait_start_ns: Cell::new(0),
             _node: node,
         })
     }
@@ -306,6 +309,7 @@ where
         // A spinning process polls every few hundred nanoseconds; a longer stretch between two
         // polls means the OS (or the hypervisor) took the core away. Kept for the caller's
         // records (`poll_gap_ns`), never acted upon here.
+        self.wait_start_ns.set(start);
         let mut prev = start;
         let mut gap = 0u64;
         loop {
@@ -351,6 +355,11 @@ where
     /// [`Endpoint::receive_until`].
     pub fn last_poll_ns(&self) -> u64 {
         self.last_poll_ns.get()
+    }
+
+    /// Clock reading at the start of the last [`Endpoint::receive_until`].
+    pub fn wait_start_ns(&self) -> u64 {
+        self.wait_start_ns.get()
     }
 
     /// Drops any queued messages and event notifications.

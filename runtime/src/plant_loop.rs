@@ -17,7 +17,7 @@ use crate::ipc::{IpcError, PlantEndpoint, WaitOutcome};
 use crate::job::{Mode, SafeStop, SafetyOptions, WaitKind};
 use crate::record::{
     AxisRecord, PlantRecord, Recorder, REC_BAD_SEQ, REC_DUP_CMD, REC_LATE_CMD, REC_MISSED,
-    REC_OVERRUN, REC_STALL,
+    REC_OVERRUN, REC_STALL, REC_WAIT_INTERRUPTED,
 };
 use crate::wire::{
     ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
@@ -213,6 +213,9 @@ pub fn run_plant<P: PlantDevice>(
         SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
     };
     let mut t0 = now_ns() + 5_000_000;
+    if cfg.mode == Mode::Realtime {
+        rec.set_phase(t0, period_ns);
+    }
     let mut k = 0u64;
     loop {
         match stopping {
@@ -237,6 +240,7 @@ pub fn run_plant<P: PlantDevice>(
             if wake_late_ns > STALL_NS {
                 // Re-anchor the schedule at now instead of racing through the missed deadlines.
                 t0 += wake_late_ns;
+                rec.set_phase(t0, period_ns);
                 // A machine-wide stall, unless the lateness is our own: a timed-out blocking
                 // wait for a missing command can overshoot by a timer tick (socket timeouts have
                 // jiffy resolution), and must not excuse the silence from the watchdog.
@@ -300,6 +304,9 @@ pub fn run_plant<P: PlantDevice>(
             }
             if latency_ns == u64::MAX {
                 flags |= REC_MISSED;
+                if cfg.mode == Mode::Realtime && ep.poll_gap_ns() >= period_ns / 2 {
+                    flags |= REC_WAIT_INTERRUPTED;
+                }
                 seqs.missing += 1;
                 if crate::record::is_deadline_miss(flags) {
                     deadline_misses = deadline_misses.saturating_add(1);

@@ -16,6 +16,7 @@ use std::time::Duration;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use crate::clock::{now_ns, sleep_until_ns};
 use crate::wire::MAX_AXES;
 
 /// One axis' row of a trace: exactly the trace-format columns (SI, load units for positions
@@ -55,6 +56,10 @@ pub const REC_LATE_CMD: u8 = 16;
 /// `PlantRecord::flags`: a second command for a cycle already answered (a duplicate) was seen
 /// and dropped.
 pub const REC_DUP_CMD: u8 = 32;
+/// `PlantRecord::flags`: while waiting for this cycle's command the plant itself lost its core
+/// for at least half a period (realtime runs; a spinning plant polls every few hundred ns), so
+/// a miss of this cycle may be the plant's own lateness in looking.
+pub const REC_WAIT_INTERRUPTED: u8 = 64;
 
 /// Whether a cycle's `flags` make it a deadline miss: no command arrived in time while the plant
 /// itself was on time (a late plant is an overrun, not a miss). The one definition used by the
@@ -90,10 +95,11 @@ pub struct SchedRecord {
     pub compute_ns: u32,
     /// Samples skipped because a newer one was already there (realtime catch-up).
     pub skipped: u32,
-    /// Longest time the scheduler went without looking for this sample while it spun waiting for
-    /// it, up to the start of the cycle's computation, ns (saturating): a few hundred ns
-    /// normally; tens of microseconds or more when the OS or the hypervisor took its core away.
-    /// Time blocked in a wait on purpose is not counted.
+    /// Longest stretch without progress around this cycle, ns (saturating): from the end of the
+    /// previous cycle to the first poll, between two polls while spinning for this sample, from
+    /// the last poll to the start of the computation, and the publication of the command. A few
+    /// hundred ns normally; tens of microseconds or more when the OS or the hypervisor took the
+    /// scheduler's core away. Time blocked in a wait on purpose is not counted.
     pub poll_gap_ns: u32,
     /// Per-axis torque commanded and reference, (N m or N, m or rad).
     pub axes: [(f64, f64); MAX_AXES],
@@ -181,9 +187,36 @@ pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents
     })
 }
 
+/// Where in the control period the writer should run: anchor (a cycle's start on
+/// [`crate::clock::now_ns`]) and period, ns; period 0 = anywhere.
+#[derive(Debug, Default)]
+struct Phase {
+    anchor_ns: AtomicU64,
+    period_ns: AtomicU64,
+}
+
+/// Fraction of the period after a cycle's start at which the writer wakes: past the round trip
+/// (a few microseconds) and the wake-up jitter of the loop, with most of the period left to
+/// write before the next cycle starts.
+const WRITER_PHASE: f64 = 0.3;
+
+impl Phase {
+    /// The first time at or after `earliest_ns` that sits `WRITER_PHASE` into a period.
+    fn next_slot(&self, earliest_ns: u64) -> Option<u64> {
+        let period = self.period_ns.load(Ordering::Relaxed);
+        if period == 0 {
+            return None;
+        }
+        let first = self.anchor_ns.load(Ordering::Relaxed) + (period as f64 * WRITER_PHASE) as u64;
+        let k = earliest_ns.saturating_sub(first).div_ceil(period);
+        Some(first + k * period)
+    }
+}
+
 /// The cycle's side of a recorder: a wait-free push that never blocks or allocates.
 pub struct Recorder<T: Copy + Send + 'static> {
     producer: rtrb::Producer<T>,
+    phase: Arc<Phase>,
     dropped: Arc<AtomicU64>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<std::io::Result<u64>>>,
@@ -198,9 +231,15 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
         let stop = Arc::new(AtomicBool::new(false));
         let dropped = Arc::new(AtomicU64::new(0));
         let stop2 = stop.clone();
+        let phase = Arc::new(Phase::default());
+        let phase2 = phase.clone();
         let thread = std::thread::Builder::new()
             .name("feedloop-recorder".into())
             .spawn(move || -> std::io::Result<u64> {
+                // Wake when asked, not up to 50 us later (the default timer slack), so that the
+                // phase below holds.
+                // SAFETY: plain prctl on the calling thread.
+                unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000, 0, 0, 0) };
                 let mut block: Vec<T> = Vec::with_capacity(WRITER_CHUNK);
                 let mut written = 0u64;
                 loop {
@@ -228,15 +267,23 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                     if finishing || backlog > capacity / 8 {
                         continue;
                     }
-                    std::thread::sleep(if backlog >= WRITER_CHUNK {
+                    let pause = if backlog >= WRITER_CHUNK {
                         WRITER_GAP
                     } else {
                         WRITER_PERIOD
-                    });
+                    };
+                    // With a phase (a realtime loop), wake in the slack after a cycle's round
+                    // trip, not at a random moment that may fall on the next one.
+                    let earliest = now_ns() + pause.as_nanos() as u64;
+                    match phase2.next_slot(earliest) {
+                        Some(t) => sleep_until_ns(t),
+                        None => std::thread::sleep(pause),
+                    }
                 }
             })?;
         Ok(Self {
             producer,
+            phase,
             dropped,
             stop,
             thread: Some(thread),
@@ -250,6 +297,16 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
         if self.producer.push(r).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
+    }
+
+    /// Tells the writer where the loop's cycles start (`anchor_ns` on
+    /// [`crate::clock::now_ns`], every `period_ns`), so that it writes in the slack after a
+    /// cycle instead of preempting the loop at a random moment. Two atomic stores: callable
+    /// from the cycle (e.g. when a realtime loop re-anchors its schedule after a stall).
+    #[inline]
+    pub fn set_phase(&self, anchor_ns: u64, period_ns: u64) {
+        self.phase.anchor_ns.store(anchor_ns, Ordering::Relaxed);
+        self.phase.period_ns.store(period_ns, Ordering::Relaxed);
     }
 
     /// Records dropped because the ring was full.
@@ -278,6 +335,22 @@ mod tests {
 
     fn tmp(name: &str) -> PathBuf {
         std::env::temp_dir().join(format!("feedloop-rec-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn the_writer_slot_sits_three_tenths_into_the_first_period_not_before_the_earliest() {
+        let p = Phase::default();
+        assert_eq!(p.next_slot(5), None);
+        p.anchor_ns.store(1_000, Ordering::Relaxed);
+        p.period_ns.store(100, Ordering::Relaxed);
+        assert_eq!(p.next_slot(0), Some(1_030));
+        assert_eq!(p.next_slot(1_030), Some(1_030));
+        assert_eq!(p.next_slot(1_031), Some(1_130));
+        assert_eq!(p.next_slot(10_000), Some(10_030));
+        for e in [0u64, 999, 1_234, 987_654] {
+            let t = p.next_slot(e).unwrap();
+            assert!(t >= e && t < e.max(1_030) + 100 && (t - 1_030) % 100 == 0, "{e} -> {t}");
+        }
     }
 
     #[test]

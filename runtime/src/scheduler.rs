@@ -123,6 +123,8 @@ pub fn run_scheduler(
     let mut stop_sent = false;
     let mut fault_sent = false;
     let mut nonfinite_seen = 0u64;
+    // end of the last answered cycle (command published), for the stretch before the next wait
+    let mut prev_end_ns = u64::MAX;
     loop {
         let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
         if stop_now && !started {
@@ -222,10 +224,14 @@ pub fn run_scheduler(
             c.before_cycle(cycle, s.seq);
         }
         let c0 = now_ns();
-        let poll_gap_ns = ep
+        if cfg.mode == Mode::Realtime && s.seq % 1024 == 0 {
+            // samples arrive at the plant's cycle starts: keep the writer in the slack after them
+            rec.set_phase(c0, (cycle.period_s() * 1e9) as u64);
+        }
+        let mut lost_ns = ep
             .poll_gap_ns()
             .max(c0.saturating_sub(ep.last_poll_ns()))
-            .min(u32::MAX as u64) as u32;
+            .max(ep.wait_start_ns().saturating_sub(prev_end_ns));
         cycle.step(&s, &mut cmd);
         if stop_now {
             cmd.flags |= FLAG_STOP;
@@ -243,8 +249,11 @@ pub fn run_scheduler(
             cmd.flags |= FLAG_FAULT;
             fault_sent = true;
         }
-        let compute_ns = (now_ns() - c0).min(u32::MAX as u64) as u32;
+        let c1 = now_ns();
+        let compute_ns = (c1 - c0).min(u32::MAX as u64) as u32;
         ep.send(cmd)?;
+        prev_end_ns = now_ns();
+        lost_ns = lost_ns.max(prev_end_ns - c1);
         if let Some(c) = control.as_deref_mut() {
             c.after_cycle(cycle, &cmd, s.seq);
         }
@@ -255,7 +264,7 @@ pub fn run_scheduler(
             seq: s.seq,
             compute_ns,
             skipped,
-            poll_gap_ns,
+            poll_gap_ns: lost_ns.min(u32::MAX as u64) as u32,
             ..Default::default()
         };
         for i in 0..axis_count {

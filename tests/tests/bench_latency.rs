@@ -44,10 +44,9 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     assert!(v["latency_us"]["p50"].as_f64().unwrap() < 1000.0, "{v}");
     let misses = v["deadline_misses"].as_u64().unwrap();
     let outside = v["misses_outside_stalls"].as_u64().unwrap();
-    let explained = v["misses_during_scheduler_interruptions"].as_u64().unwrap();
-    let rest = v["misses_outside_stalls_and_interruptions"]
-        .as_u64()
-        .unwrap();
+    let explained = v["misses_during_core_losses"].as_u64().unwrap();
+    let rest = v["misses_outside_stalls_and_core_losses"].as_u64().unwrap();
+    assert!(v["core_losses"]["scheduler"].is_u64() && v["core_losses"]["plant_waits"].is_u64());
     assert!(outside <= misses && explained + rest == outside, "{v}");
     assert!(v["stalls"]["count"].is_u64() && v["stalls"]["max_ms"].is_number());
     assert!(v["realtime"]["mlockall"].is_boolean() && v["realtime"]["sched_fifo"].is_boolean());
