@@ -759,12 +759,13 @@ impl AxisPlant {
             let fl = if self.nbodies > 1 { fl } else { 0.0 };
             self.x = self.bank.step(0, 0, &self.x, &[u, um + fm, ul + fl]);
         }
-        // 0 v is (+-)0 for a finite v and NaN otherwise; a pairwise sum keeps the check short.
+        // A NaN or an infinity anywhere makes the pairwise sum non-finite (a finite sum of
+        // finite entries needs no check of its own: every entry is far below f64::MAX / 8).
         // It runs on the relative state as the integrator stored it (whole-array stores), before
         // the scalar stores below: loading just-stored scalars as vectors would stall.
-        let z: State = std::array::from_fn(|i| self.x[i] * 0.0);
-        let finite = ((z[0] + z[1]) + (z[2] + z[3])) + ((z[4] + z[5]) + (z[6] + z[7])) == 0.0
-            && origin.is_finite();
+        let x = &self.x;
+        let sum = ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]));
+        let finite = (sum + origin).is_finite();
         for &i in &self.pos_idx[..self.npos] {
             self.x[i] += origin;
         }

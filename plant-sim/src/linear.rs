@@ -20,12 +20,16 @@ pub(crate) type State = [f64; MAX_N];
 /// Discrete matrices for every (mode, level), column-major `[Ad | Bd]` blocks of `n x (n + 3)`.
 #[derive(Debug, Clone)]
 pub(crate) struct Bank {
-    n: usize,
     levels: usize,
     block: usize,
     data: Vec<f64>,
-    slot_of_mode: [usize; 8],
+    /// Offset of level 0 of each mode's blocks in `data` (`usize::MAX`: mode not built).
+    offset_of_mode: [usize; 8],
+    /// The kernel for this state dimension, chosen once.
+    kernel: Kernel,
 }
+
+type Kernel = fn(&[f64], &State, &[f64; NU]) -> State;
 
 /// Computes `exp([[A, B], [0, 0]] dt)` and returns `(Ad, Bd)`.
 pub(crate) fn discretise(
@@ -88,35 +92,42 @@ impl Bank {
                 }
             }
         }
+        let mut offset_of_mode = [usize::MAX; 8];
+        for (o, &slot) in offset_of_mode.iter_mut().zip(&slot_of_mode) {
+            if slot != usize::MAX {
+                *o = slot * levels * block;
+            }
+        }
+        let kernel: Kernel = match n {
+            2 => kernel::<2>,
+            3 => kernel::<3>,
+            4 => kernel::<4>,
+            5 => kernel::<5>,
+            6 => kernel::<6>,
+            7 => kernel::<7>,
+            _ => kernel::<8>,
+        };
         Self {
-            n,
             levels,
             block,
             data,
-            slot_of_mode,
+            offset_of_mode,
+            kernel,
         }
     }
 
-    /// One exact sub-step in `mode` at `level`: returns `Ad x + Bd u`.
+    /// One exact sub-step in `mode` at `level`: returns `Ad x + Bd u` (`x` unchanged for a
+    /// mode that was not built).
     #[inline]
     pub fn step(&self, mode: usize, level: usize, x: &State, u: &[f64; NU]) -> State {
-        let slot = self.slot_of_mode[mode & 7];
-        let level = level.min(self.levels.saturating_sub(1));
-        let Some(m) = slot
-            .checked_mul(self.levels)
-            .and_then(|s| (s + level).checked_mul(self.block))
-            .and_then(|off| self.data.get(off..off + self.block))
-        else {
+        let base = self.offset_of_mode[mode & 7];
+        if base == usize::MAX {
             return *x;
-        };
-        match self.n {
-            2 => kernel::<2>(m, x, u),
-            3 => kernel::<3>(m, x, u),
-            4 => kernel::<4>(m, x, u),
-            5 => kernel::<5>(m, x, u),
-            6 => kernel::<6>(m, x, u),
-            7 => kernel::<7>(m, x, u),
-            _ => kernel::<8>(m, x, u),
+        }
+        let off = base + level.min(self.levels.saturating_sub(1)) * self.block;
+        match self.data.get(off..off + self.block) {
+            Some(m) => (self.kernel)(m, x, u),
+            None => *x,
         }
     }
 }

@@ -155,7 +155,9 @@ fn quantise(x: f64, q: f64, inv_q: f64) -> f64 {
 fn fast_floor(v: f64) -> f64 {
     // Beyond 2^52 every f64 is an integer (and NaN/inf pass through).
     if v.abs() < 4_503_599_627_370_496.0 {
-        let t = v as i64 as f64;
+        // SAFETY: |v| < 2^52 (which NaN fails) fits i64, so the unchecked conversion is exact
+        // and skips the saturation fix-ups of `as`.
+        let t = unsafe { v.to_int_unchecked::<i64>() } as f64;
         if t > v {
             t - 1.0
         } else {

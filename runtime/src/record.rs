@@ -349,7 +349,10 @@ mod tests {
         assert_eq!(p.next_slot(10_000), Some(10_030));
         for e in [0u64, 999, 1_234, 987_654] {
             let t = p.next_slot(e).unwrap();
-            assert!(t >= e && t < e.max(1_030) + 100 && (t - 1_030) % 100 == 0, "{e} -> {t}");
+            assert!(
+                t >= e && t < e.max(1_030) + 100 && (t - 1_030) % 100 == 0,
+                "{e} -> {t}"
+            );
         }
     }
 

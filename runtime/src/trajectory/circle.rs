@@ -45,9 +45,6 @@ impl Trajectory for Circle {
     }
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
-        for o in out.iter_mut() {
-            *o = [0.0; REF_DERIVS];
-        }
         if let Some((t0, t1, sigma0, feed)) = self.cruise {
             if t_s >= t0 && t_s < t1 {
                 // Constant angular speed w: the derivatives of cos/sin are powers of w.
@@ -60,19 +57,23 @@ impl Trajectory for Circle {
                 let (w4, w5) = (w2 * w2, w2 * w3);
                 let x = [cs, -w * sn, -w2 * cs, w3 * sn, w4 * cs, -w5 * sn];
                 let y = [sn, w * cs, -w2 * sn, -w3 * cs, w4 * sn, w5 * cs];
-                for (i, (v, c)) in [(x, self.center_m[0]), (y, self.center_m[1])]
-                    .into_iter()
-                    .enumerate()
-                {
-                    if let Some(o) = out.get_mut(self.plane[i]) {
-                        for (d, vv) in o.iter_mut().zip(v) {
-                            *d = r * vv;
-                        }
-                        o[0] += c;
-                    }
+                for (i, o) in out.iter_mut().enumerate() {
+                    let (v, c) = if i == self.plane[0] {
+                        (&x, self.center_m[0])
+                    } else if i == self.plane[1] {
+                        (&y, self.center_m[1])
+                    } else {
+                        *o = [0.0; REF_DERIVS];
+                        continue;
+                    };
+                    *o = std::array::from_fn(|d| r * v[d]);
+                    o[0] += c;
                 }
                 return;
             }
+        }
+        for o in out.iter_mut() {
+            *o = [0.0; REF_DERIVS];
         }
         let sigma = self.arc.eval_axis(t_s, 0);
         let k = self.direction / self.radius_m;
