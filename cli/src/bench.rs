@@ -142,18 +142,8 @@ fn latency(
     }
     let cpus: Vec<usize> = match pin {
         None => vec![],
-        Some(p) => p
-            .split(',')
-            .map(|c| {
-                c.trim()
-                    .parse::<usize>()
-                    .with_context(|| format!("--pin `{p}`: expected two CPU numbers like 0,1"))
-            })
-            .collect::<Result<_>>()?,
+        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
     };
-    if !cpus.is_empty() && cpus.len() != 2 {
-        bail!("--pin takes two CPUs (plant,scheduler), got {}", cpus.len());
-    }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let job = bench_job(out, period_s, wait_kind, cycles)?;
     let instance = format!("bench{}", std::process::id());

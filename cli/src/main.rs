@@ -43,6 +43,10 @@ enum Command {
         /// Instance name (services are named per instance); default: unique per run.
         #[arg(long)]
         instance: Option<String>,
+        /// CPUs for the plant and the scheduler, e.g. `0,1` (each process and its threads stay
+        /// on its CPU; a spinning wait wants one core each).
+        #[arg(long)]
+        pin: Option<String>,
         /// Print the summary as JSON only.
         #[arg(long)]
         json: bool,
@@ -145,8 +149,9 @@ fn main() -> ExitCode {
             mode,
             wait,
             instance,
+            pin,
             json,
-        } => processes::run(&job, &out, mode, wait, instance, json),
+        } => processes::run(&job, &out, mode, wait, instance, pin.as_deref(), json),
         Command::Sim {
             job,
             out,

@@ -373,6 +373,22 @@ pub fn spawn(
         .with_context(|| format!("starting the {role} process"))
 }
 
+/// Parses `--pin A,B` (the plant's CPU, the scheduler's CPU).
+pub fn parse_pin(pin: &str) -> Result<[usize; 2]> {
+    let cpus: Vec<usize> = pin
+        .split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<usize>()
+                .with_context(|| format!("--pin `{pin}`: expected two CPU numbers like 0,1"))
+        })
+        .collect::<Result<_>>()?;
+    match cpus[..] {
+        [a, b] => Ok([a, b]),
+        _ => bail!("--pin takes two CPUs (plant,scheduler), got {}", cpus.len()),
+    }
+}
+
 /// `feedloop run`.
 pub fn run(
     job_path: &Path,
@@ -380,10 +396,16 @@ pub fn run(
     mode: Option<String>,
     wait: Option<String>,
     instance: Option<String>,
+    pin: Option<&str>,
     json_only: bool,
 ) -> Result<ExitCode> {
     signals::install();
     // Validate everything before any process starts.
+    let cpus = pin.map(parse_pin).transpose()?;
+    let cpu_args = |i: usize| -> Vec<String> {
+        cpus.map(|c| vec!["--cpu".to_string(), c[i].to_string()])
+            .unwrap_or_default()
+    };
     let Loaded { job, .. } = load(job_path)?;
     let mode = mode_of(&job, mode)?;
     let wait = wait_of(&job, wait)?;
@@ -402,8 +424,16 @@ pub fn run(
     ] {
         let _ = std::fs::remove_file(out.join(f));
     }
-    let mut plant = spawn("plant", &instance, job_path, out, mode, wait, &[])?;
-    let mut sched = match spawn("scheduler", &instance, job_path, out, mode, wait, &[]) {
+    let mut plant = spawn("plant", &instance, job_path, out, mode, wait, &cpu_args(0))?;
+    let mut sched = match spawn(
+        "scheduler",
+        &instance,
+        job_path,
+        out,
+        mode,
+        wait,
+        &cpu_args(1),
+    ) {
         Ok(c) => c,
         Err(e) => {
             let _ = plant.kill();

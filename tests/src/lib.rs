@@ -167,12 +167,26 @@ pub fn trace_rows(path: &Path) -> Vec<Vec<f64>> {
 
 /// Starts `feedloop run JOB --out OUT --mode MODE --wait block --instance INSTANCE` (stdout muted).
 pub fn start_run(job: &Path, out: &Path, mode: &str, instance: &str) -> std::process::Child {
+    start_run_waiting(job, out, mode, "block", instance, &[])
+}
+
+/// Starts `feedloop run JOB --out OUT --mode MODE --wait WAIT --instance INSTANCE [EXTRA..]`
+/// (stdout muted).
+pub fn start_run_waiting(
+    job: &Path,
+    out: &Path,
+    mode: &str,
+    wait: &str,
+    instance: &str,
+    extra: &[&str],
+) -> std::process::Child {
     Command::new(feedloop_bin())
         .arg("run")
         .arg(job)
         .arg("--out")
         .arg(out)
-        .args(["--mode", mode, "--wait", "block", "--instance", instance])
+        .args(["--mode", mode, "--wait", wait, "--instance", instance])
+        .args(extra)
         .stdout(std::process::Stdio::null())
         .spawn()
         .expect("starting feedloop run")

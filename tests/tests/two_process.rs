@@ -272,3 +272,45 @@ fn realtime_run_reports_timing_figures() {
     let rows = text.lines().filter(|l| !l.starts_with('#')).count() - 1;
     assert_eq!(rows as u64, sum["cycles"].as_u64().unwrap());
 }
+
+#[test]
+fn pin_puts_the_plant_and_the_scheduler_on_the_cpus_asked_and_a_bad_pin_is_refused() {
+    let _g = process_lock();
+    let dir = scratch("pin");
+    let job = repo_file("examples/jobs/xy-circle.toml");
+    let out = dir.join("run");
+    run_ok(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&out),
+        "--mode",
+        "lockstep",
+        "--wait",
+        "block",
+        "--pin",
+        "1,0",
+        "--instance",
+        "e2e-pin",
+    ]);
+    let plant = read_json(&out.join("plant.json"));
+    let sched = read_json(&out.join("scheduler.json"));
+    assert_eq!(
+        plant["realtime"]["pinned"],
+        serde_json::json!([1]),
+        "{plant}"
+    );
+    assert_eq!(
+        sched["realtime"]["pinned"],
+        serde_json::json!([0]),
+        "{sched}"
+    );
+
+    let o = feedloop(&["run", s(&job), "--out", s(&out), "--pin", "0"]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("--pin takes two CPUs"),
+        "{}",
+        describe(&o)
+    );
+}
