@@ -98,6 +98,7 @@ pub fn sim(job_path: &Path, out: &Path, json_only: bool, quiet: bool) -> Result<
     let end = EndInfo::new("completed", report.cycles);
     let mut extra = BTreeMap::new();
     extra.insert("trace_export_s".to_string(), json!(report.trace_s));
+    extra.insert("tracking_s".to_string(), json!(report.tracking_s));
     let v = summary_json(&SummaryInput {
         job: &job.name,
         mode: "sim",

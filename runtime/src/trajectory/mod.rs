@@ -39,6 +39,7 @@ pub mod from_trace;
 pub mod gcode;
 pub mod jet;
 mod moves;
+pub mod path_index;
 pub mod poly;
 pub mod trig;
 
@@ -69,8 +70,9 @@ pub enum ContourShape {
         radius_m: f64,
     },
     /// The commanded path itself. Error = distance from the measured point to the nearest
-    /// point of the commanded path near the current command (m), positive to the left of the
-    /// direction of travel.
+    /// point of the commanded path around the current command (m), positive to the left of the
+    /// direction of travel. Part programs search the path from 2 s before to 0.5 s after the
+    /// command ([`path_index`]), across corners, dwells and reversals.
     Path,
     /// An X-C ground profile: the trajectory computes the profile error from both axes.
     Profile,
@@ -129,8 +131,12 @@ pub trait Trajectory: Send + Sync {
 }
 
 /// Signed distance (m) from `p` to the commanded path of `traj` in the plane of `axes`, found
-/// by Newton's method on the time parameter starting at `t_s`; positive to the left of travel.
-/// Where the command is at rest, the plain distance to the commanded point. No allocation.
+/// by a local search on the time parameter starting at `t_s` (Newton steps, Gauss-Newton where
+/// the squared distance is concave, each accepted only if the distance falls); positive to the
+/// left of travel. It is the default for custom trajectories with a [`ContourShape::Path`]; it
+/// stops at the command where the command rests, and can stop at a local minimum when the path
+/// turns or reverses between the command and `p`: [`path_index::PathIndex`] searches a whole
+/// time window and is what part programs use. No allocation.
 pub fn path_error_m<T: Trajectory + ?Sized>(
     traj: &T,
     axes: [usize; 2],
@@ -153,7 +159,12 @@ pub fn path_error_m<T: Trajectory + ?Sized>(
     for _ in 0..20 {
         let (ex, ey) = (x[0] - p[0], y[0] - p[1]);
         let g1 = ex * x[1] + ey * y[1];
-        let g2 = x[1] * x[1] + y[1] * y[1] + ex * x[2] + ey * y[2];
+        let speed2 = x[1] * x[1] + y[1] * y[1];
+        let mut g2 = speed2 + ex * x[2] + ey * y[2];
+        if g2 <= 0.0 {
+            // concave here (a corner between the command and p): the Gauss-Newton curvature
+            g2 = speed2;
+        }
         if g2 <= 0.0 || !g2.is_finite() {
             break;
         }
