@@ -17,6 +17,7 @@ use feedloop_runtime::params::ConfigError;
 use feedloop_runtime::record::AxisRecord;
 use feedloop_runtime::summary::{ContourMode, Tracking};
 use feedloop_runtime::trace::TraceWriter;
+use feedloop_runtime::trajectory::path_index::PathIndex;
 use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
 
 /// The simulated plant behind the plant process's device trait.
@@ -131,37 +132,77 @@ pub struct SimReport {
     pub tracking: Tracking,
 }
 
-/// How a job's contour is judged: by the trajectory's own contour (circle, path, X-C profile),
-/// else, with two or more driven axes, by the distance to the commanded path of the first two.
-pub fn contour_mode(job: &Job, cycle: &ControlCycle) -> ContourMode {
-    if cycle.trajectory().contour().is_some() {
-        return ContourMode::Given;
-    }
-    let names = job.axis_names();
-    let driven: Vec<usize> = cycle
-        .trajectory()
-        .axes()
-        .iter()
-        .filter_map(|a| names.iter().position(|n| n == a))
-        .collect();
-    if driven.len() >= 2 {
-        ContourMode::Polyline(driven[0], driven[1])
-    } else {
-        ContourMode::None
-    }
+/// How a job's contour error is measured, row by row: by the trajectory's own contour (circle,
+/// part program, X-C profile), else, with two or more driven axes, as the distance from the
+/// measured point of the first two to their commanded path (around the current command, through
+/// a [`PathIndex`] of the trajectory: across corners, rests and reversals).
+pub struct ContourJudge {
+    kind: JudgeKind,
 }
 
-/// The contour error of one trace row (`t_s`, measured load positions in `rows`), when the
-/// trajectory defines one.
-#[inline]
-pub fn row_contour_error(cycle: &ControlCycle, t_s: f64, rows: &[AxisRecord]) -> Option<f64> {
-    let mut loads = [0.0; MAX_AXES];
-    for (l, r) in loads.iter_mut().zip(rows) {
-        *l = r.load;
+enum JudgeKind {
+    None,
+    Trajectory,
+    Path { axes: [usize; 2], index: PathIndex },
+}
+
+impl ContourJudge {
+    /// The judge for `job` run by `cycle` (samples the commanded path once when the trajectory
+    /// has no contour of its own).
+    pub fn new(job: &Job, cycle: &ControlCycle) -> Self {
+        let traj = cycle.trajectory();
+        if traj.contour().is_some() {
+            return Self {
+                kind: JudgeKind::Trajectory,
+            };
+        }
+        let names = job.axis_names();
+        let driven: Vec<usize> = traj
+            .axes()
+            .iter()
+            .filter_map(|a| names.iter().position(|n| n == a))
+            .collect();
+        let kind = if driven.len() >= 2 {
+            let axes = [driven[0], driven[1]];
+            JudgeKind::Path {
+                axes,
+                index: PathIndex::build(traj, axes, &traj.breakpoints_s()),
+            }
+        } else {
+            JudgeKind::None
+        };
+        Self { kind }
     }
-    cycle
-        .trajectory()
-        .contour_error_m(t_s, &loads[..rows.len()])
+
+    /// Whether rows get a contour error.
+    pub fn mode(&self) -> ContourMode {
+        match self.kind {
+            JudgeKind::None => ContourMode::None,
+            _ => ContourMode::Given,
+        }
+    }
+
+    /// The contour error (m) of one trace row: time `t_s`, measured load positions in `rows`
+    /// (job order).
+    #[inline]
+    pub fn error_m(&self, cycle: &ControlCycle, t_s: f64, rows: &[AxisRecord]) -> Option<f64> {
+        match &self.kind {
+            JudgeKind::None => None,
+            JudgeKind::Trajectory => {
+                let mut loads = [0.0; MAX_AXES];
+                for (l, r) in loads.iter_mut().zip(rows) {
+                    *l = r.load;
+                }
+                cycle
+                    .trajectory()
+                    .contour_error_m(t_s, &loads[..rows.len()])
+            }
+            JudgeKind::Path { axes, index } => {
+                let p = [rows.get(axes[0])?.load, rows.get(axes[1])?.load];
+                Some(index.distance_m(cycle.trajectory(), t_s, p))
+            }
+        }
+    }
 }
 
 /// Runs a whole job; writes `trace` (trace format v1) when given. `progress` is called now and
@@ -176,8 +217,8 @@ pub fn simulate(
     let names = job.axis_names();
     let n = names.len();
     let total = sim.cycles();
-    let mode = contour_mode(job, &sim.cycle);
-    let mut tracking = Tracking::new(&names, mode);
+    let judge = ContourJudge::new(job, &sim.cycle);
+    let mut tracking = Tracking::new(&names, judge.mode());
     let io_err = |p: &Path, e: std::io::Error| SimError::Io {
         path: p.display().to_string(),
         source: e,
@@ -214,11 +255,7 @@ pub fn simulate(
         let t1 = std::time::Instant::now();
         for (j, rows) in batch.iter().take(m).enumerate() {
             let seq = first + j as u64;
-            let ce = if mode == ContourMode::Given {
-                row_contour_error(&sim.cycle, sim.cycle.time_of(seq), &rows[..n])
-            } else {
-                None
-            };
+            let ce = judge.error_m(&sim.cycle, sim.cycle.time_of(seq), &rows[..n]);
             tracking.push(&rows[..n], ce);
         }
         let t2 = std::time::Instant::now();

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
 
-use feedloop_analysis::sim::{contour_mode, row_contour_error, simulate, SimDevice};
+use feedloop_analysis::sim::{simulate, ContourJudge, SimDevice};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
 use feedloop_runtime::cycle::ControlCycle;
@@ -24,7 +24,7 @@ use feedloop_runtime::plant_loop::{
 };
 use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
-use feedloop_runtime::summary::{timing, ContourMode, Tracking};
+use feedloop_runtime::summary::{timing, Tracking};
 use feedloop_runtime::trace::TraceWriter;
 
 use crate::signals;
@@ -523,8 +523,8 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     let names = job.axis_names();
     let n = names.len();
     let cycle = ControlCycle::new(job, &Builtins)?;
-    let mode = contour_mode(job, &cycle);
-    let mut tracking = Tracking::new(&names, mode);
+    let judge = ContourJudge::new(job, &cycle);
+    let mut tracking = Tracking::new(&names, judge.mode());
 
     let trace_path = dir.join("trace.csv");
     let f = std::fs::File::create(&trace_path)
@@ -538,11 +538,7 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     for r in &plant_recs.records {
         row_values(r.seq, job.period_s, &r.axes[..n], &mut row);
         w.write_row(&row)?;
-        let ce = if mode == ContourMode::Given {
-            row_contour_error(&cycle, cycle.time_of(r.seq), &r.axes[..n])
-        } else {
-            None
-        };
+        let ce = judge.error_m(&cycle, cycle.time_of(r.seq), &r.axes[..n]);
         tracking.push(&r.axes[..n], ce);
         plant_compute_ns += u64::from(r.compute_ns);
     }

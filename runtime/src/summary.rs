@@ -122,19 +122,17 @@ pub struct ContourFigures {
     pub rms_error: f64,
 }
 
-/// How the contour error of a run is judged.
+/// Whether a run has a contour error.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ContourMode {
     /// No contour (single-axis jobs).
     None,
-    /// The trajectory knows its contour (circle, path, X-C profile) and the caller passes each
-    /// row's error to [`Tracking::push`].
+    /// The caller measures each row's contour error (the trajectory's own contour, or the
+    /// distance to the commanded path of two driven axes) and passes it to [`Tracking::push`].
     Given,
-    /// Distance from the measured point to the commanded polyline of these two axes.
-    Polyline(usize, usize),
 }
 
-/// Streams trace rows and accumulates the tracking figures.
+/// Streams trace rows and accumulates the tracking figures (constant memory).
 #[derive(Debug, Clone)]
 pub struct Tracking {
     names: Vec<String>,
@@ -142,8 +140,9 @@ pub struct Tracking {
     max_abs: Vec<f64>,
     rows: u64,
     mode: ContourMode,
-    path: Vec<[f64; 4]>,
-    given: Vec<f64>,
+    contour_rows: u64,
+    contour_sum_sq: f64,
+    contour_max: f64,
 }
 
 impl Tracking {
@@ -155,29 +154,27 @@ impl Tracking {
             max_abs: vec![0.0; names.len()],
             rows: 0,
             mode,
-            path: Vec::new(),
-            given: Vec::new(),
+            contour_rows: 0,
+            contour_sum_sq: 0.0,
+            contour_max: 0.0,
         }
     }
 
-    /// Adds one cycle's rows; `contour_error` is the row's contour error in [`ContourMode::Given`].
+    /// Adds one cycle's rows; `contour_error` is the row's contour error (m) in
+    /// [`ContourMode::Given`] (rows without one, or with a non-finite one, are left out of the
+    /// contour figures).
     pub fn push(&mut self, axes: &[AxisRecord], contour_error: Option<f64>) {
         for (i, a) in axes.iter().enumerate().take(self.names.len()) {
             let e = a.cmd - a.load;
             self.sum_sq[i] += e * e;
             self.max_abs[i] = self.max_abs[i].max(e.abs());
         }
-        match self.mode {
-            ContourMode::Polyline(x, y) => {
-                self.path
-                    .push([axes[x].cmd, axes[y].cmd, axes[x].load, axes[y].load]);
+        if self.mode == ContourMode::Given {
+            if let Some(e) = contour_error.filter(|e| e.is_finite()) {
+                self.contour_rows += 1;
+                self.contour_sum_sq += e * e;
+                self.contour_max = self.contour_max.max(e.abs());
             }
-            ContourMode::Given => {
-                if let Some(e) = contour_error {
-                    self.given.push(e.abs());
-                }
-            }
-            ContourMode::None => {}
         }
         self.rows += 1;
     }
@@ -200,76 +197,16 @@ impl Tracking {
             .collect()
     }
 
-    /// Contour figures, when two axes were named.
+    /// Contour figures, when the run has a contour and rows were measured.
     pub fn contour(&self) -> Option<ContourFigures> {
-        let d = match self.mode {
-            ContourMode::None => return None,
-            ContourMode::Given => self.given.clone(),
-            ContourMode::Polyline(..) => contour_distances(&self.path),
-        };
-        if d.is_empty() {
+        if self.mode == ContourMode::None || self.contour_rows == 0 {
             return None;
         }
-        let max = d.iter().fold(0.0f64, |m, v| m.max(*v));
-        let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
         Some(ContourFigures {
-            max_error: max,
-            rms_error: rms,
+            max_error: self.contour_max,
+            rms_error: (self.contour_sum_sq / self.contour_rows as f64).sqrt(),
         })
     }
-}
-
-/// Distance of each measured point `[_, _, x, y]` from the commanded polyline `[x, y, _, _]`.
-///
-/// The nearest segment is tracked forward in time (the measured point lags the command), with a
-/// local search window, so the cost is linear in the number of samples.
-pub fn contour_distances(path: &[[f64; 4]]) -> Vec<f64> {
-    let n = path.len();
-    let mut out = Vec::with_capacity(n);
-    if n < 2 {
-        return out;
-    }
-    let seg_dist = |j: usize, px: f64, py: f64| -> f64 {
-        let (ax, ay) = (path[j][0], path[j][1]);
-        let (bx, by) = (path[j + 1][0], path[j + 1][1]);
-        let (dx, dy) = (bx - ax, by - ay);
-        let l2 = dx * dx + dy * dy;
-        let t = if l2 > 0.0 {
-            (((px - ax) * dx + (py - ay) * dy) / l2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let (cx, cy) = (ax + t * dx - px, ay + t * dy - py);
-        (cx * cx + cy * cy).sqrt()
-    };
-    // Walk the nearest segment forward while it improves (the command moves on by about one
-    // segment per sample), then look a few segments either side to step over flat spots.
-    let mut j = 0usize;
-    const LOCAL: usize = 8;
-    for (k, p) in path.iter().enumerate() {
-        let (px, py) = (p[2], p[3]);
-        let hi = k.min(n - 2);
-        let mut best_j = j.min(hi);
-        let mut best = seg_dist(best_j, px, py);
-        while best_j < hi {
-            let d = seg_dist(best_j + 1, px, py);
-            if d > best {
-                break;
-            }
-            best = d;
-            best_j += 1;
-        }
-        for i in best_j.saturating_sub(LOCAL)..=(best_j + LOCAL).min(hi) {
-            let d = seg_dist(i, px, py);
-            if d < best {
-                best = d;
-                best_j = i;
-            }
-        }
-        j = best_j;
-        out.push(best);
-    }
-    out
 }
 
 #[cfg(test)]
@@ -311,25 +248,40 @@ mod tests {
     }
 
     #[test]
-    fn contour_error_of_a_lagging_point_on_a_circle_is_its_radial_error() {
-        // commanded circle r = 10 mm; the measured point lags 200 samples and sits 5 um inside
-        let n = 20_000;
-        let r = 0.01;
-        let path: Vec<[f64; 4]> = (0..n)
-            .map(|k| {
-                let a = k as f64 * 2e-4;
-                let b = (k as f64 - 200.0).max(0.0) * 2e-4;
-                [
-                    r * a.cos(),
-                    r * a.sin(),
-                    (r - 5e-6) * b.cos(),
-                    (r - 5e-6) * b.sin(),
-                ]
-            })
-            .collect();
-        let d = contour_distances(&path);
-        for v in &d[300..] {
-            assert!((v - 5e-6).abs() < 2e-9, "{v}");
-        }
+    fn tracking_streams_following_and_contour_figures_and_skips_rows_without_a_contour_error() {
+        let names = vec!["x".to_string(), "y".to_string()];
+        let row = |ex: f64, ey: f64| {
+            [
+                AxisRecord {
+                    cmd: 1.0,
+                    load: 1.0 - ex,
+                    ..Default::default()
+                },
+                AxisRecord {
+                    cmd: -2.0,
+                    load: -2.0 - ey,
+                    ..Default::default()
+                },
+            ]
+        };
+        let mut t = Tracking::new(&names, ContourMode::Given);
+        t.push(&row(3e-6, -4e-6), Some(-2e-6));
+        t.push(&row(-1e-6, 0.0), None);
+        t.push(&row(0.0, 0.0), Some(f64::NAN));
+        t.push(&row(0.0, 2e-6), Some(1e-6));
+        let c = t.contour().unwrap();
+        assert_eq!(c.max_error, 2e-6);
+        assert!(
+            (c.rms_error - (2.5e-12f64).sqrt()).abs() < 1e-18,
+            "{}",
+            c.rms_error
+        );
+        let a = t.axes();
+        assert!((a["x"].max_following_error - 3e-6).abs() < 1e-15);
+        assert!((a["y"].max_following_error - 4e-6).abs() < 1e-15);
+        assert!((a["x"].rms_following_error - (10e-12f64 / 4.0).sqrt()).abs() < 1e-15);
+        let mut none = Tracking::new(&names, ContourMode::None);
+        none.push(&row(1e-6, 1e-6), Some(5e-6));
+        assert_eq!(none.contour(), None);
     }
 }

@@ -1070,22 +1070,6 @@ impl ProgramTrajectory {
         self.motions.iter().map(|m| m.feed).collect()
     }
 
-    /// Times at which the commanded motion changes its law: each motion's start, the ends of its
-    /// acceleration and cruise, and its end (s).
-    fn breakpoints_s(&self) -> Vec<f64> {
-        self.motions
-            .iter()
-            .flat_map(|m| {
-                [
-                    m.start,
-                    m.start + m.acc,
-                    m.start + m.acc + m.cruise,
-                    m.end(),
-                ]
-            })
-            .collect()
-    }
-
     /// Program-coordinate jets of X, Y, Z at `t`.
     fn program_jets(&self, t: f64) -> [Jet; 3] {
         let n = self.motions.len();
@@ -1171,6 +1155,21 @@ impl Trajectory for ProgramTrajectory {
             .path_index
             .get_or_init(|| PathIndex::build(self, c.axes, &self.breakpoints_s()));
         Some(index.distance_m(self, t_s, p))
+    }
+
+    /// Each motion's start, the ends of its acceleration and cruise, and its end.
+    fn breakpoints_s(&self) -> Vec<f64> {
+        self.motions
+            .iter()
+            .flat_map(|m| {
+                [
+                    m.start,
+                    m.start + m.acc,
+                    m.start + m.acc + m.cruise,
+                    m.end(),
+                ]
+            })
+            .collect()
     }
 
     fn steady_windows_s(&self) -> Vec<[f64; 2]> {

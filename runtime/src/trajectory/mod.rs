@@ -128,6 +128,13 @@ pub trait Trajectory: Send + Sync {
     fn steady_windows_s(&self) -> Vec<[f64; 2]> {
         Vec::new()
     }
+
+    /// Times (s) at which the trajectory changes its law (piece boundaries, motion starts and
+    /// ends), for code that samples the path ([`path_index::PathIndex`]): a sampler that visits
+    /// them never steps over a short motion or the start of a rest. Empty when unknown.
+    fn breakpoints_s(&self) -> Vec<f64> {
+        Vec::new()
+    }
 }
 
 /// Signed distance (m) from `p` to the commanded path of `traj` in the plane of `axes`, found
@@ -467,6 +474,9 @@ impl Trajectory for PolyTrajectory {
     }
     fn steady_windows_s(&self) -> Vec<[f64; 2]> {
         self.windows.clone()
+    }
+    fn breakpoints_s(&self) -> Vec<f64> {
+        self.poly.piece_starts().to_vec()
     }
 }
 

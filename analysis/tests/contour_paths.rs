@@ -1,6 +1,9 @@
-//! The contour error of a part program, end to end: the shipped `xy-program` job (a plate outline
-//! with corners, a dwell, rapids, a full circle and a reversal) simulated with a P/PI cascade that
-//! lags the command by up to 1 mm. Every row's contour error is checked two ways:
+//! Contour errors of general 2-D paths, end to end, with a P/PI cascade that lags the command by
+//! up to 1.7 mm: the distance from the table to the commanded path, not the lag behind the
+//! command.
+//!
+//! The shipped `xy-program` job (a plate outline with corners, a dwell, rapids, a full circle and
+//! a reversal): every row's contour error is checked two ways:
 //! - against the simulated command itself: the distance from the table to the polyline of the
 //!   commanded positions of the cycles in the same time window (2 s back, 0.5 s ahead), found by
 //!   brute force (every 25th row);
@@ -12,12 +15,14 @@
 mod controllers_util;
 
 use controllers_util::examples;
-use feedloop_analysis::sim::{simulate, Simulation};
+use feedloop_analysis::sim::{simulate, ContourJudge, Simulation};
 use feedloop_plugins::Builtins;
 use feedloop_runtime::job::Job;
 use feedloop_runtime::record::AxisRecord;
 use feedloop_runtime::trajectory::gcode::parse_program;
 use feedloop_runtime::trajectory::path_index::{WINDOW_AHEAD_S, WINDOW_BEHIND_S};
+
+use controllers_util::job_from_text;
 
 fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
@@ -111,4 +116,93 @@ fn program_contour_error_is_the_distance_to_the_path_not_the_lag_behind_the_comm
         "{following} vs {max_contour}"
     );
     assert!(far_behind > 10_000, "{far_behind}");
+}
+
+/// A `sequence` of straight moves on two axes: a corner taken at rest, a dwell, a diagonal and a
+/// reversal back along it. The commanded path is exactly the polyline through the move targets
+/// (each move is a straight line between rests), so every row's contour error must equal the
+/// distance from the table to that polyline, computed here on its own.
+#[test]
+fn sequence_contour_error_is_the_distance_to_the_polyline_through_its_targets() {
+    let job = job_from_text(
+        "contour-sequence",
+        r#"
+period_s = 1.0e-4
+[axes.x]
+model = "{examples}/models/xy-x.toml"
+[axes.y]
+model = "{examples}/models/xy-y.toml"
+[trajectory]
+kind = "sequence"
+[[trajectory.segments]]
+kind = "move"
+by_m = { x = 0.01 }
+duration_s = 0.3
+[[trajectory.segments]]
+kind = "move"
+by_m = { y = 0.01 }
+duration_s = 0.3
+[[trajectory.segments]]
+kind = "dwell"
+duration_s = 0.05
+[[trajectory.segments]]
+kind = "move"
+by_m = { x = -0.02, y = -0.005 }
+duration_s = 0.4
+[[trajectory.segments]]
+kind = "move"
+by_m = { x = 0.015, y = 0.00375 }
+duration_s = 0.3
+"#,
+    );
+    let corners = [
+        [0.0, 0.0],
+        [0.01, 0.0],
+        [0.01, 0.01],
+        [-0.01, 0.005],
+        [0.005, 0.00875],
+    ];
+    let report = simulate(&job, &Builtins, None, &mut |_, _| {}).unwrap();
+    let summary = report
+        .tracking
+        .contour()
+        .expect("two driven axes have a contour");
+    let mut sim = Simulation::new(&job, &Builtins).unwrap();
+    let judge = ContourJudge::new(&job, &sim.cycle);
+    let mut r = [AxisRecord::default(); 2];
+    let (mut max_polyline, mut far_behind) = (0.0f64, 0);
+    for k in 0..sim.cycles() {
+        sim.step(&mut r);
+        let e = judge.error_m(&sim.cycle, sim.cycle.time_of(k), &r).unwrap();
+        let p = [r[0].load, r[1].load];
+        let d = corners
+            .windows(2)
+            .map(|w| segment_distance(p, w[0], w[1]))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            (e.abs() - d).abs() < 1e-9,
+            "cycle {k}: contour error {e}, distance to the polyline {d}"
+        );
+        max_polyline = max_polyline.max(d);
+        let lag = (r[0].cmd - p[0]).hypot(r[1].cmd - p[1]);
+        if lag > 1e-4 && d < 0.1 * lag {
+            far_behind += 1;
+        }
+    }
+    let following = report
+        .tracking
+        .axes()
+        .values()
+        .map(|a| a.max_following_error)
+        .fold(0.0, f64::max);
+    println!(
+        "sequence: max following error {:.1} um, contour error max {:.4} um (summary), distance \
+         to the polyline max {:.4} um; {far_behind} rows lag > 100 um",
+        following * 1e6,
+        summary.max_error * 1e6,
+        max_polyline * 1e6
+    );
+    assert!((summary.max_error - max_polyline).abs() < 1e-9);
+    assert!(following > 100.0 * summary.max_error);
+    assert!(far_behind > 5_000, "{far_behind}");
 }
