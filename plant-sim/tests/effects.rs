@@ -201,6 +201,154 @@ fn third_mass_adds_a_second_resonance_where_the_3_mass_chain_predicts_it() {
     assert!((base_2.expect("2-mass resonance") / f_2mass - 1.0).abs() < 0.03);
 }
 
+/// Local extrema of `x` (sign changes of its first difference).
+fn extrema(x: &[f64]) -> usize {
+    x.windows(3)
+        .filter(|w| (w[1] - w[0]) * (w[2] - w[1]) < 0.0)
+        .count()
+}
+
+#[test]
+fn third_mass_rings_after_a_fast_move_at_the_frequency_of_the_chain() {
+    // 200 kg on 7.9e7 N/m (100 Hz alone), 2 % damping; a 10 mm move at 100 mm/s with 10 ms
+    // ramps, then 0.2 s at rest.
+    let (m3, k3, c3) = (200.0, 200.0 * (2.0 * PI * 100.0f64).powi(2), 5000.0);
+    let extra = format!(
+        "[effects.third_mass]\nmass_kg = {m3}\nstiffness_n_per_m = {k3}\ndamping_ns_per_m = {c3}\n"
+    );
+    let (dist, v, t_acc, t_dwell) = (0.01, 0.1, 0.01, 0.2);
+    let traj = |t: f64| trapezoid(t, dist, v, t_acc, t_dwell);
+    let run = |extra: &str| {
+        let (mut ax, mut c) = closed_loop(extra);
+        run_loop(&mut ax, &mut c, 5000, traj, |_| 0.0)
+    };
+    let (with, without) = (run(&extra), run(""));
+    // The dwell after the stop, from 5 ms to 105 ms after the end of the move.
+    let stop = t_dwell + dist / v + t_acc;
+    let window = |recs: &[Rec]| -> Vec<f64> {
+        recs.iter()
+            .filter(|r| r.t >= stop + 0.005 && r.t < stop + 0.105)
+            .map(|r| r.r - r.m.load_pos)
+            .collect()
+    };
+    let (e3, e0) = (window(&with), window(&without));
+    // The ringing: the difference the third mass makes, mean removed; its frequency from the
+    // zero crossings (interpolated).
+    let d: Vec<f64> = e3.iter().zip(&e0).map(|(a, b)| a - b).collect();
+    let mean = d.iter().sum::<f64>() / d.len() as f64;
+    let crossings: Vec<f64> = d
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| (w[0] - mean) * (w[1] - mean) < 0.0)
+        .map(|(k, w)| (k as f64 + (w[0] - mean) / (w[0] - w[1])) * H)
+        .collect();
+    let f_ring =
+        (crossings.len() - 1) as f64 / (2.0 * (crossings[crossings.len() - 1] - crossings[0]));
+    // The chain JM -KL- JL -K3- J3 with the table held by the loop rings between the third
+    // mass on a fixed table (100 Hz) and the free-free chain's first mode.
+    let (j1, j2, j3) = (2e-3, 3e-3, m3 / (R * R));
+    let (k1, k2) = (3000.0, k3 / (R * R));
+    let b = k1 / j1 + k1 / j2 + k2 / j2 + k2 / j3;
+    let cc = k1 * k2 * (j1 + j2 + j3) / (j1 * j2 * j3);
+    let f_lo = ((b - (b * b - 4.0 * cc).sqrt()) / 2.0).sqrt() / (2.0 * PI);
+    let f_alone = (k3 / m3).sqrt() / (2.0 * PI);
+    let amp = |x: &[f64], from: usize, to: usize| {
+        x[from..to]
+            .iter()
+            .fold(0.0f64, |m, v| m.max((v - mean).abs()))
+    };
+    let (first, last) = (amp(&d, 0, 200), amp(&d, 800, 1000));
+    println!(
+        "ringing at {f_ring:.1} Hz (third mass alone {f_alone:.1} Hz, free chain {f_lo:.1} Hz), \
+         {} extrema in 100 ms with the third mass, {} without; amplitude {:.2} um -> {:.2} um \
+         over 80 ms",
+        extrema(&e3),
+        extrema(&e0),
+        first * 1e6,
+        last * 1e6
+    );
+    assert!(
+        f_ring > 0.97 * f_alone && f_ring < 1.03 * f_lo,
+        "{f_ring} Hz outside {f_alone}..{f_lo}"
+    );
+    assert!(extrema(&e3) >= 15, "it rings: {}", extrema(&e3));
+    assert!(
+        extrema(&e0) <= 2,
+        "without it the loop settles: {}",
+        extrema(&e0)
+    );
+    // The mode's own 2 % damping (plus what the loop adds through the table) makes it decay.
+    assert!(first > 1e-6 && last < 0.6 * first, "{first} -> {last}");
+}
+
+#[test]
+fn torque_saturation_grows_the_following_error_during_the_fastest_accelerations() {
+    // A 20 mm move at 150 mm/s with 30 ms raised-cosine ramps (peak 7.9 m/s^2) needs up to
+    // 26 N m at the motor; the drive clamps at 20 N m.
+    let limit = 20.0;
+    let (dist, v, t_acc, t_dwell) = (0.02, 0.15, 0.03, 0.05);
+    let traj = |t: f64| trapezoid(t, dist, v, t_acc, t_dwell);
+    let run = |extra: &str| {
+        let (mut ax, mut c) = closed_loop(extra);
+        run_loop(&mut ax, &mut c, 4000, traj, |_| 0.0)
+    };
+    let free = run("");
+    let sat = run(&format!(
+        "[effects.torque_saturation]\nlimit_nm = {limit}\n"
+    ));
+    let err = |r: &Rec| r.r - r.m.load_pos;
+    let peak_demand = free.iter().map(|r| r.u.abs()).fold(0.0, f64::max);
+    assert!(peak_demand > 1.2 * limit, "{peak_demand}");
+    assert!(sat.iter().all(|r| r.m.applied_torque.abs() <= limit));
+    // Identical until the drive first clamps (sample k reports the torque applied over the
+    // period before it, so the first sample showing the limit already moved differently).
+    let first = sat
+        .iter()
+        .position(|r| r.m.applied_torque.abs() >= limit)
+        .expect("the drive clamps");
+    assert!(first > 100);
+    assert!(free[..first]
+        .iter()
+        .zip(&sat[..first])
+        .all(|(a, b)| err(a) == err(b)));
+    assert!(err(&free[first]) != err(&sat[first]));
+    // The error the clamp adds peaks inside an acceleration ramp (or within 5 ms of its end)...
+    let ramps = [
+        (t_dwell, t_dwell + t_acc),
+        (t_dwell + dist / v, t_dwell + dist / v + t_acc),
+    ];
+    let excess: Vec<(f64, f64)> = free
+        .iter()
+        .zip(&sat)
+        .map(|(a, b)| (a.t, (err(b) - err(a)).abs()))
+        .collect();
+    let (t_peak, peak) = excess
+        .iter()
+        .filter(|(t, _)| *t < 2.0 * t_dwell + dist / v + t_acc)
+        .fold((0.0, 0.0), |m, &(t, e)| if e > m.1 { (t, e) } else { m });
+    let in_ramp = ramps
+        .iter()
+        .any(|&(a, b)| t_peak >= a && t_peak <= b + 0.005);
+    // ... and has died away by the end of the constant-speed part.
+    let cruise_end = excess
+        .iter()
+        .filter(|(t, _)| *t > ramps[1].0 - 0.02 && *t < ramps[1].0)
+        .fold(0.0f64, |m, e| m.max(e.1));
+    let free_max = free.iter().map(|r| err(r).abs()).fold(0.0, f64::max);
+    println!(
+        "demand {peak_demand:.1} N m, limit {limit} N m: clamped from t = {:.4} s; added error \
+         peaks at {:.1} um at t = {t_peak:.4} s (ramps {ramps:?}); {:.2} um left at the end of \
+         the cruise; unlimited max error {:.1} um",
+        sat[first].t,
+        peak * 1e6,
+        cruise_end * 1e6,
+        free_max * 1e6
+    );
+    assert!(in_ramp, "peak at {t_peak}");
+    assert!(peak > 3.0 * free_max, "{peak} vs {free_max}");
+    assert!(cruise_end < 0.05 * peak, "{cruise_end} vs {peak}");
+}
+
 fn delay_peak_lag(extra: &str) -> usize {
     use rand::{rngs::SmallRng, Rng, SeedableRng};
     let (mut ax, mut c) = closed_loop(extra);
