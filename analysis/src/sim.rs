@@ -218,7 +218,7 @@ pub fn simulate(
     let n = names.len();
     let total = sim.cycles();
     let judge = ContourJudge::new(job, &sim.cycle);
-    let mut tracking = Tracking::new(&names, judge.mode());
+    let mut tracking = Tracking::for_job(job, judge.mode());
     let io_err = |p: &Path, e: std::io::Error| SimError::Io {
         path: p.display().to_string(),
         source: e,

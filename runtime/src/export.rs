@@ -91,13 +91,14 @@ pub fn summary_json(s: &SummaryInput<'_>) -> Value {
     };
     let axes: serde_json::Map<String, Value> = s
         .tracking
-        .axes()
+        .axes_in_order()
         .into_iter()
-        .map(|(k, v)| {
-            (
-                k,
-                json!({"max_following_error": v.max_following_error, "rms_following_error": v.rms_following_error}),
-            )
+        .map(|(k, v, unit)| {
+            let mut a = json!({"max_following_error": v.max_following_error, "rms_following_error": v.rms_following_error});
+            if let Some(u) = unit {
+                a["unit"] = json!(u);
+            }
+            (k, a)
         })
         .collect();
     let contour = match s.tracking.contour() {
@@ -148,8 +149,10 @@ pub fn human_summary(v: &Value) -> String {
     ));
     if let Some(axes) = v["axes"].as_object() {
         for (name, a) in axes {
+            // rotary axes are in rad: print urad, linear ones in m: print um
+            let unit = if a["unit"] == "rad" { "urad" } else { "um" };
             out.push_str(&format!(
-                "  axis {name}: following error max {:.3} um, rms {:.3} um\n",
+                "  axis {name}: following error max {:.3} {unit}, rms {:.3} {unit}\n",
                 f(&a["max_following_error"]) * 1e6,
                 f(&a["rms_following_error"]) * 1e6
             ));
@@ -186,4 +189,68 @@ pub fn human_summary(v: &Value) -> String {
         f(&v["compute_s"])
     ));
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::AxisRecord;
+    use crate::summary::{ContourMode, Tracking};
+
+    #[test]
+    fn summary_lists_axes_in_job_order_with_their_units_and_prints_rotary_errors_in_urad() {
+        let dir = std::env::temp_dir().join(format!("feedloop-export-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("x.toml"),
+            "kind = \"rigid\"\nmass_kg = 10\n[controller]\nkp_per_s = 30\nkv_ns_per_m = 2000\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("c.toml"),
+            "kind = \"rotary\"\njm_kgm2 = 0.01\nkl_nm_per_rad = 1e5\njl_kgm2 = 0.05\n[controller]\nkp_per_s = 30\nkv_nms_per_rad = 2\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("j.toml"),
+            "period_s = 0.001\n[axes.x]\nmodel = \"x.toml\"\n[axes.c]\nmodel = \"c.toml\"\n[trajectory]\nkind = \"dwell\"\n",
+        )
+        .unwrap();
+        let job = crate::job::Job::load(&dir.join("j.toml")).unwrap();
+        let mut t = Tracking::for_job(&job, ContourMode::None);
+        let rec = |cmd: f64, load: f64| AxisRecord {
+            cmd,
+            load,
+            ..Default::default()
+        };
+        t.push(&[rec(0.0, 2e-6), rec(0.0, -3e-3)], None);
+        let v = summary_json(&SummaryInput {
+            job: "j",
+            mode: "sim",
+            period_s: 0.001,
+            cycles: 1,
+            timing: None,
+            pids: None,
+            compute_s: 0.0,
+            tracking: &t,
+            end: &EndInfo::new("completed", 1),
+            extra: BTreeMap::new(),
+        });
+        let keys: Vec<&String> = v["axes"].as_object().unwrap().keys().collect();
+        assert_eq!(keys, ["x", "c"]);
+        assert_eq!(v["axes"]["x"]["unit"], "m");
+        assert_eq!(v["axes"]["c"]["unit"], "rad");
+        assert_eq!(v["axes"]["c"]["max_following_error"], 3e-3);
+        let text = human_summary(&v);
+        assert!(
+            text.contains("axis x: following error max 2.000 um"),
+            "{text}"
+        );
+        assert!(
+            text.contains("axis c: following error max 3000.000 urad"),
+            "{text}"
+        );
+        assert!(text.find("axis x").unwrap() < text.find("axis c").unwrap());
+        std::fs::remove_dir_all(dir).ok();
+    }
 }

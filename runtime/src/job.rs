@@ -531,6 +531,26 @@ mod tests {
     }
 
     #[test]
+    fn axes_keep_the_order_of_the_file_not_of_their_names() {
+        let (dir, r) = setup(
+            "period_s = 0.001\n[axes.x]\nmodel = \"m.toml\"\n[axes.c]\nmodel = \"m.toml\"\n[axes.a]\nmodel = \"m.toml\"\n[trajectory]\nkind = \"move\"\nto_m = [0.01, 0.02, 0.03]\nduration_s = 0.1\n",
+        );
+        let job = r.unwrap();
+        assert_eq!(job.axis_names(), ["x", "c", "a"]);
+        // a per-axis array follows that order too
+        let traj =
+            crate::trajectory::build(&job.trajectory, &job.path, &job.axis_names(), 0.001).unwrap();
+        let mut out = vec![[0.0; crate::controller::REF_DERIVS]; 3];
+        traj.eval(1.0, &mut out);
+        assert_eq!([out[0][0], out[1][0], out[2][0]], [0.01, 0.02, 0.03]);
+        let mut t = crate::summary::Tracking::for_job(&job, crate::summary::ContourMode::None);
+        t.push(&[crate::record::AxisRecord::default(); 3], None);
+        let names: Vec<String> = t.axes_in_order().into_iter().map(|a| a.0).collect();
+        assert_eq!(names, ["x", "c", "a"]);
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
     fn chain_naming_a_missing_axis_is_refused() {
         let (_d, r) = setup(
             "period_s = 0.001\n[axes.x]\nmodel = \"m.toml\"\n[[chain]]\naxis = \"y\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\n[trajectory]\nkind = \"dwell\"\n",

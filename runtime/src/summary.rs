@@ -136,6 +136,8 @@ pub enum ContourMode {
 #[derive(Debug, Clone)]
 pub struct Tracking {
     names: Vec<String>,
+    /// Load unit of each axis ("m" or "rad"), when known.
+    units: Vec<Option<&'static str>>,
     sum_sq: Vec<f64>,
     max_abs: Vec<f64>,
     rows: u64,
@@ -150,6 +152,7 @@ impl Tracking {
     pub fn new(names: &[String], mode: ContourMode) -> Self {
         Self {
             names: names.to_vec(),
+            units: vec![None; names.len()],
             sum_sq: vec![0.0; names.len()],
             max_abs: vec![0.0; names.len()],
             rows: 0,
@@ -158,6 +161,28 @@ impl Tracking {
             contour_sum_sq: 0.0,
             contour_max: 0.0,
         }
+    }
+
+    /// For the axes of `job` (job order, each with its load unit: m, or rad for a rotary axis).
+    pub fn for_job(job: &crate::job::Job, mode: ContourMode) -> Self {
+        let mut t = Self::new(&job.axis_names(), mode);
+        for (u, a) in t.units.iter_mut().zip(&job.axes) {
+            *u = Some(match a.model.plant.kind() {
+                crate::model::AxisKind::Rotary => "rad",
+                _ => "m",
+            });
+        }
+        t
+    }
+
+    /// Per-axis figures in job order, with each axis's load unit when known.
+    pub fn axes_in_order(&self) -> Vec<(String, AxisFigures, Option<&'static str>)> {
+        let figures = self.axes();
+        self.names
+            .iter()
+            .zip(&self.units)
+            .map(|(n, u)| (n.clone(), figures[n], *u))
+            .collect()
     }
 
     /// Adds one cycle's rows; `contour_error` is the row's contour error (m) in
