@@ -409,6 +409,15 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The quantity a per-axis excitation key names, without its unit (`amplitude` for
+/// `amplitude_m_per_s`), for the keys that come in several units.
+fn quantity_stem(key: &str) -> Option<&str> {
+    ["_m_per_s", "_rad_per_s", "_m", "_rad"]
+        .iter()
+        .find_map(|u| key.strip_suffix(u))
+        .filter(|s| ["amplitude", "velocity", "max_travel"].contains(s))
+}
+
 /// Runs `feedloop excite`.
 pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
     let ax = &a.axis;
@@ -449,6 +458,12 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
             .split_once('=')
             .with_context(|| format!("--set `{s}`: expected key=value"))?;
         let k = k.trim().to_string();
+        // A quantity given in any unit replaces the default of that quantity in every unit
+        // (`amplitude_m` replaces the default `amplitude_m_per_s`, `velocity_rad_per_s` the
+        // default `velocity_m_per_s`): the kinds refuse two of them.
+        if let Some(stem) = quantity_stem(&k) {
+            set.retain(|(x, _)| *x == k || quantity_stem(x) != Some(stem));
+        }
         match set.iter_mut().find(|(x, _)| *x == k) {
             Some(e) => e.1 = v.trim().to_string(),
             None => set.push((k, v.trim().to_string())),

@@ -138,6 +138,52 @@ fn excite_writes_a_playable_command_for_each_kind() {
         let data = text.lines().filter(|l| !l.starts_with('#')).count() - 1;
         assert!((data as f64 - rows).abs() <= 2.0, "{data} rows vs {rows}");
     }
+    // A quantity in another unit replaces the default one: a position multisine, and a
+    // rotary axis's velocity levels.
+    for (kind, axis, set) in [
+        ("multisine", "x", "amplitude_m=1e-4"),
+        ("prbs", "x", "amplitude_m=5e-5"),
+        ("random-segments", "c", "velocity_rad_per_s=0.5"),
+    ] {
+        let out = d.join(format!("{kind}-{axis}-other-unit.csv"));
+        let v = json(&[
+            "excite",
+            "--kind",
+            kind,
+            "--axis",
+            axis,
+            "--set",
+            set,
+            "--set",
+            if kind == "random-segments" {
+                "max_travel_rad=1.0"
+            } else {
+                "periods=1"
+            },
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let text = std::fs::read_to_string(&out).unwrap();
+        let peak = text
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .skip(1)
+            .map(|l| {
+                let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+                if set.starts_with("amplitude_m=") {
+                    c[1].abs()
+                } else {
+                    c[2].abs()
+                }
+            })
+            .fold(0.0f64, f64::max);
+        let want: f64 = set.split('=').nth(1).unwrap().parse().unwrap();
+        println!("{kind} {set}: {v}, peak {peak}");
+        assert!(
+            peak <= want * (1.0 + 1e-9) && peak > 0.5 * want,
+            "{peak} vs {want}"
+        );
+    }
     let e = refused(&[
         "excite",
         "--kind",
