@@ -237,8 +237,10 @@ pub fn simulate(
         }
         None => None,
     };
-    const BATCH: usize = 4096;
-    let mut batch = vec![[AxisRecord::default(); MAX_AXES]; BATCH];
+    // Rows of a batch side by side (n axes each): 1024 rows of two axes are 80 kB, so the
+    // tracking and export passes read them from cache.
+    const BATCH_ROWS: usize = 1024;
+    let mut batch = vec![AxisRecord::default(); BATCH_ROWS * n];
     let mut row = Vec::with_capacity(1 + 5 * n);
     let mut compute = std::time::Duration::ZERO;
     let mut trace_t = std::time::Duration::ZERO;
@@ -246,14 +248,14 @@ pub fn simulate(
     let period = job.period_s;
     while sim.position() < total {
         let first = sim.position();
-        let m = ((total - first) as usize).min(BATCH);
+        let m = ((total - first) as usize).min(BATCH_ROWS);
         let t0 = std::time::Instant::now();
-        for rows in batch.iter_mut().take(m) {
-            sim.step(&mut rows[..n]);
+        for rows in batch.chunks_exact_mut(n).take(m) {
+            sim.step(rows);
         }
         compute += t0.elapsed();
         let t1 = std::time::Instant::now();
-        for (j, rows) in batch.iter().take(m).enumerate() {
+        for (j, rows) in batch.chunks_exact(n).take(m).enumerate() {
             let seq = first + j as u64;
             let ce = judge.error_m(&sim.cycle, sim.cycle.time_of(seq), &rows[..n]);
             tracking.push(&rows[..n], ce);
@@ -261,8 +263,8 @@ pub fn simulate(
         let t2 = std::time::Instant::now();
         tracking_t += t2 - t1;
         if let Some((_, w)) = writer.as_mut() {
-            for (j, rows) in batch.iter().take(m).enumerate() {
-                row_values(first + j as u64, period, &rows[..n], &mut row);
+            for (j, rows) in batch.chunks_exact(n).take(m).enumerate() {
+                row_values(first + j as u64, period, rows, &mut row);
                 w.write_row(&row).map_err(|e| io_err(trace.unwrap(), e))?;
             }
         }

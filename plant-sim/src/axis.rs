@@ -256,8 +256,8 @@ pub struct AxisPlant {
     sensor: Sensor,
     meas: AxisSensor,
     applied: f64,
-    pos_idx: [usize; 3],
-    npos: usize,
+    /// 1.0 at the state entries that are positions (shifted by the origin each step), else 0.0.
+    pos_mask: State,
 }
 
 fn check_period(model: &ModelFile, period_s: f64) -> Result<(), ConfigError> {
@@ -434,16 +434,14 @@ impl AxisPlant {
             sensor: Sensor::new(sp, axis_index),
             meas: AxisSensor::default(),
             applied: 0.0,
-            pos_idx: [0; 3],
-            npos: 1,
+            pos_mask: [0.0; MAX_N],
         };
+        axis.pos_mask[0] = 1.0;
         if st.two_mass {
-            axis.pos_idx[1] = 2;
-            axis.npos = 2;
+            axis.pos_mask[2] = 1.0;
         }
         if let Some((i3, ..)) = st.third {
-            axis.pos_idx[axis.npos] = i3;
-            axis.npos += 1;
+            axis.pos_mask[i3] = 1.0;
         }
         axis.set_initial_position(0.0);
         Ok(axis)
@@ -745,8 +743,10 @@ impl AxisPlant {
         // dynamics only see position differences, and this keeps an axis at rest far from the
         // origin exactly at rest and the spring deflection free of cancellation error.
         let origin = self.x[0];
-        for &i in &self.pos_idx[..self.npos] {
-            self.x[i] -= origin;
+        // x - origin * 1 = x - origin and x - origin * 0 = x exactly (origin is finite: a
+        // non-finite state never survives a step), and the whole-array form has no branches.
+        for (v, m) in self.x.iter_mut().zip(&self.pos_mask) {
+            *v -= origin * m;
         }
         if self.events {
             self.integrate(u, bm, bl, pt);
@@ -766,8 +766,8 @@ impl AxisPlant {
         let x = &self.x;
         let sum = ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]));
         let finite = (sum + origin).is_finite();
-        for &i in &self.pos_idx[..self.npos] {
-            self.x[i] += origin;
+        for (v, m) in self.x.iter_mut().zip(&self.pos_mask) {
+            *v += origin * m;
         }
         if !finite {
             self.recover(before);
@@ -880,10 +880,10 @@ impl AxisPlant {
     /// velocity, or a pitch error (it moves the backlash flanks with position).
     #[inline]
     fn needs_settle(&self) -> bool {
+        let settle = |b: &Body| b.dry && (b.stuck || self.x[b.vel] == 0.0);
         self.pitch.is_some()
-            || self.bodies[..self.nbodies]
-                .iter()
-                .any(|b| b.dry && (b.stuck || self.x[b.vel] == 0.0))
+            || settle(&self.bodies[0])
+            || (self.nbodies > 1 && settle(&self.bodies[1]))
     }
 
     /// Re-classifies backlash contact and decides stick/slip of every dry body at the current
