@@ -35,6 +35,23 @@ fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (p[0] - a[0] - s * dx).hypot(p[1] - a[1] - s * dy)
 }
 
+/// The largest following error of any axis of the run, load units.
+fn max_following_error(report: &feedloop_analysis::sim::SimReport) -> f64 {
+    report
+        .tracking
+        .axes()
+        .values()
+        .map(|a| a.max_following_error)
+        .fold(0.0, f64::max)
+}
+
+/// Whether the table of row `r` lags the command by more than 100 um while its contour error
+/// `e` is under a tenth of that lag.
+fn lags_far_behind(r: &[AxisRecord; 2], e: f64) -> bool {
+    let lag = (r[0].cmd - r[0].load).hypot(r[1].cmd - r[1].load);
+    lag > 1e-4 && e.abs() < 0.1 * lag
+}
+
 #[test]
 fn program_contour_error_is_the_distance_to_the_path_not_the_lag_behind_the_command() {
     let job = Job::load(&examples().join("jobs/xy-program.toml")).unwrap();
@@ -86,17 +103,11 @@ fn program_contour_error_is_the_distance_to_the_path_not_the_lag_behind_the_comm
             worst_brute = worst_brute.max((e.abs() - brute).abs());
             brute_checks += 1;
         }
-        let lag = (r[0].cmd - p[0]).hypot(r[1].cmd - p[1]);
-        if lag > 1e-4 && e.abs() < 0.1 * lag {
+        if lags_far_behind(r, *e) {
             far_behind += 1;
         }
     }
-    let following = report
-        .tracking
-        .axes()
-        .values()
-        .map(|a| a.max_following_error)
-        .fold(0.0, f64::max);
+    let following = max_following_error(&report);
     println!(
         "xy-program: max following error {:.1} um, max contour error {:.2} um (summary {:.2} um); \
          {brute_checks} rows within {:.1e} m of brute force; max distance to the programmed path \
@@ -184,17 +195,11 @@ duration_s = 0.3
             "cycle {k}: contour error {e}, distance to the polyline {d}"
         );
         max_polyline = max_polyline.max(d);
-        let lag = (r[0].cmd - p[0]).hypot(r[1].cmd - p[1]);
-        if lag > 1e-4 && d < 0.1 * lag {
+        if lags_far_behind(&r, d) {
             far_behind += 1;
         }
     }
-    let following = report
-        .tracking
-        .axes()
-        .values()
-        .map(|a| a.max_following_error)
-        .fold(0.0, f64::max);
+    let following = max_following_error(&report);
     println!(
         "sequence: max following error {:.1} um, contour error max {:.4} um (summary), distance \
          to the polyline max {:.4} um; {far_behind} rows lag > 100 um",
