@@ -25,14 +25,15 @@ pub struct Circle {
     plane: [usize; 2],
     center_m: [f64; 2],
     radius_m: f64,
-    /// `+1` ccw, `-1` cw.
+    /// `+1` ccw, `-1` cw (of the first pass, for `ccw_cw` / `cw_ccw`).
     direction: f64,
     start_angle_rad: f64,
     /// Arc length `sigma(t)`, m.
     arc: PiecewisePoly,
     windows: Vec<[f64; 2]>,
-    /// The cruise at constant feed: `(t0, t1, sigma(t0), feed)`; evaluated in closed form.
-    cruise: Option<(f64, f64, f64, f64)>,
+    /// The cruises at constant feed: `(t0, t1, sigma(t0), feed)` (two for a circle run both
+    /// ways, the second with a negative feed); evaluated in closed form.
+    cruise: Vec<(f64, f64, f64, f64)>,
 }
 
 impl Trajectory for Circle {
@@ -45,7 +46,7 @@ impl Trajectory for Circle {
     }
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
-        if let Some((t0, t1, sigma0, feed)) = self.cruise {
+        for &(t0, t1, sigma0, feed) in &self.cruise {
             if t_s >= t0 && t_s < t1 {
                 // Constant angular speed w: the derivatives of cos/sin are powers of w.
                 let k = self.direction / self.radius_m;
@@ -162,13 +163,16 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     let radius_m = f.f64("radius_m", Range::Positive)?;
     let feed = f.f64("feed_m_per_s", Range::Positive)?;
     let turns = f.f64_or("turns", Range::Positive, 1.0)?;
-    let direction = match f.opt_str("direction")?.unwrap_or("ccw") {
-        "ccw" => 1.0,
-        "cw" => -1.0,
+    // (direction of the first pass, whether it turns back the other way afterwards)
+    let (direction, both_ways) = match f.opt_str("direction")?.unwrap_or("ccw") {
+        "ccw" => (1.0, false),
+        "cw" => (-1.0, false),
+        "ccw_cw" => (1.0, true),
+        "cw_ccw" => (-1.0, true),
         other => {
             return Err(f.error(
                 "direction",
-                format!("unknown direction `{other}` (ccw, cw)"),
+                format!("unknown direction `{other}` (ccw, cw, ccw_cw, cw_ccw)"),
             ))
         }
     };
@@ -177,6 +181,13 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     ctx.at_least_periods(&f, "ramp_s", ramp_s, 2.0)?;
     let before = f.f64_or("dwell_before_s", Range::NonNegative, 0.0)?;
     let after = f.f64_or("dwell_after_s", Range::NonNegative, 0.0)?;
+    let between = f.f64_or("dwell_between_s", Range::NonNegative, 0.0)?;
+    if !both_ways && f.has("dwell_between_s") {
+        return Err(f.error(
+            "dwell_between_s",
+            "only used with direction = \"ccw_cw\" or \"cw_ccw\" (a rest between the two ways)",
+        ));
+    }
     let arc_m = 2.0 * PI * radius_m * turns;
     let cruise_s = arc_m / feed - ramp_s;
     if cruise_s < 0.0 {
@@ -194,12 +205,20 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     b.smooth_velocity_change(ramp_s, &[feed]);
     b.cruise(cruise_s);
     b.smooth_velocity_change(ramp_s, &[-feed]);
+    if both_ways {
+        // At rest, then the same arc back the other way, to the start.
+        b.hold(between);
+        b.smooth_velocity_change(ramp_s, &[-feed]);
+        b.cruise(cruise_s);
+        b.smooth_velocity_change(ramp_s, &[feed]);
+    }
     b.hold(after);
     let (arc, windows) = b.finish();
-    let cruise = windows.first().map(|w| {
-        let at = arc.eval_axis(w[0], 0);
-        (w[0], w[1], at[0], feed)
-    });
+    let cruise = windows
+        .iter()
+        .zip([feed, -feed])
+        .map(|(w, v)| (w[0], w[1], arc.eval_axis(w[0], 0)[0], v))
+        .collect();
     Ok(Box::new(Circle {
         axes: ctx.axes.to_vec(),
         plane,
@@ -301,6 +320,65 @@ dwell_after_s = 0.05
         let (dx, dy) = (m[1][0] - 0.1, m[2][0] - 0.2);
         assert!(dx * m[2][1] - dy * m[1][1] < 0.0);
         check_final_hold(tr.as_ref());
+    }
+
+    #[test]
+    fn a_circle_run_both_ways_turns_back_to_its_start_at_the_same_feed() {
+        // The reversal study of a ballbar test: 1.5 turns ccw, 0.2 s at rest, 1.5 turns cw.
+        let text = "kind = \"circle\"\ncenter_m = [-0.01, 0.0]\nradius_m = 0.01\nfeed_m_per_s = 0.03\nturns = 1.5\ndirection = \"ccw_cw\"\ndwell_between_s = 0.2\nramp_s = 0.1\n";
+        let tr = build_str(text, &["x", "y"]).unwrap();
+        let one_way = 2.0 * PI * 0.01 * 1.5 / 0.03 + 0.1;
+        assert!((tr.duration_s() - (2.0 * one_way + 0.2)).abs() < 1e-9);
+        let w = tr.steady_windows_s();
+        assert_eq!(w.len(), 2);
+        let c = tr.contour().unwrap();
+        let n = 6000;
+        let mut turned = 0.0;
+        let mut prev_angle = 0.0f64;
+        for k in 0..=n {
+            let t = tr.duration_s() * k as f64 / n as f64;
+            let s = at(tr.as_ref(), t);
+            let err = c.radial_error_m([s[0][0], s[1][0]]).unwrap();
+            assert!(err.abs() < 1e-15, "radius off by {err} at {t}");
+            // angular momentum about the centre: + ccw in the first pass, - cw in the second
+            let (dx, dy) = (s[0][0] + 0.01, s[1][0]);
+            let l = dx * s[1][1] - dy * s[0][1];
+            let speed = s[0][1].hypot(s[1][1]);
+            if t > w[0][0] && t < w[0][1] {
+                assert!(l > 0.0 && (speed - 0.03).abs() < 1e-12, "{t}: {l} {speed}");
+            }
+            if t > w[1][0] && t < w[1][1] {
+                assert!(l < 0.0 && (speed - 0.03).abs() < 1e-12, "{t}: {l} {speed}");
+            }
+            if t > one_way + 0.01 && t < one_way + 0.19 {
+                assert_eq!(speed, 0.0, "at rest between the two ways ({t})");
+            }
+            let angle = dy.atan2(dx);
+            if k > 0 {
+                let mut d = angle - prev_angle;
+                d -= (d / (2.0 * PI)).round() * 2.0 * PI;
+                turned += d;
+            }
+            prev_angle = angle;
+        }
+        assert!(
+            turned.abs() < 1e-9,
+            "back where it started: turned {turned} rad"
+        );
+        let end = at(tr.as_ref(), tr.duration_s() + 1.0);
+        assert!(end[0][0].abs() < 1e-12 && end[1][0].abs() < 1e-12);
+        let worst = check_derivatives(tr.as_ref(), 400, 1e-6, &[]);
+        assert!(worst < 1e-4, "derivatives vs central differences: {worst}");
+        check_final_hold(tr.as_ref());
+        // the rest between the ways only exists for a circle run both ways
+        let e = build_str(&text.replace("ccw_cw", "ccw"), &["x", "y"])
+            .err()
+            .unwrap();
+        assert_eq!(e.key, "trajectory.dwell_between_s", "{e}");
+        // cw first: the first pass turns clockwise
+        let tr = build_str(&text.replace("ccw_cw", "cw_ccw"), &["x", "y"]).unwrap();
+        let s = at(tr.as_ref(), 0.5 * (w[0][0] + w[0][1]));
+        assert!((s[0][0] + 0.01) * s[1][1] - s[1][0] * s[0][1] < 0.0);
     }
 
     #[test]
