@@ -286,7 +286,7 @@ pub struct ControlPlane {
     probation: Option<Probation>,
     /// Every swap so far.
     pub swaps: Vec<SwapEvent>,
-    /// Refused requests (the first [`MAX_REJECTIONS`]).
+    /// Refused requests (the first 4096).
     pub rejected: Vec<Rejection>,
     /// Refused requests, all of them.
     pub rejected_count: u64,

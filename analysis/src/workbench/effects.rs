@@ -50,7 +50,7 @@ pub struct Effect {
     pub id: String,
     /// Body it acts on (friction effects).
     pub side: Side,
-    /// Nonlinear parameters (see the module doc of each id in [`columns`]).
+    /// Nonlinear parameters (see the module doc of each id in `columns`).
     pub hyper: Vec<f64>,
     /// Linear coefficients, motor units.
     pub coef: Vec<f64>,
