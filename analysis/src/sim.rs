@@ -166,7 +166,7 @@ impl ContourJudge {
             let axes = [driven[0], driven[1]];
             JudgeKind::Path {
                 axes,
-                index: PathIndex::build(traj, axes, &traj.breakpoints_s()),
+                index: PathIndex::build(traj, axes),
             }
         } else {
             JudgeKind::None

@@ -121,6 +121,10 @@ impl Trajectory for Circle {
     fn steady_windows_s(&self) -> Vec<[f64; 2]> {
         self.windows.clone()
     }
+
+    fn breakpoints_s(&self) -> Vec<f64> {
+        self.arc.piece_starts().to_vec()
+    }
 }
 
 /// `kind = "circle"`.
@@ -414,6 +418,8 @@ dwell_after_s = 0.05
     fn the_path_error_equals_minus_the_radial_error_for_a_ccw_circle() {
         let tr = build_str(EXAMPLE, &["x", "y"]).unwrap();
         let c = tr.contour().unwrap();
+        // The distance to the commanded path, as part programs measure it, on a curved path.
+        let index = super::super::path_index::PathIndex::build(tr.as_ref(), c.axes);
         for (t, dr, lag) in [(1.0, 2e-6, 0.0), (2.0, -3e-6, 1e-3), (3.3, 1e-7, 5e-3)] {
             // A point lagging the command by `lag` seconds and off the circle by `dr`.
             let s = at(tr.as_ref(), t - lag);
@@ -422,7 +428,7 @@ dwell_after_s = 0.05
             let p = [-0.01 + ux * (r + dr) / r, uy * (r + dr) / r];
             let radial = c.radial_error_m(p).unwrap();
             assert!((radial - dr).abs() < 1e-15);
-            let path = super::super::path_error_m(tr.as_ref(), c.axes, t, p).unwrap();
+            let path = index.distance_m(tr.as_ref(), t, p);
             assert!(
                 (path + dr).abs() < 1e-12,
                 "t={t}: path error {path}, radial {dr}"

@@ -43,7 +43,7 @@ use crate::controller::REF_DERIVS;
 use crate::params::{ConfigError, Fields, Range};
 
 use super::jet::{self, Jet};
-use super::path_index::PathIndex;
+use super::path_index::{segment_distance, PathIndex};
 use super::poly::{taylor_at, SMOOTHSTEP_INTEGRAL, SMOOTHSTEP_PEAK_SLOPE};
 use super::{per_axis, Contour, ContourShape, Ctx, RefState, Trajectory};
 
@@ -122,14 +122,7 @@ impl PathSegment {
     pub fn distance_xy_m(&self, p: [f64; 2]) -> f64 {
         match self {
             PathSegment::Line { from_m, to_m, .. } => {
-                let (dx, dy) = (to_m[0] - from_m[0], to_m[1] - from_m[1]);
-                let l2 = dx * dx + dy * dy;
-                let u = if l2 > 0.0 {
-                    (((p[0] - from_m[0]) * dx + (p[1] - from_m[1]) * dy) / l2).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                (p[0] - from_m[0] - u * dx).hypot(p[1] - from_m[1] - u * dy)
+                segment_distance(p, [from_m[0], from_m[1]], [to_m[0], to_m[1]])
             }
             PathSegment::Arc {
                 center_m,
@@ -1147,13 +1140,14 @@ impl Trajectory for ProgramTrajectory {
 
     /// The signed distance from the measured X-Y point to the commanded (blended) path within
     /// [`super::path_index::WINDOW_BEHIND_S`] before and
-    /// [`super::path_index::WINDOW_AHEAD_S`] after the command at `t_s` (see [`PathIndex`]). The first call builds the path index (it allocates once).
+    /// [`super::path_index::WINDOW_AHEAD_S`] after the command at `t_s` (see [`PathIndex`]).
+    /// The first call builds the path index (it allocates once).
     fn contour_error_m(&self, t_s: f64, actual: &[f64]) -> Option<f64> {
         let c = self.contour()?;
         let p = [*actual.get(c.axes[0])?, *actual.get(c.axes[1])?];
         let index = self
             .path_index
-            .get_or_init(|| PathIndex::build(self, c.axes, &self.breakpoints_s()));
+            .get_or_init(|| PathIndex::build(self, c.axes));
         Some(index.distance_m(self, t_s, p))
     }
 

@@ -112,14 +112,16 @@ pub trait Trajectory: Send + Sync {
     }
 
     /// Contour error at time `t_s` for the measured load positions `actual` (all axes, job
-    /// order), m; `None` when the trajectory has no contour. Does not allocate.
-    fn contour_error_m(&self, t_s: f64, actual: &[f64]) -> Option<f64> {
+    /// order), m; `None` when the trajectory has no contour. Does not allocate in the control
+    /// cycle. The default answers a circle; a trajectory whose contour needs its own geometry
+    /// overrides it (the X-C cam's profile, a part program's path through its
+    /// [`path_index::PathIndex`]).
+    fn contour_error_m(&self, _t_s: f64, actual: &[f64]) -> Option<f64> {
         let c = self.contour()?;
         let p = [*actual.get(c.axes[0])?, *actual.get(c.axes[1])?];
         match c.shape {
             ContourShape::Circle { .. } => c.radial_error_m(p),
-            ContourShape::Path => path_error_m(self, c.axes, t_s, p),
-            ContourShape::Profile => None,
+            ContourShape::Path | ContourShape::Profile => None,
         }
     }
 
@@ -135,72 +137,6 @@ pub trait Trajectory: Send + Sync {
     fn breakpoints_s(&self) -> Vec<f64> {
         Vec::new()
     }
-}
-
-/// Signed distance (m) from `p` to the commanded path of `traj` in the plane of `axes`, found
-/// by a local search on the time parameter starting at `t_s` (Newton steps, Gauss-Newton where
-/// the squared distance is concave, each accepted only if the distance falls); positive to the
-/// left of travel. It is the default for custom trajectories with a [`ContourShape::Path`]; it
-/// stops at the command where the command rests, and can stop at a local minimum when the path
-/// turns or reverses between the command and `p`: [`path_index::PathIndex`] searches a whole
-/// time window and is what part programs use. No allocation.
-pub fn path_error_m<T: Trajectory + ?Sized>(
-    traj: &T,
-    axes: [usize; 2],
-    t_s: f64,
-    p: [f64; 2],
-) -> Option<f64> {
-    let n = traj.axes().len();
-    if n > MAX_AXES || axes[0] >= n || axes[1] >= n {
-        return None;
-    }
-    let mut buf = [[0.0; REF_DERIVS]; MAX_AXES];
-    let mut at = |tau: f64| {
-        traj.eval(tau, &mut buf[..n]);
-        (buf[axes[0]], buf[axes[1]])
-    };
-    let dist2 = |x: &RefState, y: &RefState| (p[0] - x[0]).powi(2) + (p[1] - y[0]).powi(2);
-    let mut tau = t_s;
-    let (mut x, mut y) = at(tau);
-    let mut d2 = dist2(&x, &y);
-    for _ in 0..20 {
-        let (ex, ey) = (x[0] - p[0], y[0] - p[1]);
-        let g1 = ex * x[1] + ey * y[1];
-        let speed2 = x[1] * x[1] + y[1] * y[1];
-        let mut g2 = speed2 + ex * x[2] + ey * y[2];
-        if g2 <= 0.0 {
-            // concave here (a corner between the command and p): the Gauss-Newton curvature
-            g2 = speed2;
-        }
-        if g2 <= 0.0 || !g2.is_finite() {
-            break;
-        }
-        let mut step = -g1 / g2;
-        let mut improved = false;
-        for _ in 0..30 {
-            let (nx, ny) = at(tau + step);
-            let nd2 = dist2(&nx, &ny);
-            if nd2 <= d2 {
-                (x, y, d2) = (nx, ny, nd2);
-                tau += step;
-                improved = true;
-                break;
-            }
-            step *= 0.5;
-        }
-        if !improved || step.abs() < 1e-12 {
-            break;
-        }
-    }
-    let (vx, vy) = (x[1], y[1]);
-    let speed = vx.hypot(vy);
-    let d = d2.sqrt();
-    let scale = p[0].abs().max(p[1].abs()).max(1.0);
-    if speed <= 1e-12 * scale {
-        return Some(d);
-    }
-    let cross = vx * (p[1] - y[0]) - vy * (p[0] - x[0]);
-    Some(if cross < 0.0 { -d } else { d })
 }
 
 /// Builds the trajectory described by a job's `[trajectory]` table. `file` is the job file

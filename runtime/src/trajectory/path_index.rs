@@ -86,8 +86,8 @@ fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
     a[0] * b[0] + a[1] * b[1]
 }
 
-/// Distance from `p` to the segment `a`-`b`.
-fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+/// Distance from `p` to the segment `a`-`b` (m, or whatever unit the points are in).
+pub(crate) fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let d = sub(b, a);
     let l2 = dot(d, d);
     let w = sub(p, a);
@@ -126,14 +126,13 @@ fn fits(run: &[[f64; 2]], last: [f64; 2], tol: f64) -> bool {
 
 impl PathIndex {
     /// Samples the commanded path of `axes` (job axis indices) of `traj` over its whole
-    /// duration. `breakpoints` (s) are times at which the trajectory changes its law (motion
-    /// starts and ends, blend limits): they are always sampled, so a short blend or a rest is
-    /// never stepped over.
-    pub fn build<T: Trajectory + ?Sized>(traj: &T, axes: [usize; 2], breakpoints: &[f64]) -> Self {
+    /// duration. The trajectory's [`Trajectory::breakpoints_s`] (motion starts and ends, blend
+    /// limits) are always sampled, so a short blend or a rest is never stepped over.
+    pub fn build<T: Trajectory + ?Sized>(traj: &T, axes: [usize; 2]) -> Self {
         let end = traj.duration_s().max(0.0);
-        let mut bps: Vec<f64> = breakpoints
-            .iter()
-            .copied()
+        let mut bps: Vec<f64> = traj
+            .breakpoints_s()
+            .into_iter()
             .filter(|b| b.is_finite() && *b > 0.0 && *b < end)
             .collect();
         bps.sort_by(f64::total_cmp);
@@ -200,11 +199,6 @@ impl PathIndex {
         index.t.shrink_to_fit();
         index.p.shrink_to_fit();
         index
-    }
-
-    /// Number of chords.
-    pub fn chords(&self) -> usize {
-        self.t.len().saturating_sub(1)
     }
 
     /// Signed distance (m) from `p` to the commanded path between `t_s - WINDOW_BEHIND_S` and
