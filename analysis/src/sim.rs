@@ -15,7 +15,7 @@ use feedloop_runtime::export::{row_values, trace_columns};
 use feedloop_runtime::job::Job;
 use feedloop_runtime::params::ConfigError;
 use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::summary::{ContourMode, Tracking};
+use feedloop_runtime::summary::Tracking;
 use feedloop_runtime::trace::TraceWriter;
 use feedloop_runtime::trajectory::path_index::PathIndex;
 use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
@@ -174,14 +174,6 @@ impl ContourJudge {
         Self { kind }
     }
 
-    /// Whether rows get a contour error.
-    pub fn mode(&self) -> ContourMode {
-        match self.kind {
-            JudgeKind::None => ContourMode::None,
-            _ => ContourMode::Given,
-        }
-    }
-
     /// The contour error (m) of one trace row: time `t_s`, measured load positions in `rows`
     /// (job order).
     #[inline]
@@ -218,7 +210,7 @@ pub fn simulate(
     let n = names.len();
     let total = sim.cycles();
     let judge = ContourJudge::new(job, &sim.cycle);
-    let mut tracking = Tracking::for_job(job, judge.mode());
+    let mut tracking = Tracking::for_job(job);
     let io_err = |p: &Path, e: std::io::Error| SimError::Io {
         path: p.display().to_string(),
         source: e,

@@ -524,7 +524,7 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     let n = names.len();
     let cycle = ControlCycle::new(job, &Builtins)?;
     let judge = ContourJudge::new(job, &cycle);
-    let mut tracking = Tracking::for_job(job, judge.mode());
+    let mut tracking = Tracking::for_job(job);
 
     let trace_path = dir.join("trace.csv");
     let f = std::fs::File::create(&trace_path)

@@ -195,7 +195,7 @@ pub fn human_summary(v: &Value) -> String {
 mod tests {
     use super::*;
     use crate::record::AxisRecord;
-    use crate::summary::{ContourMode, Tracking};
+    use crate::summary::Tracking;
 
     #[test]
     fn summary_lists_axes_in_job_order_with_their_units_and_prints_rotary_errors_in_urad() {
@@ -217,7 +217,7 @@ mod tests {
         )
         .unwrap();
         let job = crate::job::Job::load(&dir.join("j.toml")).unwrap();
-        let mut t = Tracking::for_job(&job, ContourMode::None);
+        let mut t = Tracking::for_job(&job);
         let rec = |cmd: f64, load: f64| AxisRecord {
             cmd,
             load,

@@ -122,17 +122,8 @@ pub struct ContourFigures {
     pub rms_error: f64,
 }
 
-/// Whether a run has a contour error.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ContourMode {
-    /// No contour (single-axis jobs).
-    None,
-    /// The caller measures each row's contour error (the trajectory's own contour, or the
-    /// distance to the commanded path of two driven axes) and passes it to [`Tracking::push`].
-    Given,
-}
-
-/// Streams trace rows and accumulates the tracking figures (constant memory).
+/// Streams trace rows and accumulates the tracking figures (constant memory). A run has contour
+/// figures when its rows came with contour errors (see [`Tracking::push`]).
 #[derive(Debug, Clone)]
 pub struct Tracking {
     names: Vec<String>,
@@ -141,22 +132,20 @@ pub struct Tracking {
     sum_sq: Vec<f64>,
     max_abs: Vec<f64>,
     rows: u64,
-    mode: ContourMode,
     contour_rows: u64,
     contour_sum_sq: f64,
     contour_max: f64,
 }
 
 impl Tracking {
-    /// For axes `names` (job order), judging the contour as `mode` says.
-    pub fn new(names: &[String], mode: ContourMode) -> Self {
+    /// For axes `names` (job order), units unknown.
+    pub fn new(names: &[String]) -> Self {
         Self {
             names: names.to_vec(),
             units: vec![None; names.len()],
             sum_sq: vec![0.0; names.len()],
             max_abs: vec![0.0; names.len()],
             rows: 0,
-            mode,
             contour_rows: 0,
             contour_sum_sq: 0.0,
             contour_max: 0.0,
@@ -164,8 +153,8 @@ impl Tracking {
     }
 
     /// For the axes of `job` (job order, each with its load unit: m, or rad for a rotary axis).
-    pub fn for_job(job: &crate::job::Job, mode: ContourMode) -> Self {
-        let mut t = Self::new(&job.axis_names(), mode);
+    pub fn for_job(job: &crate::job::Job) -> Self {
+        let mut t = Self::new(&job.axis_names());
         for (u, a) in t.units.iter_mut().zip(&job.axes) {
             *u = Some(match a.model.plant.kind() {
                 crate::model::AxisKind::Rotary => "rad",
@@ -175,56 +164,47 @@ impl Tracking {
         t
     }
 
-    /// Per-axis figures in job order, with each axis's load unit when known.
-    pub fn axes_in_order(&self) -> Vec<(String, AxisFigures, Option<&'static str>)> {
-        let figures = self.axes();
-        self.names
-            .iter()
-            .zip(&self.units)
-            .map(|(n, u)| (n.clone(), figures[n], *u))
-            .collect()
-    }
-
-    /// Adds one cycle's rows; `contour_error` is the row's contour error (m) in
-    /// [`ContourMode::Given`] (rows without one, or with a non-finite one, are left out of the
-    /// contour figures).
+    /// Adds one cycle's rows; `contour_error` is the row's contour error (m) when the run has a
+    /// contour (rows without one, or with a non-finite one, are left out of the contour figures).
     pub fn push(&mut self, axes: &[AxisRecord], contour_error: Option<f64>) {
         for (i, a) in axes.iter().enumerate().take(self.names.len()) {
             let e = a.cmd - a.load;
             self.sum_sq[i] += e * e;
             self.max_abs[i] = self.max_abs[i].max(e.abs());
         }
-        if self.mode == ContourMode::Given {
-            if let Some(e) = contour_error.filter(|e| e.is_finite()) {
-                self.contour_rows += 1;
-                self.contour_sum_sq += e * e;
-                self.contour_max = self.contour_max.max(e.abs());
-            }
+        if let Some(e) = contour_error.filter(|e| e.is_finite()) {
+            self.contour_rows += 1;
+            self.contour_sum_sq += e * e;
+            self.contour_max = self.contour_max.max(e.abs());
         }
         self.rows += 1;
     }
 
-    /// Per-axis figures.
-    pub fn axes(&self) -> BTreeMap<String, AxisFigures> {
+    /// Per-axis figures in job order, with each axis's load unit when known.
+    pub fn axes_in_order(&self) -> Vec<(String, AxisFigures, Option<&'static str>)> {
         let n = self.rows.max(1) as f64;
-        self.names
-            .iter()
-            .enumerate()
-            .map(|(i, name)| {
-                (
-                    name.clone(),
-                    AxisFigures {
-                        max_following_error: self.max_abs[i],
-                        rms_following_error: (self.sum_sq[i] / n).sqrt(),
-                    },
-                )
+        (0..self.names.len())
+            .map(|i| {
+                let figures = AxisFigures {
+                    max_following_error: self.max_abs[i],
+                    rms_following_error: (self.sum_sq[i] / n).sqrt(),
+                };
+                (self.names[i].clone(), figures, self.units[i])
             })
             .collect()
     }
 
-    /// Contour figures, when the run has a contour and rows were measured.
+    /// Per-axis figures by axis name.
+    pub fn axes(&self) -> BTreeMap<String, AxisFigures> {
+        self.axes_in_order()
+            .into_iter()
+            .map(|(name, figures, _)| (name, figures))
+            .collect()
+    }
+
+    /// Contour figures, when rows came with contour errors.
     pub fn contour(&self) -> Option<ContourFigures> {
-        if self.mode == ContourMode::None || self.contour_rows == 0 {
+        if self.contour_rows == 0 {
             return None;
         }
         Some(ContourFigures {
@@ -289,7 +269,7 @@ mod tests {
                 },
             ]
         };
-        let mut t = Tracking::new(&names, ContourMode::Given);
+        let mut t = Tracking::new(&names);
         t.push(&row(3e-6, -4e-6), Some(-2e-6));
         t.push(&row(-1e-6, 0.0), None);
         t.push(&row(0.0, 0.0), Some(f64::NAN));
@@ -305,8 +285,13 @@ mod tests {
         assert!((a["x"].max_following_error - 3e-6).abs() < 1e-15);
         assert!((a["y"].max_following_error - 4e-6).abs() < 1e-15);
         assert!((a["x"].rms_following_error - (10e-12f64 / 4.0).sqrt()).abs() < 1e-15);
-        let mut none = Tracking::new(&names, ContourMode::None);
-        none.push(&row(1e-6, 1e-6), Some(5e-6));
-        assert_eq!(none.contour(), None);
+        let mut none = Tracking::new(&names);
+        none.push(&row(1e-6, 1e-6), None);
+        none.push(&row(1e-6, 1e-6), Some(f64::NAN));
+        assert_eq!(
+            none.contour(),
+            None,
+            "no contour without a finite contour error"
+        );
     }
 }
