@@ -170,21 +170,28 @@ fn local_max_near(mag: &[f64], df: f64, f: f64) -> Option<f64> {
     (i > i0 && i < i1 && mag[i] > 2.0 * mag[i0].min(mag[i1])).then_some(i as f64 * df)
 }
 
-#[test]
-fn third_mass_adds_a_second_resonance_where_the_3_mass_chain_predicts_it() {
-    // 200 kg on 7.9e7 N/m (100 Hz alone), 2 % damping, behind the table.
-    let (m3, k3, c3) = (200.0, 200.0 * (2.0 * PI * 100.0f64).powi(2), 5000.0);
+/// 200 kg on 7.9e7 N/m (100 Hz alone), 2 % damping, behind the table: the model lines and the
+/// two modes (Hz) of the free-free chain JM -KL- JL -K3- J3 (motor units, w^4 - b w^2 + c = 0).
+fn third_mass_200_kg() -> (String, f64, f64) {
+    let (m3, k3, c3) = (200.0, THIRD_MASS_K_N_PER_M, 5000.0);
     let extra = format!(
         "[effects.third_mass]\nmass_kg = {m3}\nstiffness_n_per_m = {k3}\ndamping_ns_per_m = {c3}\n"
     );
-    // Free-free chain JM -KL- JL -K3- J3 (motor units): w^4 - b w^2 + c = 0.
     let (j1, j2, j3) = (2e-3, 3e-3, m3 / (R * R));
     let (k1, k2) = (3000.0, k3 / (R * R));
     let b = k1 / j1 + k1 / j2 + k2 / j2 + k2 / j3;
     let cc = k1 * k2 * (j1 + j2 + j3) / (j1 * j2 * j3);
     let disc = (b * b - 4.0 * cc).sqrt();
-    let f_lo = ((b - disc) / 2.0).sqrt() / (2.0 * PI);
-    let f_hi = ((b + disc) / 2.0).sqrt() / (2.0 * PI);
+    let mode = |w2: f64| w2.sqrt() / (2.0 * PI);
+    (extra, mode((b - disc) / 2.0), mode((b + disc) / 2.0))
+}
+
+/// The third mass's spring: 100 Hz for 200 kg alone.
+const THIRD_MASS_K_N_PER_M: f64 = 200.0 * (2.0 * PI * 100.0) * (2.0 * PI * 100.0);
+
+#[test]
+fn third_mass_adds_a_second_resonance_where_the_3_mass_chain_predicts_it() {
+    let (extra, f_lo, f_hi) = third_mass_200_kg();
     let f_2mass = (3000.0f64 * 5e-3 / 6e-6).sqrt() / (2.0 * PI);
     let (df, mag) = closed_loop_frf(&extra);
     let (df0, mag0) = closed_loop_frf("");
@@ -210,12 +217,8 @@ fn extrema(x: &[f64]) -> usize {
 
 #[test]
 fn third_mass_rings_after_a_fast_move_at_the_frequency_of_the_chain() {
-    // 200 kg on 7.9e7 N/m (100 Hz alone), 2 % damping; a 10 mm move at 100 mm/s with 10 ms
-    // ramps, then 0.2 s at rest.
-    let (m3, k3, c3) = (200.0, 200.0 * (2.0 * PI * 100.0f64).powi(2), 5000.0);
-    let extra = format!(
-        "[effects.third_mass]\nmass_kg = {m3}\nstiffness_n_per_m = {k3}\ndamping_ns_per_m = {c3}\n"
-    );
+    // The 200 kg third mass; a 10 mm move at 100 mm/s with 10 ms ramps, then 0.2 s at rest.
+    let (extra, f_lo, _) = third_mass_200_kg();
     let (dist, v, t_acc, t_dwell) = (0.01, 0.1, 0.01, 0.2);
     let traj = |t: f64| trapezoid(t, dist, v, t_acc, t_dwell);
     let run = |extra: &str| {
@@ -244,14 +247,9 @@ fn third_mass_rings_after_a_fast_move_at_the_frequency_of_the_chain() {
         .collect();
     let f_ring =
         (crossings.len() - 1) as f64 / (2.0 * (crossings[crossings.len() - 1] - crossings[0]));
-    // The chain JM -KL- JL -K3- J3 with the table held by the loop rings between the third
-    // mass on a fixed table (100 Hz) and the free-free chain's first mode.
-    let (j1, j2, j3) = (2e-3, 3e-3, m3 / (R * R));
-    let (k1, k2) = (3000.0, k3 / (R * R));
-    let b = k1 / j1 + k1 / j2 + k2 / j2 + k2 / j3;
-    let cc = k1 * k2 * (j1 + j2 + j3) / (j1 * j2 * j3);
-    let f_lo = ((b - (b * b - 4.0 * cc).sqrt()) / 2.0).sqrt() / (2.0 * PI);
-    let f_alone = (k3 / m3).sqrt() / (2.0 * PI);
+    // The chain with the table held by the loop rings between the third mass on a fixed table
+    // (100 Hz) and the free-free chain's first mode.
+    let f_alone = (THIRD_MASS_K_N_PER_M / 200.0).sqrt() / (2.0 * PI);
     let amp = |x: &[f64], from: usize, to: usize| {
         x[from..to]
             .iter()
