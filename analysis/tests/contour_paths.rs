@@ -14,15 +14,13 @@
 
 mod controllers_util;
 
-use controllers_util::examples;
+use controllers_util::{examples, job_from_text};
 use feedloop_analysis::sim::{simulate, ContourJudge, Simulation};
 use feedloop_plugins::Builtins;
 use feedloop_runtime::job::Job;
 use feedloop_runtime::record::AxisRecord;
 use feedloop_runtime::trajectory::gcode::parse_program;
 use feedloop_runtime::trajectory::path_index::{WINDOW_AHEAD_S, WINDOW_BEHIND_S};
-
-use controllers_util::job_from_text;
 
 fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
@@ -63,17 +61,17 @@ fn program_contour_error_is_the_distance_to_the_path_not_the_lag_behind_the_comm
     let summary = report.tracking.contour().expect("a program has a contour");
 
     let mut sim = Simulation::new(&job, &Builtins).unwrap();
+    let judge = ContourJudge::new(&job, &sim.cycle);
     let n = sim.cycles() as usize;
     let mut rows = vec![[AxisRecord::default(); 2]; n];
     let mut errors = Vec::with_capacity(n);
     for (k, r) in rows.iter_mut().enumerate() {
         sim.step(r);
-        let e = sim
-            .cycle
-            .trajectory()
-            .contour_error_m(sim.cycle.time_of(k as u64), &[r[0].load, r[1].load])
-            .unwrap();
-        errors.push(e);
+        errors.push(
+            judge
+                .error_m(&sim.cycle, sim.cycle.time_of(k as u64), r)
+                .unwrap(),
+        );
     }
     let h = job.period_s;
     let (behind, ahead) = (
