@@ -8,22 +8,22 @@
 use std::io::Write;
 use std::path::Path;
 
+use feedloop_control::controller::PluginRegistry;
+use feedloop_model::job::Job;
+use feedloop_model::params::ConfigError;
+use feedloop_motion::path_index::PathIndex;
 use feedloop_plant::Plant;
-use feedloop_runtime::controller::PluginRegistry;
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::export::{row_values, trace_columns};
-use feedloop_runtime::job::Job;
-use feedloop_runtime::params::ConfigError;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::summary::Tracking;
-use feedloop_runtime::trace::TraceWriter;
-use feedloop_runtime::trajectory::path_index::PathIndex;
-use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+use feedloop_runtime::scheduler::cycle::ControlCycle;
+use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+use feedloop_trace::export::{row_values, trace_columns};
+use feedloop_trace::log::AxisRecord;
+use feedloop_trace::summary::Tracking;
+use feedloop_trace::TraceWriter;
 
 /// The simulated plant behind the plant process's device trait.
 pub struct SimDevice(pub Plant);
 
-impl feedloop_runtime::plant_loop::PlantDevice for SimDevice {
+impl feedloop_runtime::plant::PlantDevice for SimDevice {
     fn axis_count(&self) -> usize {
         self.0.axis_count()
     }

@@ -6,7 +6,6 @@
 mod controllers_util;
 
 use controllers_util::{job_from_text, run};
-use feedloop_runtime::trajectory;
 
 const JOB: &str = r#"
 period_s = 1.0e-4
@@ -53,8 +52,8 @@ ramp_s = 0.1
 #[test]
 fn a_circle_run_both_ways_shows_the_quadrant_glitches_of_both_directions_at_the_same_places() {
     let job = job_from_text("circle-both-ways", JOB);
-    let traj =
-        trajectory::build(&job.trajectory, &job.path, &job.axis_names(), job.period_s).unwrap();
+    let traj = feedloop_motion::build(&job.trajectory, &job.path, &job.axis_names(), job.period_s)
+        .unwrap();
     let windows = traj.steady_windows_s();
     assert_eq!(windows.len(), 2, "one steady window per direction");
     let rows = run(&job);

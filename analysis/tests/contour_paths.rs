@@ -16,11 +16,11 @@ mod controllers_util;
 
 use controllers_util::{examples, job_from_text};
 use feedloop_analysis::sim::{simulate, ContourJudge, Simulation};
+use feedloop_model::job::Job;
+use feedloop_motion::gcode::parse_program;
+use feedloop_motion::path_index::{WINDOW_AHEAD_S, WINDOW_BEHIND_S};
 use feedloop_plugins::Builtins;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::trajectory::gcode::parse_program;
-use feedloop_runtime::trajectory::path_index::{WINDOW_AHEAD_S, WINDOW_BEHIND_S};
+use feedloop_trace::log::AxisRecord;
 
 fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);

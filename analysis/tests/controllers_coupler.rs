@@ -3,8 +3,7 @@
 mod controllers_util;
 
 use controllers_util::{job_from_text, run};
-use feedloop_runtime::job::Job;
-use feedloop_runtime::trajectory;
+use feedloop_model::job::Job;
 
 const GEOMETRY: &str =
     "wheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.005\ndisc_radius_m = 0.03";
@@ -46,8 +45,8 @@ struct Figures {
 #[allow(clippy::needless_range_loop)] // indexes two parallel record arrays by cycle
 fn figures(job: &Job) -> Figures {
     let rec = run(job);
-    let traj =
-        trajectory::build(&job.trajectory, &job.path, &job.axis_names(), job.period_s).unwrap();
+    let traj = feedloop_motion::build(&job.trajectory, &job.path, &job.axis_names(), job.period_s)
+        .unwrap();
     let n = rec[0].len();
     let w = (0.1 / job.period_s) as usize;
     let mut worst: f64 = 0.0;

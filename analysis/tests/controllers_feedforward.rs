@@ -3,7 +3,7 @@
 mod controllers_util;
 
 use controllers_util::{examples, max_following_error, run};
-use feedloop_runtime::job::Job;
+use feedloop_model::job::Job;
 
 const MODEL: &str = r#"
 kind = "ballscrew"

@@ -5,8 +5,8 @@ mod controllers_util;
 use std::path::Path;
 
 use controllers_util::{run, temp_dir, try_run, write_job};
+use feedloop_model::job::Job;
 use feedloop_plugins::quadrant_learn::{learn_quadrant, reversal_curves, LearnOptions};
-use feedloop_runtime::job::Job;
 
 /// The X-Y circle on the friction models with split feedforward and a compensator stage `comp`
 /// (plugin line + params) on both axes.
@@ -33,8 +33,7 @@ fn circle_job(dir: &Path, comp: Option<(&str, &str)>) -> Job {
 fn spikes(job: &Job) -> [f64; 2] {
     let rec = run(job);
     let names = job.axis_names();
-    let tr = feedloop_runtime::trajectory::build(&job.trajectory, &job.path, &names, job.period_s)
-        .unwrap();
+    let tr = feedloop_motion::build(&job.trajectory, &job.path, &names, job.period_s).unwrap();
     let n = rec[0].len();
     let mut vel = [vec![0.0; n], vec![0.0; n]];
     let mut buf = vec![[0.0; 6]; 2];

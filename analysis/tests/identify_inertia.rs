@@ -7,7 +7,7 @@ use feedloop_analysis::identify::inertia::{
     job_with_jl, linear, records_deviation, run_axis, sim_match, simulated_deviation,
     DeviationKind, Probe,
 };
-use feedloop_runtime::job::Job;
+use feedloop_model::job::Job;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 

@@ -8,9 +8,9 @@ use feedloop_analysis::identify::stiffness::{
 };
 use feedloop_analysis::identify::IdentifyError;
 use feedloop_analysis::sim::simulate;
+use feedloop_model::job::Job;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use feedloop_analysis::identify::tune::{
     evaluate, job_with_gains, margins, parse_grid, ramp_error, tune, Gains,
 };
-use feedloop_runtime::job::Job;
+use feedloop_model::job::Job;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 

@@ -12,11 +12,11 @@ use feedloop_analysis::workbench::{
     effects::WbModel,
     fit::fit_with,
 };
+use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
+use feedloop_model::model::ModelFile;
 use feedloop_plant::AxisPlant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
-use feedloop_runtime::model::ModelFile;
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 
 const DT: f64 = 5e-4;
 

@@ -11,7 +11,7 @@ use feedloop_analysis::workbench::{
     effects::WbModel,
     fit::fit,
 };
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 
 fn data_file() -> Option<PathBuf> {
     let p =

@@ -18,8 +18,8 @@ use feedloop_analysis::workbench::{
     effects::WbModel,
     fit::fit_with,
 };
-use feedloop_runtime::model::ModelFile;
-use feedloop_runtime::trace::Trace;
+use feedloop_model::model::ModelFile;
+use feedloop_trace::Trace;
 
 const DT: f64 = 1e-3;
 const M: f64 = 20.0;

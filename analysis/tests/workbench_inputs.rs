@@ -11,7 +11,7 @@ use feedloop_analysis::workbench::{
     import::{import, model_init, parse_map},
     report,
 };
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 
 fn dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("feedloop-wb-{name}-{}", std::process::id()));
@@ -108,7 +108,7 @@ fn a_trace_without_torque_is_refused_naming_the_missing_column() {
     )
     .unwrap();
     let t: toml::Table = "kind = \"rigid\"\nmass_kg = 1.0\n".parse().unwrap();
-    let mf = feedloop_runtime::model::ModelFile::from_table(&t, Path::new("m.toml")).unwrap();
+    let mf = feedloop_model::model::ModelFile::from_table(&t, Path::new("m.toml")).unwrap();
     let d = load_axis(&tr, &mf, "x", &Prep::default()).unwrap();
     let e = d.require_torque("diagnose", &tr).unwrap_err().to_string();
     assert!(
@@ -141,7 +141,7 @@ fn a_model_for_another_axis_or_another_screw_is_refused() {
     assert!(e.contains("no axis `y`"), "{e}");
     // the motor turns twice as far per metre as a 10 mm lead implies
     let t: toml::Table = "kind = \"ballscrew\"\njm_kgm2 = 1e-3\nkl_nm_per_rad = 1e3\njl_kgm2 = 1e-3\nlead_m = 0.01\n".parse().unwrap();
-    let mf = feedloop_runtime::model::ModelFile::from_table(&t, Path::new("m.toml")).unwrap();
+    let mf = feedloop_model::model::ModelFile::from_table(&t, Path::new("m.toml")).unwrap();
     let e = load_axis(&tr, &mf, "x", &Prep::default())
         .unwrap_err()
         .to_string();

@@ -17,11 +17,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use criterion::Criterion;
-use feedloop_runtime::clock::now_ns;
-use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
-use feedloop_runtime::job::WaitKind;
-use feedloop_runtime::rt;
-use feedloop_runtime::wire::{ActuatorCommand, SensorSample, FLAG_END};
+use feedloop_model::job::WaitKind;
+use feedloop_runtime::shared::clock::now_ns;
+use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
+use feedloop_runtime::shared::rt;
+use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample, FLAG_END};
 
 const PEER_ENV: &str = "FEEDLOOP_BENCH_PEER";
 const CPUS_ENV: &str = "FEEDLOOP_BENCH_CPUS";

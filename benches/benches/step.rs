@@ -14,14 +14,14 @@ use std::path::{Path, PathBuf};
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use feedloop_analysis::sim::Simulation;
+use feedloop_control::controller::{CycleContext, REF_DERIVS};
+use feedloop_model::job::Job;
+use feedloop_motion::RefState;
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::controller::{CycleContext, REF_DERIVS};
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::trajectory::RefState;
-use feedloop_runtime::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+use feedloop_runtime::scheduler::cycle::ControlCycle;
+use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+use feedloop_trace::log::AxisRecord;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -10,8 +10,8 @@ use anyhow::{bail, Context, Result};
 use hdrhistogram::Histogram;
 use serde_json::{json, Value};
 
-use feedloop_runtime::job::{Mode, WaitKind};
-use feedloop_runtime::record::{
+use feedloop_model::job::{Mode, WaitKind};
+use feedloop_trace::log::{
     read_log, PlantRecord, SchedRecord, REC_MISSED, REC_OVERRUN, REC_STALL, REC_WAIT_INTERRUPTED,
 };
 
@@ -413,8 +413,8 @@ mod probe {
     use anyhow::Result;
     use hdrhistogram::Histogram;
 
-    use feedloop_runtime::clock::{now_ns, sleep_until_ns};
-    use feedloop_runtime::rt::{apply, RtRequest};
+    use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
+    use feedloop_runtime::shared::rt::{apply, RtRequest};
 
     /// Result of [`sleeping_loop`].
     pub struct Sleeping {

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use serde_json::json;
 
-use feedloop_runtime::control::request;
+use feedloop_runtime::scheduler::control::request;
 
 /// `feedloop swap`.
 pub fn swap(
@@ -24,7 +24,7 @@ pub fn swap(
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
             // Validate the syntax here so the error names the file and line.
-            feedloop_runtime::params::parse_toml(p, &text)?;
+            feedloop_model::params::parse_toml(p, &text)?;
             Some(text)
         }
         None => None,

@@ -9,9 +9,9 @@ use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
 };
 use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
-use feedloop_runtime::job::Job;
-use feedloop_runtime::trace::Trace;
-use feedloop_runtime::trajectory::{build_at, excitation::write_excitation_csv};
+use feedloop_model::job::Job;
+use feedloop_motion::{build_at, excitation::write_excitation_csv};
+use feedloop_trace::Trace;
 
 /// `feedloop identify ...`.
 #[derive(clap::Subcommand, Debug)]

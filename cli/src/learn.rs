@@ -7,9 +7,9 @@ use anyhow::{Context, Result};
 use serde_json::json;
 
 use feedloop_analysis::sim::run_records;
+use feedloop_model::job::Job;
 use feedloop_plugins::quadrant_learn::{learn_quadrant, LearnOptions};
 use feedloop_plugins::Builtins;
-use feedloop_runtime::job::Job;
 
 /// Learning subcommands.
 #[derive(clap::Subcommand, Debug)]

@@ -10,22 +10,22 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
 
 use feedloop_analysis::sim::{simulate, ContourJudge, SimDevice};
+use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::export::{
-    human_summary, row_values, summary_json, trace_columns, EndInfo, SummaryInput,
-};
-use feedloop_runtime::ipc::IpcError;
-use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
-use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{
+use feedloop_runtime::plant::{
     run_plant, PlantEnd, PlantLoopConfig, PlantLoopError, PlantOutcome, StopCause,
 };
-use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord};
+use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
-use feedloop_runtime::summary::{timing, Tracking};
-use feedloop_runtime::trace::TraceWriter;
+use feedloop_runtime::shared::ipc::IpcError;
+use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint};
+use feedloop_trace::export::{
+    human_summary, row_values, summary_json, trace_columns, EndInfo, SummaryInput,
+};
+use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
+use feedloop_trace::summary::{timing, Tracking};
+use feedloop_trace::TraceWriter;
 
 use crate::signals;
 
@@ -158,7 +158,7 @@ pub struct ProcArgs {
 }
 
 fn apply_rt(a: &ProcArgs, wait: WaitKind) -> Value {
-    let mut req = feedloop_runtime::rt::RtRequest {
+    let mut req = feedloop_runtime::shared::rt::RtRequest {
         mlockall: !a.no_mlock,
         fifo_priority: a.fifo,
         cpu: a.cpu,
@@ -168,7 +168,7 @@ fn apply_rt(a: &ProcArgs, wait: WaitKind) -> Value {
         req.fifo_priority = None;
         note = Some("SCHED_FIFO refused with the busy wait: an unbounded spin at real-time priority is throttled by the kernel".to_string());
     }
-    let mut applied = feedloop_runtime::rt::apply(&req);
+    let mut applied = feedloop_runtime::shared::rt::apply(&req);
     applied.notes.extend(note);
     serde_json::to_value(&applied).unwrap_or(Value::Null)
 }
@@ -260,7 +260,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 "cycles": outcome.cycles, "planned_cycles": cfg.cycles, "dropped_records": outcome.dropped_records, "end": end,
                 "commands": {"bad_sequence": outcome.sequence.bad_sequence, "duplicates": outcome.sequence.duplicates,
                              "late": outcome.sequence.late, "missing": outcome.sequence.missing},
-                "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes()}),
+                "realtime": rt, "peak_rss_bytes": feedloop_runtime::shared::rt::peak_resident_bytes()}),
     )?;
     if export {
         // Started by hand: give the scheduler a moment to write its own file, then export.
@@ -303,7 +303,7 @@ pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
         cycle_hook: None,
     };
     let n = job.axes.len();
-    let mut control = feedloop_runtime::control::ControlPlane::open(
+    let mut control = feedloop_runtime::scheduler::control::ControlPlane::open(
         instance,
         &job,
         &cycle,
@@ -332,7 +332,7 @@ pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
                 "nonfinite_faults": cycle.chain().nonfinite_faults,
                 "plugin_panics": cycle.chain().plugin_panics,
                 "dropped_records": outcome.dropped_records, "end": end,
-                "realtime": rt, "peak_rss_bytes": feedloop_runtime::rt::peak_resident_bytes(),
+                "realtime": rt, "peak_rss_bytes": feedloop_runtime::shared::rt::peak_resident_bytes(),
                 "swaps": control.swaps, "rejected_requests": control.rejected,
                 "rejected_count": control.rejected_count}),
     )?;
@@ -411,7 +411,7 @@ pub fn run(
     let mode = mode_of(&job, mode)?;
     let wait = wait_of(&job, wait)?;
     let instance = instance.unwrap_or_else(default_instance);
-    if !feedloop_runtime::job::valid_name(&instance, true) {
+    if !feedloop_model::job::valid_name(&instance, true) {
         bail!("--instance `{instance}`: use lowercase letters, digits, `_` and `-` (at most 64)");
     }
     create_dir(out)?;
@@ -656,7 +656,7 @@ struct WindowCount {
 /// Counts within `window` cycles from each swap cycle on (a union: overlapping windows count
 /// once), and in all other cycles.
 fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCount, WindowCount) {
-    use feedloop_runtime::record::{REC_MISSED, REC_OVERRUN};
+    use feedloop_trace::log::{REC_MISSED, REC_OVERRUN};
     let mut sorted = swaps.to_vec();
     sorted.sort_unstable();
     let mut near = WindowCount::default();
@@ -670,7 +670,7 @@ fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCo
             next < sorted.len() && sorted[next] <= r.seq && r.seq <= sorted[next] + window;
         let slot = if is_near { &mut near } else { &mut far };
         slot.cycles += 1;
-        slot.misses += u64::from(feedloop_runtime::record::is_deadline_miss(r.flags));
+        slot.misses += u64::from(feedloop_trace::log::is_deadline_miss(r.flags));
         slot.late += u64::from(r.flags & (REC_MISSED | REC_OVERRUN) != 0);
     }
     (near, far)
@@ -679,7 +679,7 @@ fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCo
 #[cfg(test)]
 mod swap_window_tests {
     use super::*;
-    use feedloop_runtime::record::{REC_MISSED, REC_OVERRUN};
+    use feedloop_trace::log::{REC_MISSED, REC_OVERRUN};
 
     #[test]
     fn misses_are_split_into_swap_windows_and_the_rest() {

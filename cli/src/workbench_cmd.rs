@@ -17,7 +17,7 @@ use feedloop_analysis::workbench::{
     import::{import, model_init, parse_map},
     report, WorkbenchError,
 };
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 
 /// Workbench subcommands.
 #[derive(clap::Subcommand, Debug)]

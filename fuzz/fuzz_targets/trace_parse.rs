@@ -4,7 +4,7 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = feedloop_runtime::trace::Trace::from_reader(
+    let _ = feedloop_trace::Trace::from_reader(
         std::path::Path::new("fuzz.csv"),
         std::io::Cursor::new(data),
     );

@@ -12,11 +12,11 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{
+use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
-use feedloop_runtime::model::AxisKind;
-use feedloop_runtime::params::{ConfigError, Fields, Range};
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
 
 /// The friction feedforward.
 #[derive(Debug, Clone, Copy, PartialEq)]

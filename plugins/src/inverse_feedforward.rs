@@ -50,11 +50,11 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{
+use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
-use feedloop_runtime::model::PlantParams;
-use feedloop_runtime::params::{ConfigError, Fields, Range};
+use feedloop_model::model::PlantParams;
+use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::pi_velocity::key_names;
 

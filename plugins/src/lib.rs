@@ -17,8 +17,8 @@ pub(crate) mod test_util;
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{AxisContext, Controller, Coupler, PluginRegistry, Stage};
-use feedloop_runtime::params::ConfigError;
+use feedloop_control::controller::{AxisContext, Controller, Coupler, PluginRegistry, Stage};
+use feedloop_model::params::ConfigError;
 
 pub use friction_feedforward::FrictionFeedforward;
 pub use inverse_feedforward::{InverseFeedforward, InverseFeedforwardParams};

@@ -3,7 +3,7 @@
 //! gains vary with hyperbolic and exponential functions over the response, correction
 //! distributed to both drives by the coupling gains).
 //!
-//! Geometry (as the `xc_cam` trajectory, [`feedloop_runtime::trajectory::cam`]): profile r(phi),
+//! Geometry (as the `xc_cam` trajectory, [`feedloop_motion::cam`]): profile r(phi),
 //! wheel radius R, S = sqrt(r^2 + r'^2); X = sqrt(r^2 + R^2 + 2 R r^2 / S) (m),
 //! C = -phi + atan(R r' / (r (S + R))) (rad). The contact angle phi is found each cycle from the
 //! commanded C by Newton's method (warm-started from the last cycle).
@@ -36,10 +36,10 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{AxisContext, AxisSignals, Coupler, CycleContext};
-use feedloop_runtime::model::AxisKind;
-use feedloop_runtime::params::{ConfigError, Fields, Range};
-use feedloop_runtime::trajectory::cam::XcGeometry;
+use feedloop_control::controller::{AxisContext, AxisSignals, Coupler, CycleContext};
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
+use feedloop_motion::cam::XcGeometry;
 
 /// The scheduled gains of the nonlinear PID.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -130,7 +130,7 @@ impl NlPidCouplerParams {
     pub fn from_table(params: &toml::Table, file: &Path) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
         let wheel = f.f64("wheel_radius_m", Range::Positive)?;
-        let profile = feedloop_runtime::trajectory::cam::read_profile(&mut f)?;
+        let profile = feedloop_motion::cam::read_profile(&mut f)?;
         let d = NlPidGains::default();
         let width = Range::Within(1e-12, 1.0);
         let g = NlPidGains {
@@ -317,7 +317,7 @@ impl Coupler for NlPidCoupler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use feedloop_runtime::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
+    use feedloop_model::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
 
     fn contexts() -> Vec<AxisContext> {
         let x = crate::test_util::rigid_axis(1e-4);

@@ -28,11 +28,11 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{
+use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
-use feedloop_runtime::model::AxisKind;
-use feedloop_runtime::params::{ConfigError, Fields, Range};
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::filters::{Biquad, LowPass1, MAX_FRACTION_OF_RATE};
 

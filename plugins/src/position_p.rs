@@ -14,10 +14,10 @@
 
 use std::path::Path;
 
-use feedloop_runtime::controller::{
+use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
-use feedloop_runtime::params::{ConfigError, Fields, Range};
+use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::filters::LowPass1;
 use crate::pi_velocity::read_hz;

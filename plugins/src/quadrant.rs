@@ -49,10 +49,10 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use feedloop_runtime::controller::{
+use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
-use feedloop_runtime::params::{read_toml_file, ConfigError, Fields, Range};
+use feedloop_model::params::{read_toml_file, ConfigError, Fields, Range};
 
 use crate::pi_velocity::key_names;
 
@@ -443,7 +443,7 @@ impl QuadrantParams {
         let (kv_key, _) = key_names(axis.plant.kind());
         let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
         let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
-        let inertia_key = if axis.plant.kind() == feedloop_runtime::model::AxisKind::Rigid {
+        let inertia_key = if axis.plant.kind() == feedloop_model::model::AxisKind::Rigid {
             "mass_kg"
         } else {
             "inertia_kgm2"

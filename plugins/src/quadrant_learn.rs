@@ -22,11 +22,10 @@
 
 use std::path::{Path, PathBuf};
 
-use feedloop_runtime::controller::REF_DERIVS;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::params::ConfigError;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::trajectory;
+use feedloop_control::controller::REF_DERIVS;
+use feedloop_model::job::Job;
+use feedloop_model::params::ConfigError;
+use feedloop_trace::log::AxisRecord;
 
 use crate::quadrant::{
     planned_rise, AxisPulses, Direction, Pulse, QuadrantCompensator, QuadrantTable,
@@ -466,7 +465,7 @@ fn compensated_axes(job: &Job) -> Result<(Vec<(usize, String)>, PathBuf), LearnE
 /// Commanded velocity (load units/s) of every job axis at cycles 0..n.
 fn commanded_velocities(job: &Job, n: usize) -> Result<Vec<Vec<f64>>, ConfigError> {
     let names = job.axis_names();
-    let traj = trajectory::build(&job.trajectory, &job.path, &names, job.period_s)?;
+    let traj = feedloop_motion::build(&job.trajectory, &job.path, &names, job.period_s)?;
     let map: Vec<Option<usize>> = names
         .iter()
         .map(|a| traj.axes().iter().position(|t| t == a))

@@ -1,7 +1,7 @@
 //! Axis contexts for unit tests.
 
-use feedloop_runtime::controller::AxisContext;
-use feedloop_runtime::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
+use feedloop_control::controller::AxisContext;
+use feedloop_model::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
 
 /// The brief's reference ball-screw axis (JM 2e-3, JL 3e-3, KL 3000, 10 mm lead, Kp 50, Kv 5,
 /// Tv 5 ms) sampled every `period_s`.

@@ -2,9 +2,9 @@
 
 use std::path::Path;
 
+use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
+use feedloop_model::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
 use feedloop_plugins::Builtins;
-use feedloop_runtime::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
-use feedloop_runtime::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
 
 fn ballscrew() -> AxisContext {
     AxisContext {

@@ -4,10 +4,10 @@
 
 use std::path::Path;
 
+use feedloop_model::job::Job;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::wire::{ActuatorCommand, SensorSample};
+use feedloop_runtime::scheduler::cycle::ControlCycle;
+use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample};
 
 fn full_chain() -> ControlCycle {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();

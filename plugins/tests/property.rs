@@ -3,9 +3,9 @@
 
 use std::path::Path;
 
+use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
+use feedloop_model::model::{ControllerParams, PlantParams, TwoMassParams};
 use feedloop_plugins::Builtins;
-use feedloop_runtime::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
-use feedloop_runtime::model::{ControllerParams, PlantParams, TwoMassParams};
 use proptest::prelude::*;
 
 fn axis(jl: f64, kv: f64, tv: f64, lim: f64) -> AxisContext {

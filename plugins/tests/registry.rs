@@ -2,9 +2,9 @@
 
 use std::path::Path;
 
+use feedloop_control::controller::{AxisContext, PluginRegistry, Stage};
+use feedloop_model::model::{ControllerParams, PlantParams, TwoMassParams};
 use feedloop_plugins::Builtins;
-use feedloop_runtime::controller::{AxisContext, PluginRegistry, Stage};
-use feedloop_runtime::model::{ControllerParams, PlantParams, TwoMassParams};
 
 fn axis() -> AxisContext {
     AxisContext {

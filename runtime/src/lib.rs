@@ -1,28 +1,15 @@
-//! feedloop runtime: everything both processes share.
+//! feedloop runtime: what the two processes share, grouped by the process that runs it.
 //!
-//! - [`wire`]: the `#[repr(C)]` sample and command that cross the process boundary.
-//! - [`params`], [`model`], [`job`]: validated configuration files.
-//! - [`controller`]: the plugin trait, the per-axis signals, and [`chain`] that runs them.
-//! - [`trajectory`]: command sources with analytic derivatives.
-//! - [`trace`]: trace format v1.
+//! - [`shared`]: the `#[repr(C)]` wire types, the iceoryx2 endpoints, the recorder, clocks and
+//!   real-time setup.
+//! - [`scheduler`]: the scheduler process's loop, the controller chain and the control cycle
+//!   (also run by the in-process simulation), the control service, the plugin-library loader.
+//! - [`plant`]: the plant process's loop around a [`plant::PlantDevice`].
+//!
+//! Configuration, controller traits, trajectories and trace formats live in their own crates
+//! (`feedloop-model`, `feedloop-control`, `feedloop-motion`, `feedloop-trace`), which need no IPC.
 #![warn(missing_docs)]
 
-pub mod abi;
-pub mod chain;
-pub mod clock;
-pub mod control;
-pub mod controller;
-pub mod cycle;
-pub mod export;
-pub mod ipc;
-pub mod job;
-pub mod model;
-pub mod params;
-pub mod plant_loop;
-pub mod record;
-pub mod rt;
+pub mod plant;
 pub mod scheduler;
-pub mod summary;
-pub mod trace;
-pub mod trajectory;
-pub mod wire;
+pub mod shared;

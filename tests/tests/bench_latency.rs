@@ -2,8 +2,8 @@
 //! the report's contract (the keys scripts read) and for consistency between its figures and the
 //! logs the two processes left.
 
-use feedloop_runtime::record::{read_log, PlantRecord, SchedRecord, REC_MISSED};
 use feedloop_tests::{describe, feedloop, process_lock, read_json, scratch};
+use feedloop_trace::log::{read_log, PlantRecord, SchedRecord, REC_MISSED};
 
 #[test]
 fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {

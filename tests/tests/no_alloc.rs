@@ -9,14 +9,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use feedloop_analysis::sim::SimDevice;
+use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::control::ControlPlane;
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint};
-use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::plant::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::scheduler::control::ControlPlane;
+use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
+use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint};
 use feedloop_tests::{repo_file, scratch};
 
 struct Counting;
@@ -28,7 +28,7 @@ static IOX_ALLOCS: AtomicU64 = AtomicU64::new(0);
 
 fn count() {
     if ARMED.with(Cell::get) {
-        if feedloop_runtime::ipc::in_iceoryx_send() {
+        if feedloop_runtime::shared::ipc::in_iceoryx_send() {
             IOX_ALLOCS.fetch_add(1, Ordering::Relaxed);
         } else {
             ALLOCS.fetch_add(1, Ordering::Relaxed);

@@ -8,15 +8,17 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use feedloop_analysis::sim::SimDevice;
+use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::clock::now_ns;
-use feedloop_runtime::cycle::ControlCycle;
-use feedloop_runtime::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
-use feedloop_runtime::job::{Job, Mode, WaitKind};
-use feedloop_runtime::plant_loop::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::plant::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
-use feedloop_runtime::wire::{instance_tag, ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO};
+use feedloop_runtime::shared::clock::now_ns;
+use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint, WaitOutcome};
+use feedloop_runtime::shared::wire::{
+    instance_tag, ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO,
+};
 use feedloop_tests::{repo_file, scratch};
 
 const CYCLES: u64 = 200;

@@ -73,7 +73,7 @@ ramp_s = 0.1
                         "plugin": "pi_velocity_c", "lib": lib.to_str().unwrap()}),
         };
         let (code, answer) =
-            feedloop_runtime::control::request(&inst, &req, Duration::from_secs(10))
+            feedloop_runtime::scheduler::control::request(&inst, &req, Duration::from_secs(10))
                 .unwrap_or_else(|e| panic!("swap {i}: {e}"));
         assert_eq!(code, 0, "swap {i}: {answer}");
         std::thread::sleep(Duration::from_millis(25));

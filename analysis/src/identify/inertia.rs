@@ -27,13 +27,13 @@
 //!   (the deviation is linear in JL, so 3 to 5 moves suffice).
 //! - Method 2 (`linear`): interpolate JL linearly between a no-load and a known-load run.
 
+use feedloop_model::job::Job;
+use feedloop_model::model::PlantParams;
 use feedloop_plugins::inverse_feedforward::TwoMassModel;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::model::PlantParams;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::trace::Trace;
-use feedloop_runtime::wire::MAX_AXES;
+use feedloop_runtime::shared::wire::MAX_AXES;
+use feedloop_trace::log::AxisRecord;
+use feedloop_trace::Trace;
 use serde::Serialize;
 
 use super::IdentifyError;

@@ -8,7 +8,7 @@ pub mod stiffness;
 pub mod svg;
 pub mod tune;
 
-use feedloop_runtime::trace::TraceError;
+use feedloop_trace::TraceError;
 
 /// Errors of the identification tools.
 #[derive(Debug, thiserror::Error)]

@@ -7,7 +7,7 @@
 //! does not shift them. Extrema count only when they stand out by `prominence_db` from the
 //! response within +-20 % of their frequency.
 
-use feedloop_runtime::trace::Trace;
+use feedloop_trace::Trace;
 use serde::Serialize;
 
 use super::frf::{welch_frf, Frf};

@@ -6,8 +6,8 @@
 
 use std::f64::consts::PI;
 
-use feedloop_runtime::job::Job;
-use feedloop_runtime::model::PlantParams;
+use feedloop_model::job::Job;
+use feedloop_model::model::PlantParams;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use serde::Serialize;

@@ -8,8 +8,8 @@
 
 use std::path::{Path, PathBuf};
 
-use feedloop_runtime::model::{AxisKind, ModelFile};
-use feedloop_runtime::trace::Trace;
+use feedloop_model::model::{AxisKind, ModelFile};
+use feedloop_trace::Trace;
 
 use super::signal::{derivative, filtfilt_butter4};
 use super::WorkbenchError;

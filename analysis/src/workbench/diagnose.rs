@@ -28,7 +28,7 @@ use super::effects::{
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::{autocorrelation, mean, quantile, rms};
-use feedloop_runtime::model::AxisKind;
+use feedloop_model::model::AxisKind;
 
 /// Effects that may appear several times in a model file.
 const REPEATABLE: [&str; 4] = [

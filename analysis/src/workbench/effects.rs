@@ -13,8 +13,8 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
-use feedloop_runtime::model::{AxisKind, ModelFile, PlantParams};
-use feedloop_runtime::params::{read_toml_file, ConfigError};
+use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
+use feedloop_model::params::{read_toml_file, ConfigError};
 
 use super::data::AxisData;
 use super::WorkbenchError;

@@ -332,7 +332,7 @@ pub fn fit_with(
 }
 
 fn update_plant(m: &mut WbModel) {
-    use feedloop_runtime::model::PlantParams;
+    use feedloop_model::model::PlantParams;
     let get = |k: &str| m.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
     match &mut m.file.plant {
         PlantParams::Rigid(p) => {

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use feedloop_runtime::model::{AxisKind, ModelFile};
-use feedloop_runtime::trace::{check_column_name, Trace};
+use feedloop_model::model::{AxisKind, ModelFile};
+use feedloop_trace::{check_column_name, Trace};
 
 use super::data::{load_axis, pick_axis, Prep};
 use super::effects::{round_sig, WbModel};

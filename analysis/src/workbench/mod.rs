@@ -25,8 +25,8 @@ pub mod window;
 
 use std::path::PathBuf;
 
-use feedloop_runtime::params::ConfigError;
-use feedloop_runtime::trace::TraceError;
+use feedloop_model::params::ConfigError;
+use feedloop_trace::TraceError;
 
 /// Errors of the workbench; each names the file, line or key it is about.
 #[derive(Debug, thiserror::Error)]

@@ -446,7 +446,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
     let ang: Vec<f64> = thin(&d.qm, 4000)
         .iter()
         .map(|q| {
-            if d.kind == feedloop_runtime::model::AxisKind::Rigid {
+            if d.kind == feedloop_model::model::AxisKind::Rigid {
                 *q
             } else {
                 q.rem_euclid(2.0 * std::f64::consts::PI)

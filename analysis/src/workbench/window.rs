@@ -233,7 +233,7 @@ impl Sim {
                     past,
                 );
                 if let Some((x, v)) = third {
-                    let f = if p.kind() == feedloop_runtime::model::AxisKind::Rigid {
+                    let f = if p.kind() == feedloop_model::model::AxisKind::Rigid {
                         1.0
                     } else {
                         d.r
@@ -253,7 +253,7 @@ impl Sim {
         match self {
             Sim::Plant(p, ..) => {
                 let (mp, mv, lp, _) = p.true_state();
-                if p.kind() == feedloop_runtime::model::AxisKind::Rigid {
+                if p.kind() == feedloop_model::model::AxisKind::Rigid {
                     (mp, mv, mp)
                 } else {
                     (mp, mv, lp * r)

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use feedloop_analysis::sim::Simulation;
+use feedloop_model::job::Job;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::job::Job;
-use feedloop_runtime::record::AxisRecord;
-use feedloop_runtime::wire::MAX_AXES;
+use feedloop_runtime::shared::wire::MAX_AXES;
+use feedloop_trace::log::AxisRecord;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 

@@ -1,0 +1,46 @@
+//! `backlash`: a dead zone of width `gap` between screw and nut (or in a gear train).
+//!
+//! Equation: with the motor-side deflection `d = thM + e_pitch - thL` (motor rad) and the
+//! half gap `g/2`, the transmitted torque is
+//! `T = KL (d - g/2) + CL (wM - wL)` for `d > g/2`, `T = KL (d + g/2) + CL (wM - wL)` for
+//! `d < -g/2`, and `T = 0` inside the gap, where motor and load move independently.
+//!
+//! Keys: `gap_m` (ball screw: axial play between screw and nut, m, >= 0) or `gap_rad` (rotary
+//! axis: angular play at the load, rad, >= 0). Not available on a rigid axis. A zero gap switches
+//! the effect off.
+//!
+//! Typical values: preloaded ball nut 0 .. 5 um; worn screw 10 .. 50 um; gear train 1e-4 ..
+//! 1e-3 rad.
+//!
+//! Signature: lost motion at reversals: the motor position (in load units) minus the load
+//! position jumps by about the gap between the two directions of travel; the load stands still
+//! for the time the motor needs to cross the gap, giving a following-error spike on the scale
+//! and an impact when contact is regained.
+//!
+//! Integration: three exactly discretised linear modes (contact +, gap, contact -); contact
+//! changes are located by bisection inside a period (to period/1024).
+
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
+
+use super::{check_keys, table_error, Ctx};
+
+/// Parses `[effects.backlash]`; returns the full gap in motor rad (None for a zero gap).
+pub(crate) fn parse(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    ctx: &Ctx,
+) -> Result<Option<f64>, ConfigError> {
+    if ctx.kind == AxisKind::Rigid {
+        return Err(table_error(
+            f,
+            "backlash needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none",
+        ));
+    }
+    let u = ctx.load_units();
+    let key = format!("gap_{}", u.pos);
+    check_keys(f, table, &[&key])?;
+    let gap = f.f64(&key, Range::NonNegative)?;
+    let gap_motor = gap * u.vel_to_motor;
+    Ok((gap_motor > 0.0).then_some(gap_motor))
+}

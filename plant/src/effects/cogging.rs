@@ -1,0 +1,57 @@
+//! `cogging`: detent torque of the motor, periodic in motor angle (or position for a linear motor).
+//!
+//! Equation: `T = amplitude_nm sin(periods_per_rev thM + phase_rad)` on the motor (rad), or on a
+//! rigid axis (linear motor) `F = amplitude_n sin(2 pi x / period_m + phase_rad)`.
+//! Several harmonics may be given as `[[effects.cogging]]` (at most 8).
+//!
+//! Keys: `amplitude_nm` (>= 0, N m) and `periods_per_rev` (positive integer: a torque that is
+//! periodic in the angle repeats a whole number of times per revolution) for ballscrew/rotary;
+//! `amplitude_n` (>= 0, N) and `period_m` (> 0, magnet pitch) for rigid; optional `phase_rad`.
+//!
+//! Typical values: 0.5 .. 2 % of rated torque (0.01 .. 0.1 N m for a 1 kW servo); orders
+//! `periods_per_rev` = lcm(poles, slots), e.g. 12, 36, 72; linear motors 20 .. 60 mm pitch.
+//!
+//! Signature: a spectral line in motor torque and velocity at `periods_per_rev` times the
+//! rotation frequency (moving with speed, unlike a mechanical resonance), and a ripple of the
+//! standstill torque with position.
+//!
+//! Integration: evaluated once per period at the mid-period angle predicted from the motor
+//! velocity, and held.
+
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
+
+use super::{check_keys, CoggingHarmonic, Ctx};
+
+/// Parses one `[effects.cogging]` table.
+pub(crate) fn parse(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    ctx: &Ctx,
+) -> Result<CoggingHarmonic, ConfigError> {
+    if ctx.kind == AxisKind::Rigid {
+        check_keys(f, table, &["amplitude_n", "period_m", "phase_rad"])?;
+        let amplitude = f.f64("amplitude_n", Range::NonNegative)?;
+        let period_m = f.f64("period_m", Range::Positive)?;
+        let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+        return Ok(CoggingHarmonic {
+            amplitude,
+            wavenumber: 2.0 * std::f64::consts::PI / period_m,
+            phase_rad,
+        });
+    }
+    check_keys(f, table, &["amplitude_nm", "periods_per_rev", "phase_rad"])?;
+    let amplitude = f.f64("amplitude_nm", Range::NonNegative)?;
+    let n = f.opt_i64("periods_per_rev", 1, 100_000)?.ok_or_else(|| {
+        f.error(
+            "periods_per_rev",
+            "is required but missing (a positive integer)",
+        )
+    })?;
+    let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+    Ok(CoggingHarmonic {
+        amplitude,
+        wavenumber: n as f64,
+        phase_rad,
+    })
+}

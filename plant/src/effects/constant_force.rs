@@ -1,0 +1,38 @@
+//! `constant_force`: a constant force on the load (gravity on a vertical axis, counterbalance
+//! offset, a cable or hose pulling).
+//!
+//! Equation: the load feels `+force_n` (N, along +x) on a ball-screw table or a rigid mass, or
+//! `+torque_nm` (N m) on a rotary load. Reflected to the motor of a ball screw it is
+//! `force_n lead_m / (2 pi gear_ratio)` N m.
+//!
+//! Keys: `force_n` (ballscrew, rigid) or `torque_nm` (rotary); any finite sign (negative pulls
+//! toward -x, e.g. gravity on an upward +z axis).
+//!
+//! Typical values: vertical axis with 50 kg: -490 N; counterbalance mismatch 10 .. 100 N; EMPS
+//! offset about -3 N.
+//!
+//! Signature: a torque offset at standstill equal to the reflected force (opposite sign), the
+//! same in both directions of travel (unlike friction, which flips sign with velocity).
+//!
+//! Integration: a constant input of the exactly discretised linear part (exact).
+
+use feedloop_model::model::AxisKind;
+use feedloop_model::params::{ConfigError, Fields, Range};
+
+use super::{check_keys, Ctx};
+
+/// Parses `[effects.constant_force]`; returns the load torque in motor units.
+pub(crate) fn parse(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    ctx: &Ctx,
+) -> Result<f64, ConfigError> {
+    let key = if ctx.kind == AxisKind::Rotary {
+        "torque_nm"
+    } else {
+        "force_n"
+    };
+    check_keys(f, table, &[key])?;
+    let v = f.f64(key, Range::Finite)?;
+    Ok(v * ctx.load_units().torque_to_motor)
+}

@@ -1,0 +1,387 @@
+//! The effect library: physical imperfections switched on with `[effects.<id>]` tables.
+//!
+//! Each effect lives in its own module whose doc comment gives the equation, the units, typical
+//! values and the signature the effect leaves in a trace. This module reads and validates the
+//! tables (with [`Fields`], so errors name the model file and the dotted key) and converts every
+//! parameter to motor units: on a ball-screw axis a force `F` (N) on the table becomes the torque
+//! `F / r` (N m) with `r = 2 pi gear_ratio / lead_m` rad per m, a velocity `v` (m/s) becomes
+//! `v r` (rad/s) and a viscous coefficient `c` (N s/m) becomes `c / r^2` (N m s/rad).
+//!
+//! Friction effects and `cogging` may be given several times as an array of tables
+//! (`[[effects.coulomb_friction]]`), e.g. once on the motor side and once on the load side;
+//! every other effect at most once.
+
+pub mod backlash;
+pub mod cogging;
+pub mod constant_force;
+pub mod coulomb_friction;
+pub mod current_lag;
+pub mod delay;
+pub mod pitch_error;
+pub mod stribeck_friction;
+pub mod third_mass;
+pub mod torque_saturation;
+pub mod viscous_friction;
+
+use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
+use feedloop_model::params::{ConfigError, Fields};
+
+/// Every effect id a model file may name under `[effects.<id>]` (a fixed contract).
+pub const EFFECT_IDS: [&str; 11] = [
+    "viscous_friction",
+    "coulomb_friction",
+    "stribeck_friction",
+    "backlash",
+    "pitch_error",
+    "cogging",
+    "constant_force",
+    "third_mass",
+    "delay",
+    "current_lag",
+    "torque_saturation",
+];
+
+/// Effect ids that may appear several times (`[[effects.<id>]]`).
+const REPEATABLE: [&str; 4] = [
+    "viscous_friction",
+    "coulomb_friction",
+    "stribeck_friction",
+    "cogging",
+];
+
+/// Which body of the axis a friction effect acts on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    /// The motor (rotor, coupling, screw): N m and rad/s on rotary motors, N and m/s on a rigid axis.
+    Motor,
+    /// The load (table, rotary load): N and m/s on a ball-screw table, N m and rad/s on a rotary
+    /// load. On a rigid axis motor and load are the same mass.
+    Load,
+}
+
+impl Side {
+    /// Name used in model files.
+    pub fn id(self) -> &'static str {
+        match self {
+            Side::Motor => "motor",
+            Side::Load => "load",
+        }
+    }
+
+    /// Index of the body this side acts on: 0 motor, 1 load (a rigid axis has only body 0).
+    pub(crate) fn body(self, kind: AxisKind) -> usize {
+        match (self, kind) {
+            (_, AxisKind::Rigid) => 0,
+            (Side::Motor, _) => 0,
+            (Side::Load, _) => 1,
+        }
+    }
+}
+
+/// The unit family of one body: suffixes of its keys and the factors to motor units.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Units {
+    /// Suffix of a torque/force key: `nm` or `n`.
+    pub torque: &'static str,
+    /// Suffix of a velocity key: `rad_per_s` or `m_per_s`.
+    pub vel: &'static str,
+    /// Suffix of a viscous-coefficient key: `nms_per_rad` or `ns_per_m`.
+    pub visc: &'static str,
+    /// Suffix of an angle/position: `rad` or `m`.
+    pub pos: &'static str,
+    /// Multiply a torque/force in these units by this to get motor-unit torque.
+    pub torque_to_motor: f64,
+    /// Multiply a velocity in these units by this to get motor-unit velocity.
+    pub vel_to_motor: f64,
+}
+
+impl Units {
+    const ROTARY: Units = Units {
+        torque: "nm",
+        vel: "rad_per_s",
+        visc: "nms_per_rad",
+        pos: "rad",
+        torque_to_motor: 1.0,
+        vel_to_motor: 1.0,
+    };
+
+    fn linear(motor_per_load: f64) -> Units {
+        Units {
+            torque: "n",
+            vel: "m_per_s",
+            visc: "ns_per_m",
+            pos: "m",
+            torque_to_motor: 1.0 / motor_per_load,
+            vel_to_motor: motor_per_load,
+        }
+    }
+}
+
+/// What an effect parser knows about the axis.
+pub(crate) struct Ctx {
+    /// Axis kind.
+    pub kind: AxisKind,
+    /// Motor units per load unit (rad/m for a ball screw, else 1).
+    pub motor_per_load: f64,
+    /// Screw lead, m (ball screw only).
+    pub lead_m: Option<f64>,
+}
+
+impl Ctx {
+    /// Units of the body a side acts on.
+    pub fn units(&self, side: Side) -> Units {
+        match (self.kind, side) {
+            (AxisKind::Rigid, _) => Units::linear(1.0),
+            (AxisKind::BallScrew, Side::Load) => Units::linear(self.motor_per_load),
+            _ => Units::ROTARY,
+        }
+    }
+
+    /// Units of the load body.
+    pub fn load_units(&self) -> Units {
+        self.units(Side::Load)
+    }
+}
+
+/// Refuses keys not in `known`, naming the keys this table accepts (a hint about units when the
+/// key differs from a known one only by its unit suffix).
+pub(crate) fn check_keys(
+    f: &Fields<'_>,
+    table: &toml::Table,
+    known: &[&str],
+) -> Result<(), ConfigError> {
+    for key in table.keys() {
+        if !known.contains(&key.as_str()) {
+            let stem = key.split('_').next().unwrap_or("");
+            let hint = known
+                .iter()
+                .find(|k| k.split('_').next() == Some(stem) && !stem.is_empty())
+                .map(|k| format!("; did you mean `{k}` (this axis/side uses these units)?"))
+                .unwrap_or_default();
+            return Err(f.error(
+                key,
+                format!(
+                    "unknown key (keys of this table: {}){hint}",
+                    known.join(", ")
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// An error about the whole table `f` reads (key = the table's dotted path).
+pub(crate) fn table_error(f: &Fields<'_>, reason: impl Into<String>) -> ConfigError {
+    let mut e = f.error("", reason);
+    if e.key.ends_with('.') {
+        e.key.pop();
+    }
+    e
+}
+
+/// Reads the optional `side` key (default motor).
+pub(crate) fn read_side(f: &mut Fields<'_>) -> Result<Side, ConfigError> {
+    match f.opt_str("side")? {
+        None | Some("motor") => Ok(Side::Motor),
+        Some("load") => Ok(Side::Load),
+        Some(other) => Err(f.error(
+            "side",
+            format!("unknown side `{other}` (expected \"motor\" or \"load\")"),
+        )),
+    }
+}
+
+/// Dry friction of one body, motor units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct DryFriction {
+    /// Coulomb (sliding) level for positive / negative velocity, N m (or N), >= 0.
+    pub fc: [f64; 2],
+    /// Static (breakaway) level for positive / negative direction, >= fc.
+    pub fs: [f64; 2],
+    /// Stribeck velocity, motor units per s (infinite for pure Coulomb).
+    pub vs: f64,
+    /// Stribeck exponent (dimensionless).
+    pub exponent: f64,
+}
+
+/// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Viscous {
+    /// N m s/rad (or N s/m) for positive and negative velocity.
+    pub c: [f64; 2],
+}
+
+/// One cogging harmonic in motor units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct CoggingHarmonic {
+    /// Amplitude, N m (N on a rigid axis).
+    pub amplitude: f64,
+    /// Spatial frequency, rad of phase per motor unit (N per rad, or 2 pi / period_m per m).
+    pub wavenumber: f64,
+    /// Phase, rad.
+    pub phase_rad: f64,
+}
+
+/// Largest number of cogging harmonics per axis.
+pub const MAX_COGGING_HARMONICS: usize = 8;
+
+/// All effects of one axis, validated and converted to motor units.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct EffectSet {
+    /// Viscous friction per body (0 motor, 1 load).
+    pub viscous: [Option<Viscous>; 2],
+    /// Dry friction per body.
+    pub dry: [Option<DryFriction>; 2],
+    /// Backlash: full gap width, motor rad (ballscrew/rotary).
+    pub backlash_gap: Option<f64>,
+    /// Pitch error.
+    pub pitch: Option<pitch_error::PitchError>,
+    /// Cogging harmonics.
+    pub cogging: Vec<CoggingHarmonic>,
+    /// Constant torque on the load, motor units.
+    pub load_torque: Option<f64>,
+    /// Third mass (inertia, stiffness, damping) in motor units.
+    pub third_mass: Option<third_mass::ThirdMass>,
+    /// Transport delay, cycles.
+    pub delay_cycles: usize,
+    /// Current-loop lag time constant, s.
+    pub lag_tau_s: Option<f64>,
+    /// Torque limit, motor units.
+    pub limit: Option<f64>,
+}
+
+/// Parses and validates the `[effects]` table of a model file.
+pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
+    let (motor_per_load, lead_m) = match model.plant {
+        PlantParams::BallScrew { lead_m, .. } => (model.plant.motor_per_load(), Some(lead_m)),
+        _ => (1.0, None),
+    };
+    let ctx = Ctx {
+        kind: model.plant.kind(),
+        motor_per_load,
+        lead_m,
+    };
+    let mut set = EffectSet::default();
+    let mut dry_from: [Option<String>; 2] = [None, None];
+    let mut visc_from: [Option<String>; 2] = [None, None];
+    for (id, value) in &model.effects {
+        let key = format!("effects.{id}");
+        if !EFFECT_IDS.contains(&id.as_str()) {
+            return Err(ConfigError::new(
+                &model.path,
+                &key,
+                format!(
+                    "unknown effect `{id}` (known effects: {})",
+                    EFFECT_IDS.join(", ")
+                ),
+            ));
+        }
+        let tables: Vec<(String, &toml::Table)> = match value {
+            toml::Value::Table(t) => vec![(key.clone(), t)],
+            toml::Value::Array(arr) if REPEATABLE.contains(&id.as_str()) => {
+                if arr.is_empty() {
+                    return Err(ConfigError::new(&model.path, &key, "empty array of tables"));
+                }
+                let mut v = Vec::new();
+                for (i, e) in arr.iter().enumerate() {
+                    let k = format!("{key}[{i}]");
+                    let t = e
+                        .as_table()
+                        .ok_or_else(|| ConfigError::new(&model.path, &k, "must be a table"))?;
+                    v.push((k, t));
+                }
+                v
+            }
+            toml::Value::Array(_) => {
+                return Err(ConfigError::new(
+                    &model.path,
+                    &key,
+                    format!(
+                        "`{id}` may be given only once ([effects.{id}]); only {} may repeat",
+                        REPEATABLE.join(", ")
+                    ),
+                ))
+            }
+            other => {
+                return Err(ConfigError::new(
+                    &model.path,
+                    &key,
+                    format!("must be a table, got {}", other.type_str()),
+                ))
+            }
+        };
+        for (prefix, table) in tables {
+            let mut f = Fields::new(table, &model.path, &prefix);
+            match id.as_str() {
+                "viscous_friction" => {
+                    let (side, v) = viscous_friction::parse(&mut f, table, &ctx)?;
+                    let b = side.body(ctx.kind);
+                    if let Some(prev) = &visc_from[b] {
+                        return Err(duplicate_side(&f, &prefix, prev, side, ctx.kind));
+                    }
+                    visc_from[b] = Some(prefix.clone());
+                    set.viscous[b] = Some(v);
+                }
+                "coulomb_friction" | "stribeck_friction" => {
+                    let (side, d) = if id == "coulomb_friction" {
+                        coulomb_friction::parse(&mut f, table, &ctx)?
+                    } else {
+                        stribeck_friction::parse(&mut f, table, &ctx)?
+                    };
+                    let b = side.body(ctx.kind);
+                    if let Some(prev) = &dry_from[b] {
+                        return Err(duplicate_side(&f, &prefix, prev, side, ctx.kind));
+                    }
+                    dry_from[b] = Some(prefix.clone());
+                    set.dry[b] = Some(d);
+                }
+                "backlash" => set.backlash_gap = backlash::parse(&mut f, table, &ctx)?,
+                "pitch_error" => set.pitch = Some(pitch_error::parse(&mut f, table, &ctx)?),
+                "cogging" => {
+                    if set.cogging.len() >= MAX_COGGING_HARMONICS {
+                        return Err(ConfigError::new(
+                            &model.path,
+                            &prefix,
+                            format!("at most {MAX_COGGING_HARMONICS} cogging harmonics"),
+                        ));
+                    }
+                    set.cogging.push(cogging::parse(&mut f, table, &ctx)?);
+                }
+                "constant_force" => {
+                    set.load_torque = Some(constant_force::parse(&mut f, table, &ctx)?)
+                }
+                "third_mass" => set.third_mass = Some(third_mass::parse(&mut f, table, &ctx)?),
+                "delay" => set.delay_cycles = delay::parse(&mut f, table)?,
+                "current_lag" => set.lag_tau_s = Some(current_lag::parse(&mut f, table)?),
+                "torque_saturation" => {
+                    set.limit = Some(torque_saturation::parse(&mut f, table, &ctx)?)
+                }
+                _ => return Err(table_error(&f, "effect not implemented")),
+            }
+            f.finish()?;
+        }
+    }
+    Ok(set)
+}
+
+fn duplicate_side(
+    f: &Fields<'_>,
+    prefix: &str,
+    prev: &str,
+    side: Side,
+    kind: AxisKind,
+) -> ConfigError {
+    let what = if kind == AxisKind::Rigid {
+        "the single mass of this rigid axis".to_string()
+    } else {
+        format!("the {} side", side.id())
+    };
+    ConfigError::new(
+        f.file(),
+        prefix,
+        format!(
+            "{what} already has this kind of friction from `{prev}` (stribeck_friction includes the \
+             Coulomb level; give one dry and one viscous friction per side)"
+        ),
+    )
+}

@@ -1,0 +1,46 @@
+//! `viscous_friction`: friction proportional to velocity, optionally different by direction.
+//!
+//! Equation (on the chosen body, velocity `v`):
+//! `T = -c_pos v` for `v >= 0`, `T = -c_neg v` for `v < 0`; `c_neg` defaults to `c_pos`.
+//! It adds to the model's `dm_nms_per_rad` / `dl_nms_per_rad` (or `viscous_ns_per_m`).
+//!
+//! Keys (units follow the side, see `docs/effects.md`):
+//! - `side = "motor" | "load"` (default `"motor"`; ignored on a rigid axis, which has one mass);
+//! - `c_nms_per_rad` (rotary side) or `c_ns_per_m` (ball-screw table or rigid mass), >= 0;
+//! - optional `c_neg_nms_per_rad` / `c_neg_ns_per_m` for negative velocity.
+//!
+//! Typical values: motor 1e-4 .. 1e-2 N m s/rad; ball-screw table 100 .. 2000 N s/m (EMPS:
+//! about 200 N s/m).
+//!
+//! Signature: a torque component proportional to speed; at constant speed the torque offset
+//! grows linearly with speed and reverses with it (no jump at reversal). The direction-dependent
+//! part shows as a speed-proportional asymmetry between forward and backward torque.
+//!
+//! Integration: the mean `(c_pos + c_neg)/2` enters the exactly discretised linear part; the
+//! half difference, `-(c_pos - c_neg)/2 |v|`, is applied as a held torque per sub-step.
+
+use feedloop_model::params::{ConfigError, Fields, Range};
+
+use super::{check_keys, read_side, Ctx, Side, Viscous};
+
+/// Parses one `[effects.viscous_friction]` table.
+pub(crate) fn parse(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    ctx: &Ctx,
+) -> Result<(Side, Viscous), ConfigError> {
+    let side = read_side(f)?;
+    let u = ctx.units(side);
+    let key = format!("c_{}", u.visc);
+    let key_neg = format!("c_neg_{}", u.visc);
+    check_keys(f, table, &["side", &key, &key_neg])?;
+    let scale = u.torque_to_motor / u.vel_to_motor;
+    let c = f.f64(&key, Range::NonNegative)?;
+    let c_neg = f.f64_or(&key_neg, Range::NonNegative, c)?;
+    Ok((
+        side,
+        Viscous {
+            c: [c * scale, c_neg * scale],
+        },
+    ))
+}

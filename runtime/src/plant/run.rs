@@ -1,0 +1,504 @@
+//! The plant process's loop: publish a sample, wait for its command, apply it for one period.
+//!
+//! - `realtime`: cycle k starts at the absolute deadline t0 + k T. The plant publishes sample k,
+//!   waits for command k until deadline k+1 (or one period after publishing, when the plant
+//!   itself was late), then steps the physics with it. A command that has not arrived by then,
+//!   while the plant woke on time, is a deadline miss: the last command is held. Waking more
+//!   than half a period late is a plant overrun; more than 1 ms, a stall (the machine stopped).
+//! - `lockstep`: the plant steps as soon as the command for the cycle arrives.
+//!
+//! Every cycle is logged (what was measured and applied, how late) through a [`Recorder`].
+
+use std::path::Path;
+use std::time::Duration;
+
+use crate::shared::clock::{now_ns, wait_until_ns};
+use crate::shared::ipc::{IpcError, PlantEndpoint, WaitOutcome};
+use crate::shared::record::Recorder;
+use crate::shared::wire::{
+    ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
+};
+use feedloop_model::job::{Mode, SafeStop, SafetyOptions, WaitKind};
+use feedloop_trace::log::{
+    AxisRecord, PlantRecord, REC_BAD_SEQ, REC_DUP_CMD, REC_LATE_CMD, REC_MISSED, REC_OVERRUN,
+    REC_STALL, REC_WAIT_INTERRUPTED,
+};
+
+/// What the loop needs of the physics (implemented by the plant simulator, later by a drive bridge).
+pub trait PlantDevice {
+    /// Number of axes.
+    fn axis_count(&self) -> usize;
+    /// Writes the current measurement into `out.axes[..n]`.
+    fn sense(&mut self, out: &mut SensorSample);
+    /// Applies `cmd` for one period.
+    fn step(&mut self, cmd: &ActuatorCommand);
+}
+
+/// Settings of one plant run.
+#[derive(Debug, Clone)]
+pub struct PlantLoopConfig {
+    /// Instance name (for the handshake).
+    pub instance: String,
+    /// Pacing.
+    pub mode: Mode,
+    /// Wait strategy for commands and (realtime) for the next deadline.
+    pub wait: WaitKind,
+    /// Hybrid: spin time before blocking.
+    pub spin: Duration,
+    /// Period, s.
+    pub period_s: f64,
+    /// Cycles to run.
+    pub cycles: u64,
+    /// Realtime: consecutive on-time cycles without a command that mean the scheduler is lost.
+    pub watchdog_cycles: u64,
+    /// Lockstep and handshake: how long to wait for the scheduler, s.
+    pub peer_timeout_s: f64,
+    /// Drive-side limits and the safe-stop behaviour.
+    pub safety: SafetyOptions,
+    /// Per axis: braking gain on motor velocity for `brake_ramp` (N m s/rad or N s/m).
+    pub brake_gain: Vec<f64>,
+    /// Per axis: torque (force) limit, N m (N).
+    pub torque_limit: Vec<f64>,
+    /// Called at the end of every cycle with its number (tests use it to count allocations).
+    pub cycle_hook: Option<fn(u64)>,
+}
+
+/// Why the plant stopped the axes early (the reason names in `summary.json`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopCause {
+    /// The scheduler stopped answering: `scheduler_lost`.
+    SchedulerLost {
+        /// Cycles without a command before the declaration.
+        detected_after_cycles: u64,
+    },
+    /// SIGINT/SIGTERM or a stop request from the scheduler: `operator_stop`.
+    OperatorStop,
+    /// |cmd - load| above the limit on this axis: `following_error`.
+    FollowingError {
+        /// Axis index.
+        axis: usize,
+    },
+    /// Torque at its limit for too long: `torque_saturation`.
+    TorqueSaturation {
+        /// Axis index.
+        axis: usize,
+    },
+    /// Outside the soft travel limits: `soft_limit`.
+    SoftLimit {
+        /// Axis index.
+        axis: usize,
+    },
+    /// The scheduler reported a failed (panicked) controller plugin: `plugin_fault`.
+    PluginFault,
+}
+
+impl StopCause {
+    /// The reason string of `summary.json`.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            StopCause::SchedulerLost { .. } => "scheduler_lost",
+            StopCause::OperatorStop => "operator_stop",
+            StopCause::FollowingError { .. } => "following_error",
+            StopCause::TorqueSaturation { .. } => "torque_saturation",
+            StopCause::SoftLimit { .. } => "soft_limit",
+            StopCause::PluginFault => "plugin_fault",
+        }
+    }
+}
+
+/// Why a plant run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlantEnd {
+    /// All cycles ran.
+    Completed,
+    /// The axes were brought to a safe stop early.
+    Stopped {
+        /// Why.
+        cause: StopCause,
+        /// Cycle at which the stop began.
+        cycle: u64,
+        /// How the axes were stopped.
+        safe_stop: SafeStop,
+    },
+}
+
+/// Summary counters of a plant run (the per-cycle detail is in the log).
+#[derive(Debug, Clone, Copy)]
+pub struct PlantOutcome {
+    /// Why it ended.
+    pub end: PlantEnd,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Records the recorder could not keep (ring full).
+    pub dropped_records: u64,
+    /// Sequence checks on the command service (messages, not cycles).
+    pub sequence: CommandSequence,
+}
+
+/// What the plant saw on the command service besides the one expected command per cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CommandSequence {
+    /// Commands whose sequence number (or instance/axis count) matched no cycle of this run:
+    /// numbers from the future or from elsewhere. Dropped.
+    pub bad_sequence: u64,
+    /// A second command for a cycle that had already been answered. Dropped.
+    pub duplicates: u64,
+    /// Answers to an earlier, unanswered cycle that arrived after its deadline. Dropped.
+    pub late: u64,
+    /// Cycles whose command never arrived in time (the last command was held).
+    pub missing: u64,
+}
+
+/// Errors of a plant run.
+#[derive(Debug, thiserror::Error)]
+pub enum PlantLoopError {
+    /// IPC failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// Log file failure.
+    #[error("plant log {path}: {source}")]
+    Log {
+        /// Log path.
+        path: String,
+        /// I/O error.
+        source: std::io::Error,
+    },
+}
+
+const STALL_NS: u64 = 1_000_000;
+
+/// Runs the plant side until all cycles ran, the scheduler is lost, or `stop` is set.
+pub fn run_plant<P: PlantDevice>(
+    cfg: &PlantLoopConfig,
+    plant: &mut P,
+    ep: &PlantEndpoint,
+    log_path: &Path,
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<PlantOutcome, PlantLoopError> {
+    let tag = crate::shared::wire::instance_tag(&cfg.instance);
+    let n = plant.axis_count();
+    let period_ns = (cfg.period_s * 1e9).round() as u64;
+    let timeout_ns = (cfg.peer_timeout_s * 1e9) as u64;
+    let spin_ns = match cfg.wait {
+        WaitKind::Busy => u64::MAX,
+        WaitKind::Block => 0,
+        WaitKind::Hybrid => cfg.spin.as_nanos() as u64,
+    };
+    let mut rec =
+        Recorder::<PlantRecord>::start(log_path, 1 << 16).map_err(|e| PlantLoopError::Log {
+            path: log_path.display().to_string(),
+            source: e,
+        })?;
+
+    handshake(ep, tag, n as u32, timeout_ns, &cfg.instance)?;
+
+    let mut sample = SensorSample::empty(n as u32, tag);
+    let mut applied = ActuatorCommand::empty(n as u32, tag);
+    let mut end = PlantEnd::Completed;
+    let mut silent_cycles = 0u64;
+    let mut seqs = CommandSequence::default();
+    let mut deadline_misses = 0u32;
+    // Which of the last 64 cycles took a command (bit i: cycle k - i), to tell a duplicate from a
+    // late answer.
+    let mut answered = 0u64;
+    let mut prev_missed = false;
+    let mut saturated_cycles = [0u64; crate::shared::wire::MAX_AXES];
+    let max_sat_cycles = cfg
+        .safety
+        .max_saturation_s
+        .map(|s| (s / cfg.period_s).ceil() as u64);
+    // Once stopping: cycles of braking left.
+    let mut stopping: Option<u64> = None;
+    let brake_cycles = match cfg.safety.safe_stop {
+        SafeStop::TorqueOff => 1,
+        SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
+    };
+    let mut t0 = now_ns() + 5_000_000;
+    if cfg.mode == Mode::Realtime {
+        rec.set_phase(t0, period_ns);
+    }
+    let mut k = 0u64;
+    loop {
+        match stopping {
+            Some(0) => break,
+            None if k >= cfg.cycles => break,
+            _ => {}
+        }
+        let mut cause: Option<StopCause> = None;
+        if stopping.is_none() && stop.load(std::sync::atomic::Ordering::Relaxed) {
+            cause = Some(StopCause::OperatorStop);
+        }
+        let mut flags = 0u8;
+        let mut wake_late_ns = 0u64;
+        let cmd_deadline;
+        if cfg.mode == Mode::Realtime {
+            let deadline = t0 + k * period_ns;
+            wait_until_ns(deadline, spin_ns);
+            wake_late_ns = now_ns().saturating_sub(deadline);
+            if wake_late_ns > period_ns / 2 {
+                flags |= REC_OVERRUN;
+            }
+            if wake_late_ns > STALL_NS {
+                // Re-anchor the schedule at now instead of racing through the missed deadlines.
+                t0 += wake_late_ns;
+                rec.set_phase(t0, period_ns);
+                // A machine-wide stall, unless the lateness is our own: a timed-out blocking
+                // wait for a missing command can overshoot by a timer tick (socket timeouts have
+                // jiffy resolution), and must not excuse the silence from the watchdog.
+                if !prev_missed {
+                    flags |= REC_STALL;
+                }
+            }
+            cmd_deadline = (deadline + period_ns).max(now_ns() + period_ns);
+        } else {
+            cmd_deadline = now_ns() + timeout_ns;
+        }
+
+        let c0 = now_ns();
+        sample.seq = k;
+        sample.plant_time_s = k as f64 * cfg.period_s;
+        let last = stopping.is_none() && k + 1 == cfg.cycles;
+        sample.flags = if last || stopping.is_some() {
+            FLAG_END
+        } else {
+            0
+        };
+        plant.sense(&mut sample);
+        sample.deadline_misses = deadline_misses;
+        let sense_ns = now_ns() - c0;
+        let published = now_ns();
+        let mut latency_ns = u64::MAX;
+        if stopping.is_none() {
+            ep.send(sample)?;
+            while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
+                if c.flags & FLAG_HELLO != 0 {
+                    continue;
+                }
+                let age = k.wrapping_sub(c.seq);
+                if c.seq <= k && age < 64 && answered >> age & 1 == 1 && c.instance_tag == tag {
+                    // The same cycle answered twice: the first answer was applied.
+                    flags |= REC_DUP_CMD;
+                    seqs.duplicates += 1;
+                    continue;
+                }
+                if c.seq < k && c.instance_tag == tag {
+                    // The answer to an earlier cycle, after its deadline: too late to apply.
+                    flags |= REC_LATE_CMD;
+                    seqs.late += 1;
+                    continue;
+                }
+                if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
+                    flags |= REC_BAD_SEQ;
+                    seqs.bad_sequence += 1;
+                    continue;
+                }
+                answered |= 1;
+                latency_ns = now_ns() - published;
+                if c.flags & FLAG_FAULT != 0 {
+                    cause = cause.or(Some(StopCause::PluginFault));
+                } else if c.flags & FLAG_STOP != 0 {
+                    cause = cause.or(Some(StopCause::OperatorStop));
+                } else {
+                    applied = c;
+                }
+                break;
+            }
+            if latency_ns == u64::MAX {
+                flags |= REC_MISSED;
+                if cfg.mode == Mode::Realtime && ep.poll_gap_ns() >= period_ns / 2 {
+                    flags |= REC_WAIT_INTERRUPTED;
+                }
+                seqs.missing += 1;
+                if feedloop_trace::log::is_deadline_miss(flags) {
+                    deadline_misses = deadline_misses.saturating_add(1);
+                }
+                // Only a machine-wide stall excuses silence: a merely busy machine still counts.
+                let on_time = flags & REC_STALL == 0;
+                if cfg.mode == Mode::Lockstep {
+                    silent_cycles = 1;
+                    cause = cause.or(Some(StopCause::SchedulerLost {
+                        detected_after_cycles: 1,
+                    }));
+                } else if on_time {
+                    silent_cycles += 1;
+                    if silent_cycles >= cfg.watchdog_cycles {
+                        cause = cause.or(Some(StopCause::SchedulerLost {
+                            detected_after_cycles: silent_cycles,
+                        }));
+                    }
+                }
+            } else {
+                silent_cycles = 0;
+            }
+            if cause.is_none() {
+                cause = check_limits(
+                    cfg,
+                    &sample,
+                    &applied,
+                    n,
+                    &mut saturated_cycles,
+                    max_sat_cycles,
+                );
+            }
+        }
+        prev_missed = flags & REC_MISSED != 0;
+        if let Some(c) = cause {
+            end = PlantEnd::Stopped {
+                cause: c,
+                cycle: k,
+                safe_stop: cfg.safety.safe_stop,
+            };
+            stopping = Some(brake_cycles);
+            // Tell the scheduler the run is over.
+            let mut bye = sample;
+            bye.flags = FLAG_END;
+            let _ = ep.send(bye);
+        }
+        if let Some(left) = stopping.as_mut() {
+            // Safe stop: brake on the measured motor velocity, or torque off.
+            for i in 0..n {
+                let t = match cfg.safety.safe_stop {
+                    SafeStop::TorqueOff => 0.0,
+                    SafeStop::BrakeRamp => {
+                        let lim = cfg.torque_limit.get(i).copied().unwrap_or(0.0);
+                        let g = cfg.brake_gain.get(i).copied().unwrap_or(0.0);
+                        (-g * sample.axes[i].motor_vel).clamp(-lim, lim)
+                    }
+                };
+                applied.axes[i].torque = if t.is_finite() { t } else { 0.0 };
+            }
+            *left = left.saturating_sub(1);
+        }
+
+        let c1 = now_ns();
+        plant.step(&applied);
+        let compute_ns = (now_ns() - c1 + sense_ns).min(u32::MAX as u64) as u32;
+
+        let mut r = PlantRecord {
+            seq: k,
+            wake_late_ns,
+            latency_ns,
+            compute_ns,
+            flags,
+            ..Default::default()
+        };
+        for i in 0..n {
+            let s = &sample.axes[i];
+            r.axes[i] = AxisRecord {
+                cmd: applied.axes[i].reference,
+                load: s.load_pos,
+                motor: s.motor_pos,
+                motor_vel: s.motor_vel,
+                torque: applied.axes[i].torque,
+            };
+        }
+        rec.push(r);
+        if let Some(h) = cfg.cycle_hook {
+            h(k);
+        }
+        k += 1;
+        answered <<= 1;
+    }
+    // Safe state: no torque. Tell the scheduler we are done.
+    let off = ActuatorCommand::empty(n as u32, tag);
+    plant.step(&off);
+    sample.flags = FLAG_END;
+    sample.seq = k;
+    let _ = ep.send(sample);
+    let dropped = rec.dropped();
+    rec.finish().map_err(|e| PlantLoopError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    })?;
+    Ok(PlantOutcome {
+        end,
+        cycles: k,
+        dropped_records: dropped,
+        sequence: seqs,
+    })
+}
+
+/// Drive-side checks of one cycle: following error, soft limits, saturation time.
+fn check_limits(
+    cfg: &PlantLoopConfig,
+    sample: &SensorSample,
+    applied: &ActuatorCommand,
+    n: usize,
+    saturated_cycles: &mut [u64],
+    max_sat_cycles: Option<u64>,
+) -> Option<StopCause> {
+    for (i, (s, a)) in sample.axes.iter().zip(&applied.axes).enumerate().take(n) {
+        let load = s.load_pos;
+        if let Some(max) = cfg.safety.max_following_error {
+            if (a.reference - load).abs() > max {
+                return Some(StopCause::FollowingError { axis: i });
+            }
+        }
+        if let Some(Some((lo, hi))) = cfg.safety.soft_limits.get(i) {
+            if load < *lo || load > *hi {
+                return Some(StopCause::SoftLimit { axis: i });
+            }
+        }
+        if let Some(maxc) = max_sat_cycles {
+            let lim = cfg.torque_limit.get(i).copied().unwrap_or(f64::INFINITY);
+            if a.torque.abs() >= 0.999 * lim {
+                saturated_cycles[i] += 1;
+                if saturated_cycles[i] > maxc {
+                    return Some(StopCause::TorqueSaturation { axis: i });
+                }
+            } else {
+                saturated_cycles[i] = 0;
+            }
+        }
+    }
+    None
+}
+
+fn handshake(
+    ep: &PlantEndpoint,
+    tag: u64,
+    n: u32,
+    timeout_ns: u64,
+    instance: &str,
+) -> Result<(), IpcError> {
+    let start = now_ns();
+    let mut hello = SensorSample::empty(n, tag);
+    hello.flags = FLAG_HELLO;
+    loop {
+        if now_ns() - start > timeout_ns {
+            return Err(IpcError::PeerTimeout {
+                peer: "scheduler",
+                instance: instance.to_string(),
+                seconds: timeout_ns as f64 * 1e-9,
+            });
+        }
+        if ep.peer_connected() {
+            ep.send(hello)?;
+        }
+        if let WaitOutcome::Got(c) = ep.receive_until(now_ns() + 2_000_000)? {
+            if c.flags & FLAG_HELLO != 0 {
+                if c.protocol != PROTOCOL_VERSION {
+                    return Err(IpcError::Handshake(format!(
+                        "scheduler speaks protocol {}, this plant {}",
+                        c.protocol, PROTOCOL_VERSION
+                    )));
+                }
+                if c.instance_tag != tag {
+                    return Err(IpcError::Handshake(
+                        "scheduler belongs to another instance".into(),
+                    ));
+                }
+                if c.axis_count != n {
+                    return Err(IpcError::Handshake(format!(
+                        "scheduler drives {} axes, this plant has {n}: are both running the same job?",
+                        c.axis_count
+                    )));
+                }
+                // Let stale hello replies arrive, then discard them.
+                std::thread::sleep(Duration::from_millis(2));
+                ep.drain()?;
+                return Ok(());
+            }
+        }
+    }
+}

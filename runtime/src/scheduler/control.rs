@@ -1,0 +1,730 @@
+//! The control service of an instance (iceoryx2 request-response `feedloop/<instance>/control`):
+//! list plugins, read status, swap or retune a controller while the loop runs.
+//!
+//! Requests and responses are fixed-size `#[repr(C)]` buffers carrying JSON text, so the wire
+//! layout never changes when a request gains a field. In the scheduler, [`ControlPlane`] polls
+//! the server in the cycle's slack (non-blocking), hands swap requests to a builder thread that
+//! parses and validates the new plugin outside the cycle, and switches the built controller in
+//! at a cycle boundary, initialised from the old one's signals (bumpless). The first cycles after
+//! a swap are a probation: a non-finite or out-of-limit torque rolls the swap back.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::time::Duration;
+
+use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::port::server::Server;
+use iceoryx2::prelude::*;
+use serde_json::{json, Value};
+
+use crate::scheduler::cycle::ControlCycle;
+use crate::shared::clock::now_ns;
+use crate::shared::ipc::{create_node, IpcError};
+use crate::shared::wire::{ActuatorCommand, MAX_AXES};
+use feedloop_control::controller::{AxisContext, Controller, PluginRegistry, Stage};
+use feedloop_model::job::Job;
+
+/// Capacity of a request's JSON text, bytes.
+pub const REQUEST_BYTES: usize = 8192;
+/// Capacity of a response's JSON text, bytes.
+pub const RESPONSE_BYTES: usize = 16384;
+
+/// A control request: JSON text, e.g. `{"op":"swap","axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_nms_per_rad = 4.0"}`.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("FeedloopControlRequestV1")]
+pub struct ControlRequest {
+    /// `wire::PROTOCOL_VERSION` of the sender.
+    pub protocol: u32,
+    /// Valid bytes in `text`.
+    pub len: u32,
+    /// UTF-8 JSON.
+    pub text: [u8; REQUEST_BYTES],
+}
+
+/// A control response: `code` 0 = done, 1 = refused (reason in the JSON's `error`).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("FeedloopControlResponseV1")]
+pub struct ControlResponse {
+    /// 0 ok, 1 refused.
+    pub code: u32,
+    /// Valid bytes in `text`.
+    pub len: u32,
+    /// UTF-8 JSON.
+    pub text: [u8; RESPONSE_BYTES],
+}
+
+impl Default for ControlRequest {
+    fn default() -> Self {
+        Self {
+            protocol: crate::shared::wire::PROTOCOL_VERSION,
+            len: 0,
+            text: [0; REQUEST_BYTES],
+        }
+    }
+}
+
+impl Default for ControlResponse {
+    fn default() -> Self {
+        Self {
+            code: 0,
+            len: 0,
+            text: [0; RESPONSE_BYTES],
+        }
+    }
+}
+
+impl ControlRequest {
+    /// A request holding `v` (refused when its JSON is longer than the buffer).
+    pub fn from_json(v: &Value) -> Result<Self, String> {
+        let s = v.to_string();
+        if s.len() > REQUEST_BYTES {
+            return Err(format!(
+                "request is {} bytes, more than the {REQUEST_BYTES} a control request holds",
+                s.len()
+            ));
+        }
+        let mut r = Self::default();
+        r.text[..s.len()].copy_from_slice(s.as_bytes());
+        r.len = s.len() as u32;
+        Ok(r)
+    }
+
+    /// The JSON it holds.
+    pub fn json(&self) -> Result<Value, String> {
+        let n = (self.len as usize).min(REQUEST_BYTES);
+        serde_json::from_slice(&self.text[..n]).map_err(|e| format!("malformed request: {e}"))
+    }
+}
+
+impl ControlResponse {
+    /// A response holding `v` (truncated to an error when too long).
+    pub fn from_json(code: u32, v: &Value) -> Self {
+        let mut s = v.to_string();
+        let mut code = code;
+        if s.len() > RESPONSE_BYTES {
+            s = json!({"error": "response too long for the control buffer"}).to_string();
+            code = 1;
+        }
+        let mut r = Self::default();
+        r.text[..s.len()].copy_from_slice(s.as_bytes());
+        r.len = s.len() as u32;
+        r.code = code;
+        r
+    }
+
+    /// The JSON it holds.
+    pub fn json(&self) -> Value {
+        let n = (self.len as usize).min(RESPONSE_BYTES);
+        serde_json::from_slice(&self.text[..n]).unwrap_or(Value::Null)
+    }
+}
+
+type CtlServer = Server<ipc::Service, ControlRequest, (), ControlResponse, ()>;
+type CtlActive = ActiveRequest<ipc::Service, ControlRequest, (), ControlResponse, ()>;
+
+fn service_name(instance: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(&format!("feedloop/{instance}/control")).map_err(|e| IpcError::Setup {
+        what: "name the control service".into(),
+        detail: format!("{e:?}"),
+    })
+}
+
+/// Sends one request to the scheduler of `instance` and waits up to `timeout` for the answer.
+pub fn request(instance: &str, req: &Value, timeout: Duration) -> Result<(u32, Value), IpcError> {
+    let node = create_node(instance, "control-client")?;
+    let setup = |what: &str, e: &dyn std::fmt::Debug| IpcError::Setup {
+        what: what.to_string(),
+        detail: format!("{e:?}"),
+    };
+    let svc = node
+        .service_builder(&service_name(instance)?)
+        .request_response::<ControlRequest, ControlResponse>()
+        .open()
+        .map_err(|e| {
+            setup(
+                &format!("reach the control service of instance `{instance}` (is its scheduler running?)"),
+                &e,
+            )
+        })?;
+    let client = svc
+        .client_builder()
+        .create()
+        .map_err(|e| setup("create a control client", &e))?;
+    let msg = ControlRequest::from_json(req).map_err(IpcError::Send)?;
+    let start = now_ns();
+    let limit = timeout.as_nanos() as u64;
+    // The server connects lazily: resend until a response arrives.
+    let mut pending = client
+        .send_copy(msg)
+        .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+    let mut last_send = now_ns();
+    loop {
+        if let Some(r) = pending
+            .receive()
+            .map_err(|e| IpcError::Receive(format!("{e:?}")))?
+        {
+            return Ok((r.code, r.json()));
+        }
+        if now_ns() - start > limit {
+            return Err(IpcError::PeerTimeout {
+                peer: "scheduler (control service)",
+                instance: instance.to_string(),
+                seconds: timeout.as_secs_f64(),
+            });
+        }
+        if pending.number_of_server_connections() == 0 && now_ns() - last_send > 50_000_000 {
+            pending = client
+                .send_copy(msg)
+                .map_err(|e| IpcError::Send(format!("{e:?}")))?;
+            last_send = now_ns();
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
+/// One swap, as reported in `summary.json`'s `swaps`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SwapEvent {
+    /// Time of the swap cycle, s.
+    pub t_s: f64,
+    /// Swap cycle.
+    pub cycle: u64,
+    /// Axis name.
+    pub axis: String,
+    /// Stage name.
+    pub stage: String,
+    /// Previous plugin id.
+    pub from: String,
+    /// New plugin id.
+    pub to: String,
+    /// |torque(swap cycle) - torque(previous cycle)|, N m (N).
+    pub torque_step: f64,
+    /// The bumpless bound: the largest cycle-to-cycle change in the 100 cycles before, times the
+    /// gain ratio when the new gain is higher, plus 0.1 % of the torque limit.
+    pub allowed_step: f64,
+    /// Whether the swap was rolled back.
+    pub rolled_back: bool,
+    /// Why it was rolled back.
+    pub reason: Option<String>,
+}
+
+/// A refused control request, as reported in `summary.json`'s `rejected_requests`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Rejection {
+    /// Cycle in which the refusal was answered.
+    pub cycle: u64,
+    /// Time of that cycle, s.
+    pub t_s: f64,
+    /// The request's `op` (`swap`, `status`, or what was sent).
+    pub op: String,
+    /// The reason given to the client.
+    pub error: String,
+}
+
+/// At most this many refusals are kept (the count goes on).
+const MAX_REJECTIONS: usize = 4096;
+
+struct BuildJob {
+    axis: usize,
+    stage: Stage,
+    plugin: String,
+    params: Option<String>,
+    lib: Option<String>,
+}
+
+/// A stage's plugin id and the parameters it was built from.
+type StageEntry = (String, toml::Table);
+
+/// What the builder thread is asked to do.
+enum ToBuilder {
+    /// Build a controller.
+    Build(BuildJob),
+    /// A swap passed its probation: its plugin and parameters are now the stage's current ones
+    /// (the base a later retune of the same plugin merges its keys into). A rolled-back swap
+    /// sends nothing, so the previous entry stays.
+    Settled {
+        axis: usize,
+        stage: Stage,
+        entry: (String, toml::Table),
+    },
+    /// A controller taken out of the chain: dropped here, not in the cycle.
+    Retire(Box<dyn Controller>),
+}
+
+struct Built {
+    axis: usize,
+    stage: Stage,
+    controller: Result<Box<dyn Controller>, String>,
+    /// The stage's current (plugin, parameters) once this controller is confirmed.
+    entry: (String, toml::Table),
+}
+
+struct Probation {
+    axis: usize,
+    stage: Stage,
+    entry: Option<(String, toml::Table)>,
+    old: Option<Box<dyn Controller>>,
+    left: u32,
+    event: usize,
+    faults_before: u64,
+}
+
+const HISTORY: usize = 101;
+const PROBATION_CYCLES: u32 = 10;
+
+/// The scheduler's side of the control service.
+pub struct ControlPlane {
+    server: CtlServer,
+    _node: iceoryx2::node::Node<ipc::Service>,
+    to_builder: mpsc::Sender<ToBuilder>,
+    from_builder: mpsc::Receiver<Built>,
+    graveyard: mpsc::Sender<ToBuilder>,
+    pending: Option<(CtlActive, usize, Stage)>,
+    probation: Option<Probation>,
+    /// Every swap so far.
+    pub swaps: Vec<SwapEvent>,
+    /// Refused requests (the first 4096).
+    pub rejected: Vec<Rejection>,
+    /// Refused requests, all of them.
+    pub rejected_count: u64,
+    /// The plant's deadline-miss count as of the latest sample (set by the scheduler loop).
+    pub plant_deadline_misses: u32,
+    history: Vec<[f64; HISTORY]>,
+    hist_pos: usize,
+    hist_len: usize,
+    names: Vec<String>,
+    limits: Vec<f64>,
+    period_s: f64,
+    plugin_ids: Vec<[Option<String>; 4]>,
+}
+
+impl ControlPlane {
+    /// Opens the control service of `instance` for `job`'s chain, with `registry` building plugins.
+    pub fn open(
+        instance: &str,
+        job: &Job,
+        cycle: &ControlCycle,
+        registry: Arc<dyn PluginRegistry>,
+    ) -> Result<Self, IpcError> {
+        let node = create_node(instance, "control")?;
+        let svc = node
+            .service_builder(&service_name(instance)?)
+            .request_response::<ControlRequest, ControlResponse>()
+            .max_servers(1)
+            .open_or_create()
+            .map_err(|e| IpcError::Setup {
+                what: "open the control service".into(),
+                detail: format!("{e:?}"),
+            })?;
+        let server = svc.server_builder().create().map_err(|e| IpcError::Setup {
+            what: "create the control server".into(),
+            detail: format!("{e:?}"),
+        })?;
+        let contexts: Vec<AxisContext> = cycle
+            .chain()
+            .axes()
+            .iter()
+            .map(|a| a.context.clone())
+            .collect();
+        let mut current: Vec<[(String, toml::Table); 4]> = Vec::new();
+        let mut plugin_ids = Vec::new();
+        for (i, a) in cycle.chain().axes().iter().enumerate() {
+            let mut cur: [(String, toml::Table); 4] = Default::default();
+            let mut ids: [Option<String>; 4] = Default::default();
+            for st in Stage::ALL {
+                if let Some(c) = &a.stages[st.index()] {
+                    let params = job
+                        .chain
+                        .iter()
+                        .find(|e| e.axis == i && e.stage == st)
+                        .map(|e| e.params.clone())
+                        .unwrap_or_default();
+                    cur[st.index()] = (c.id().to_string(), params);
+                    ids[st.index()] = Some(c.id().to_string());
+                }
+            }
+            current.push(cur);
+            plugin_ids.push(ids);
+        }
+        let (to_builder, jobs) = mpsc::channel::<ToBuilder>();
+        let (done_tx, from_builder) = mpsc::channel::<Built>();
+        let graveyard = to_builder.clone();
+        let job_path: PathBuf = job.path.clone();
+        std::thread::Builder::new()
+            .name("feedloop-builder".into())
+            .spawn(move || builder(jobs, done_tx, registry, contexts, current, job_path))
+            .map_err(|e| IpcError::Setup {
+                what: "start the plugin builder thread".into(),
+                detail: e.to_string(),
+            })?;
+        let n = cycle.chain().axis_count();
+        Ok(Self {
+            server,
+            _node: node,
+            to_builder,
+            from_builder,
+            graveyard,
+            pending: None,
+            probation: None,
+            swaps: Vec::with_capacity(4096),
+            rejected: Vec::with_capacity(MAX_REJECTIONS),
+            rejected_count: 0,
+            plant_deadline_misses: 0,
+            history: vec![[0.0; HISTORY]; n],
+            hist_pos: 0,
+            hist_len: 0,
+            names: job.axis_names(),
+            limits: job
+                .axes
+                .iter()
+                .map(|a| a.model.controller.torque_limit.unwrap_or(f64::INFINITY))
+                .collect(),
+            period_s: job.period_s,
+            plugin_ids,
+        })
+    }
+
+    /// Whether a freshly swapped controller is on probation (its faults roll it back instead of
+    /// stopping the axes).
+    pub fn in_probation(&self) -> bool {
+        self.probation.is_some()
+    }
+
+    /// At the start of cycle `seq`: switches in a controller the builder finished.
+    pub fn before_cycle(&mut self, cycle: &mut ControlCycle, seq: u64) {
+        if self.probation.is_some() {
+            return;
+        }
+        let Ok(built) = self.from_builder.try_recv() else {
+            return;
+        };
+        let Some((req, axis, stage)) = self.pending.take() else {
+            return;
+        };
+        match built.controller {
+            Err(reason) => {
+                self.refuse(&req, seq, "swap", reason);
+            }
+            Ok(new) => {
+                let _ = (built.axis, built.stage);
+                let new_id = new.id().to_string();
+                let new_gain = new.gain();
+                let old = cycle.chain_mut().replace(axis, stage, new);
+                let from = old.as_ref().map(|o| o.id().to_string()).unwrap_or_default();
+                let ratio = match (old.as_ref().and_then(|o| o.gain()), new_gain) {
+                    (Some(a), Some(b)) if a > 0.0 && b > a => b / a,
+                    _ => 1.0,
+                };
+                let allowed =
+                    self.max_step(axis) * ratio + 0.001 * finite_or(self.limits[axis], 0.0);
+                self.swaps.push(SwapEvent {
+                    t_s: seq as f64 * self.period_s,
+                    cycle: seq,
+                    axis: self.names[axis].clone(),
+                    stage: stage.id().to_string(),
+                    from,
+                    to: new_id.clone(),
+                    torque_step: 0.0,
+                    allowed_step: allowed,
+                    rolled_back: false,
+                    reason: None,
+                });
+                self.plugin_ids[axis][stage.index()] = Some(new_id);
+                self.probation = Some(Probation {
+                    axis,
+                    stage,
+                    entry: Some(built.entry),
+                    old,
+                    left: PROBATION_CYCLES,
+                    event: self.swaps.len() - 1,
+                    faults_before: cycle.chain().nonfinite_faults,
+                });
+                self.pending = Some((req, axis, stage));
+            }
+        }
+    }
+
+    fn max_step(&self, axis: usize) -> f64 {
+        let h = &self.history[axis];
+        let n = self.hist_len.min(HISTORY);
+        let mut m = 0.0f64;
+        for j in 1..n {
+            let a = h[(self.hist_pos + HISTORY - j) % HISTORY];
+            let b = h[(self.hist_pos + HISTORY - j - 1) % HISTORY];
+            m = m.max((a - b).abs());
+        }
+        m
+    }
+
+    /// After cycle `seq` produced `cmd`: probation checks, rollbacks, answers, new requests.
+    pub fn after_cycle(&mut self, cycle: &mut ControlCycle, cmd: &ActuatorCommand, seq: u64) {
+        let n = self.history.len().min(MAX_AXES);
+        let prev_pos = (self.hist_pos + HISTORY - 1) % HISTORY;
+        if let Some(p) = self.probation.as_mut() {
+            let torque = cmd.axes[p.axis].torque;
+            if p.left == PROBATION_CYCLES {
+                let prev = if self.hist_len > 0 {
+                    self.history[p.axis][prev_pos]
+                } else {
+                    torque
+                };
+                self.swaps[p.event].torque_step = (torque - prev).abs();
+            }
+            let bad = if cycle.chain().nonfinite_faults > p.faults_before {
+                Some("the new controller produced a non-finite torque")
+            } else if torque.abs() > self.limits[p.axis] * 1.000_001 {
+                Some("the new controller exceeded the torque limit")
+            } else {
+                None
+            };
+            p.left -= 1;
+            if let Some(reason) = bad {
+                let p = self.probation.take().unwrap_or_else(|| unreachable!());
+                if let Some(old) = p.old {
+                    let failed = cycle.chain_mut().replace(p.axis, p.stage, old);
+                    self.plugin_ids[p.axis][p.stage.index()] = cycle.chain().axes()[p.axis].stages
+                        [p.stage.index()]
+                    .as_ref()
+                    .map(|c| c.id().to_string());
+                    if let Some(f) = failed {
+                        let _ = self.graveyard.send(ToBuilder::Retire(f));
+                    }
+                }
+                let ev = &mut self.swaps[p.event];
+                ev.rolled_back = true;
+                ev.reason = Some(reason.to_string());
+                if let Some((req, _, _)) = self.pending.take() {
+                    respond(
+                        &req,
+                        1,
+                        &json!({"error": format!("rolled back: {reason}"), "swap": ev}),
+                    );
+                }
+            } else if p.left == 0 {
+                let mut p = self.probation.take().unwrap_or_else(|| unreachable!());
+                if let Some(old) = p.old {
+                    let _ = self.graveyard.send(ToBuilder::Retire(old));
+                }
+                if let Some(entry) = p.entry.take() {
+                    let _ = self.to_builder.send(ToBuilder::Settled {
+                        axis: p.axis,
+                        stage: p.stage,
+                        entry,
+                    });
+                }
+                if let Some((req, _, _)) = self.pending.take() {
+                    respond(&req, 0, &json!({"swap": self.swaps[p.event]}));
+                }
+            }
+        }
+        for i in 0..n {
+            self.history[i][self.hist_pos] = cmd.axes[i].torque;
+        }
+        self.hist_pos = (self.hist_pos + 1) % HISTORY;
+        self.hist_len = (self.hist_len + 1).min(HISTORY);
+
+        if self.pending.is_some() {
+            return;
+        }
+        // New request? (non-blocking)
+        let Ok(Some(req)) = self.server.receive() else {
+            return;
+        };
+        let msg = match req.payload().json() {
+            Ok(v) => v,
+            Err(e) => {
+                self.refuse(&req, seq, "", e.to_string());
+                return;
+            }
+        };
+        match msg["op"].as_str().unwrap_or("") {
+            "status" => {
+                let axes: Vec<Value> = self
+                    .names
+                    .iter()
+                    .enumerate()
+                    .map(|(i, name)| {
+                        let stages: serde_json::Map<String, Value> = Stage::ALL
+                            .iter()
+                            .filter_map(|st| {
+                                self.plugin_ids[i][st.index()]
+                                    .as_ref()
+                                    .map(|id| (st.id().to_string(), json!(id)))
+                            })
+                            .collect();
+                        json!({"axis": name, "stages": stages, "torque": cmd.axes[i].torque, "reference": cmd.axes[i].reference})
+                    })
+                    .collect();
+                respond(
+                    &req,
+                    0,
+                    &json!({"cycle": seq, "t_s": seq as f64 * self.period_s, "axes": axes,
+                            "swaps": self.swaps.len(), "nonfinite_faults": cycle.chain().nonfinite_faults,
+                            "deadline_misses": self.plant_deadline_misses,
+                            "rejected_requests": self.rejected_count}),
+                );
+            }
+            "swap" => match self.parse_swap(&msg) {
+                Err(e) => self.refuse(&req, seq, "swap", e),
+                Ok(job) => {
+                    let (axis, stage) = (job.axis, job.stage);
+                    if self.to_builder.send(ToBuilder::Build(job)).is_err() {
+                        respond(
+                            &req,
+                            1,
+                            &json!({"error": "the plugin builder thread is gone"}),
+                        );
+                    } else {
+                        self.pending = Some((req, axis, stage));
+                    }
+                }
+            },
+            other => {
+                let e = format!("unknown op `{other}` (status, swap)");
+                self.refuse(&req, seq, other, e);
+            }
+        }
+    }
+
+    /// Answers `req` with a refusal and keeps it for the summary.
+    fn refuse(&mut self, req: &CtlActive, seq: u64, op: &str, error: String) {
+        respond(req, 1, &json!({ "error": error }));
+        self.rejected_count += 1;
+        if self.rejected.len() < MAX_REJECTIONS {
+            self.rejected.push(Rejection {
+                cycle: seq,
+                t_s: seq as f64 * self.period_s,
+                op: op.to_string(),
+                error,
+            });
+        }
+    }
+
+    fn parse_swap(&self, msg: &Value) -> Result<BuildJob, String> {
+        let axis_name = msg["axis"].as_str().ok_or("swap needs `axis`")?;
+        let axis = self
+            .names
+            .iter()
+            .position(|n| n == axis_name)
+            .ok_or_else(|| {
+                format!(
+                    "axis `{axis_name}` does not exist (axes: {})",
+                    self.names.join(", ")
+                )
+            })?;
+        let stage_s = msg["stage"].as_str().ok_or("swap needs `stage`")?;
+        let stage = Stage::parse(stage_s).ok_or_else(|| {
+            format!("unknown stage `{stage_s}` (position, feedforward, compensator, velocity)")
+        })?;
+        let plugin = msg["plugin"]
+            .as_str()
+            .ok_or("swap needs `plugin`")?
+            .to_string();
+        Ok(BuildJob {
+            axis,
+            stage,
+            plugin,
+            params: msg["params"].as_str().map(str::to_string),
+            lib: msg["lib"].as_str().map(str::to_string),
+        })
+    }
+}
+
+fn finite_or(x: f64, d: f64) -> f64 {
+    if x.is_finite() {
+        x
+    } else {
+        d
+    }
+}
+
+fn respond(req: &CtlActive, code: u32, v: &Value) {
+    let _ = req.send_copy(ControlResponse::from_json(code, v));
+}
+
+fn builder(
+    jobs: mpsc::Receiver<ToBuilder>,
+    done: mpsc::Sender<Built>,
+    registry: Arc<dyn PluginRegistry>,
+    contexts: Vec<AxisContext>,
+    mut current: Vec<[(String, toml::Table); 4]>,
+    job_path: PathBuf,
+) {
+    // Blocks until there is work: no periodic wake-ups to preempt a spinning loop.
+    loop {
+        let job = match jobs.recv() {
+            Ok(ToBuilder::Build(j)) => j,
+            Ok(ToBuilder::Retire(old)) => {
+                drop(old);
+                continue;
+            }
+            Ok(ToBuilder::Settled { axis, stage, entry }) => {
+                if let Some(slot) = current.get_mut(axis) {
+                    slot[stage.index()] = entry;
+                }
+                continue;
+            }
+            Err(mpsc::RecvError) => return,
+        };
+        let (result, entry) =
+            match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
+                Ok((c, entry)) => (Ok(c), entry),
+                Err(e) => (Err(e), Default::default()),
+            };
+        if done
+            .send(Built {
+                axis: job.axis,
+                stage: job.stage,
+                controller: result,
+                entry,
+            })
+            .is_err()
+        {
+            return;
+        }
+    }
+}
+
+fn build_one(
+    job: &BuildJob,
+    registry: &dyn PluginRegistry,
+    contexts: &[AxisContext],
+    current: &[[(String, toml::Table); 4]],
+    job_path: &Path,
+) -> Result<(Box<dyn Controller>, StageEntry), String> {
+    if let Some(lib) = &job.lib {
+        let c = crate::scheduler::plugin_lib::LibController::load(
+            Path::new(lib),
+            &job.plugin,
+            job.params.as_deref().unwrap_or(""),
+            &contexts[job.axis],
+        )
+        .map_err(|e| e.to_string())?;
+        // A library's parameters are its own text: a later built-in retune starts afresh.
+        return Ok((
+            Box::new(c),
+            (format!("{}@{lib}", job.plugin), toml::Table::new()),
+        ));
+    }
+    let src = Path::new("<swap --params>");
+    let (cur_id, cur_params) = &current[job.axis][job.stage.index()];
+    let mut params = if *cur_id == job.plugin {
+        cur_params.clone()
+    } else {
+        toml::Table::new()
+    };
+    if let Some(text) = &job.params {
+        let t = feedloop_model::params::parse_toml(src, text).map_err(|e| e.to_string())?;
+        for (k, v) in t {
+            params.insert(k, v);
+        }
+    }
+    let c = registry
+        .create(&job.plugin, &params, &contexts[job.axis], src)
+        .map_err(|e| e.to_string())?;
+    let _ = job_path;
+    Ok((c, (job.plugin.clone(), params)))
+}

@@ -1,0 +1,320 @@
+//! The scheduler process's loop: wait for a sample, run the control cycle, publish the command,
+//! hand the cycle's record to the recorder.
+
+use std::path::Path;
+
+use crate::scheduler::cycle::ControlCycle;
+use crate::shared::clock::now_ns;
+use crate::shared::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
+use crate::shared::record::Recorder;
+use crate::shared::wire::{
+    ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
+};
+use feedloop_model::job::Mode;
+use feedloop_trace::log::SchedRecord;
+
+/// Settings of one scheduler run.
+#[derive(Debug, Clone)]
+pub struct SchedulerConfig {
+    /// Instance name.
+    pub instance: String,
+    /// Pacing (the plant paces; this only sets how long silence is tolerated).
+    pub mode: Mode,
+    /// How long to wait for the plant at start-up, and in lockstep between samples, s.
+    pub peer_timeout_s: f64,
+    /// Realtime: silence longer than this means the plant is lost, s.
+    pub stale_after_s: f64,
+    /// Called after every answered cycle with its number (tests use it to count allocations).
+    pub cycle_hook: Option<fn(u64)>,
+}
+
+/// Why a scheduler run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SchedulerEnd {
+    /// The plant announced the last cycle and it was answered.
+    Completed,
+    /// The plant stopped sending samples.
+    PlantLost {
+        /// Last cycle answered.
+        cycle: u64,
+    },
+    /// The plant ended the run early (its own stop).
+    PlantEnded {
+        /// Cycle of the plant's end message.
+        cycle: u64,
+    },
+    /// A stop was requested.
+    OperatorStop {
+        /// Last cycle answered.
+        cycle: u64,
+    },
+}
+
+/// Counters of a scheduler run.
+#[derive(Debug, Clone, Copy)]
+pub struct SchedulerOutcome {
+    /// Why it ended.
+    pub end: SchedulerEnd,
+    /// Commands sent.
+    pub commands: u64,
+    /// Samples whose sequence number went back behind the last one answered (dropped).
+    pub out_of_order: u64,
+    /// Samples that repeated the last answered sequence number (dropped).
+    pub duplicated: u64,
+    /// Samples skipped because a newer one was queued.
+    pub skipped: u64,
+    /// Sequence numbers never seen (gaps), excluding skipped ones.
+    pub missing: u64,
+    /// Records the recorder could not keep.
+    pub dropped_records: u64,
+}
+
+/// Errors of a scheduler run.
+#[derive(Debug, thiserror::Error)]
+pub enum SchedulerError {
+    /// IPC failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// Log failure.
+    #[error("scheduler log {path}: {source}")]
+    Log {
+        /// Log path.
+        path: String,
+        /// I/O error.
+        source: std::io::Error,
+    },
+}
+
+/// Runs the scheduler side until the plant's last cycle is answered, the plant is lost, or `stop`.
+pub fn run_scheduler(
+    cfg: &SchedulerConfig,
+    cycle: &mut ControlCycle,
+    axis_count: usize,
+    ep: &SchedulerEndpoint,
+    log_path: &Path,
+    stop: &std::sync::atomic::AtomicBool,
+    mut control: Option<&mut crate::scheduler::control::ControlPlane>,
+) -> Result<SchedulerOutcome, SchedulerError> {
+    let tag = crate::shared::wire::instance_tag(&cfg.instance);
+    let log_err = |e: std::io::Error| SchedulerError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    };
+    let mut rec = Recorder::<SchedRecord>::start(log_path, 1 << 16).map_err(log_err)?;
+    let mut cmd = ActuatorCommand::empty(axis_count as u32, tag);
+    let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
+    hello.flags = FLAG_HELLO;
+    let start_timeout = (cfg.peer_timeout_s * 1e9) as u64;
+    let silence_ns = match cfg.mode {
+        Mode::Lockstep => start_timeout,
+        Mode::Realtime => (cfg.stale_after_s * 1e9) as u64,
+    };
+    let mut started = false;
+    let mut next_seq = 0u64;
+    let mut out = SchedulerOutcome {
+        end: SchedulerEnd::Completed,
+        commands: 0,
+        out_of_order: 0,
+        duplicated: 0,
+        skipped: 0,
+        missing: 0,
+        dropped_records: 0,
+    };
+    let t_start = now_ns();
+    let mut stop_sent = false;
+    let mut fault_sent = false;
+    let mut nonfinite_seen = 0u64;
+    // end of the last answered cycle (command published), for the stretch before the next wait
+    let mut prev_end_ns = u64::MAX;
+    loop {
+        let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
+        if stop_now && !started {
+            out.end = SchedulerEnd::OperatorStop { cycle: 0 };
+            break;
+        }
+        let wait = if started { silence_ns } else { start_timeout };
+        let got = ep.receive_until(now_ns() + wait.max(1))?;
+        let mut s = match got {
+            WaitOutcome::Got(s) => s,
+            WaitOutcome::TimedOut => {
+                if !started {
+                    return Err(IpcError::PeerTimeout {
+                        peer: "plant",
+                        instance: cfg.instance.clone(),
+                        seconds: (now_ns() - t_start) as f64 * 1e-9,
+                    }
+                    .into());
+                }
+                let cycle = next_seq.saturating_sub(1);
+                out.end = if stop_sent {
+                    SchedulerEnd::OperatorStop { cycle }
+                } else {
+                    SchedulerEnd::PlantLost { cycle }
+                };
+                break;
+            }
+        };
+        // Realtime catch-up: answer the newest sample; every other queued one is either skipped
+        // (older than the newest, but not answered before) or a sequence fault (counted).
+        let mut skipped = 0u32;
+        if started {
+            let mut best = screen(&mut out, next_seq, None, s);
+            while let Some(newer) = ep.try_receive()? {
+                if newer.flags & FLAG_HELLO == 0 {
+                    let before = best.is_some();
+                    best = screen(&mut out, next_seq, best, newer);
+                    if before && best.map(|b| b.seq) == Some(newer.seq) {
+                        skipped += 1;
+                    }
+                }
+            }
+            match best {
+                Some(b) => s = b,
+                None => continue,
+            }
+        }
+        if s.flags & FLAG_HELLO != 0 {
+            if s.protocol != PROTOCOL_VERSION {
+                return Err(IpcError::Handshake(format!(
+                    "plant speaks protocol {}, this scheduler {}",
+                    s.protocol, PROTOCOL_VERSION
+                ))
+                .into());
+            }
+            if s.instance_tag != tag {
+                return Err(IpcError::Handshake("plant belongs to another instance".into()).into());
+            }
+            if s.axis_count as usize != axis_count {
+                return Err(IpcError::Handshake(format!(
+                    "plant has {} axes, this scheduler drives {axis_count}: are both running the same job?",
+                    s.axis_count
+                ))
+                .into());
+            }
+            ep.send(hello)?;
+            started = true;
+            continue;
+        }
+        if !started {
+            // A plant that is already cycling (we restarted?): refuse rather than guess.
+            continue;
+        }
+        if s.seq < next_seq {
+            // `screen` let only the plant's goodbye after an early stop through (it repeats the
+            // last cycle number).
+            out.end = if stop_sent {
+                SchedulerEnd::OperatorStop { cycle: s.seq }
+            } else {
+                SchedulerEnd::PlantEnded { cycle: s.seq }
+            };
+            break;
+        }
+        if s.seq > next_seq + u64::from(skipped) {
+            out.missing += s.seq - next_seq - u64::from(skipped);
+        }
+        if s.flags & FLAG_END != 0 && (s.seq >= cycle.cycles() || stop_sent || fault_sent) {
+            out.end = if stop_sent {
+                SchedulerEnd::OperatorStop { cycle: s.seq }
+            } else {
+                SchedulerEnd::PlantEnded { cycle: s.seq }
+            };
+            break;
+        }
+        if let Some(c) = control.as_deref_mut() {
+            c.plant_deadline_misses = s.deadline_misses;
+            c.before_cycle(cycle, s.seq);
+        }
+        let c0 = now_ns();
+        if cfg.mode == Mode::Realtime && s.seq % 1024 == 0 {
+            // samples arrive at the plant's cycle starts: keep the writer in the slack after them
+            rec.set_phase(c0, (cycle.period_s() * 1e9) as u64);
+        }
+        let mut lost_ns = ep
+            .poll_gap_ns()
+            .max(c0.saturating_sub(ep.last_poll_ns()))
+            .max(ep.wait_start_ns().saturating_sub(prev_end_ns));
+        cycle.step(&s, &mut cmd);
+        if stop_now {
+            cmd.flags |= FLAG_STOP;
+            stop_sent = true;
+        } else {
+            cmd.flags &= !FLAG_STOP;
+        }
+        let nonfinite = cycle.chain().nonfinite_faults > nonfinite_seen;
+        nonfinite_seen = cycle.chain().nonfinite_faults;
+        let on_probation = control.as_deref().is_some_and(|c| c.in_probation());
+        if cycle.chain().plugin_panics > 0 || (nonfinite && !on_probation) {
+            // A plugin panicked or produced a non-finite torque (zeroed by the chain): its output
+            // can no longer be trusted, the plant stops the axes. A controller just swapped in is
+            // rolled back by the control plane instead.
+            cmd.flags |= FLAG_FAULT;
+            fault_sent = true;
+        }
+        let c1 = now_ns();
+        let compute_ns = (c1 - c0).min(u32::MAX as u64) as u32;
+        ep.send(cmd)?;
+        prev_end_ns = now_ns();
+        lost_ns = lost_ns.max(prev_end_ns - c1);
+        if let Some(c) = control.as_deref_mut() {
+            c.after_cycle(cycle, &cmd, s.seq);
+        }
+        out.commands += 1;
+        out.skipped += u64::from(skipped);
+        next_seq = s.seq + 1;
+        let mut r = SchedRecord {
+            seq: s.seq,
+            compute_ns,
+            skipped,
+            poll_gap_ns: lost_ns.min(u32::MAX as u64) as u32,
+            ..Default::default()
+        };
+        for i in 0..axis_count {
+            r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
+        }
+        rec.push(r);
+        // the next cycle's references, while the plant steps
+        cycle.prepare(next_seq);
+        if let Some(h) = cfg.cycle_hook {
+            h(s.seq);
+        }
+        if s.flags & FLAG_END != 0 {
+            if stop_sent {
+                out.end = SchedulerEnd::OperatorStop { cycle: s.seq };
+            } else if s.seq + 1 < cycle.cycles() {
+                out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
+            }
+            break;
+        }
+    }
+    out.dropped_records = rec.dropped();
+    rec.finish().map_err(log_err)?;
+    Ok(out)
+}
+
+/// Keeps the sample to answer among `best` and the newly received `m`: a sample behind the last
+/// answered one is counted (`duplicated` when it repeats the last answered number or the one
+/// already held, `out_of_order` otherwise) and dropped; of two valid ones the newer wins. The
+/// plant's end message always wins (its goodbye after an early stop repeats a cycle number).
+fn screen(
+    out: &mut SchedulerOutcome,
+    next_seq: u64,
+    best: Option<SensorSample>,
+    m: SensorSample,
+) -> Option<SensorSample> {
+    if m.flags & FLAG_END != 0 {
+        return Some(m);
+    }
+    if best.is_some_and(|b| b.flags & FLAG_END != 0) {
+        return best;
+    }
+    let repeat = m.seq + 1 == next_seq || best.is_some_and(|b| b.seq == m.seq);
+    if m.seq < next_seq || best.is_some_and(|b| m.seq <= b.seq) {
+        if repeat {
+            out.duplicated += 1;
+        } else {
+            out.out_of_order += 1;
+        }
+        return best;
+    }
+    Some(m)
+}

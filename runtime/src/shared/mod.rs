@@ -1,0 +1,7 @@
+//! Used by both processes: wire types, iceoryx2 endpoints, recorder, clocks, real-time setup.
+
+pub mod clock;
+pub mod ipc;
+pub mod record;
+pub mod rt;
+pub mod wire;

@@ -1,0 +1,215 @@
+//! The recorder both processes use: the control cycle pushes a fixed-size record into a
+//! wait-free ring ([`Recorder`]); a writer thread drains it and appends blocks to a log file in
+//! the format of [`feedloop_trace::log`].
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use serde::Serialize;
+
+use feedloop_trace::log::LogWriter;
+
+use crate::shared::clock::{now_ns, sleep_until_ns};
+
+/// How often the writer thread looks at the ring when it has caught up.
+const WRITER_PERIOD: Duration = Duration::from_millis(2);
+/// Most records the writer encodes and writes in one go before it lets the core go again.
+const WRITER_CHUNK: usize = 64;
+/// Pause between two chunks while a small backlog is left.
+const WRITER_GAP: Duration = Duration::from_micros(100);
+
+/// Where in the control period the writer should run: anchor (a cycle's start on
+/// [`crate::shared::clock::now_ns`]) and period, ns; period 0 = anywhere.
+#[derive(Debug, Default)]
+struct Phase {
+    anchor_ns: AtomicU64,
+    period_ns: AtomicU64,
+}
+
+/// Fraction of the period after a cycle's start at which the writer wakes: past the round trip
+/// (a few microseconds) and the wake-up jitter of the loop, with most of the period left to
+/// write before the next cycle starts.
+const WRITER_PHASE: f64 = 0.3;
+
+impl Phase {
+    /// The first time at or after `earliest_ns` that sits `WRITER_PHASE` into a period.
+    fn next_slot(&self, earliest_ns: u64) -> Option<u64> {
+        let period = self.period_ns.load(Ordering::Relaxed);
+        if period == 0 {
+            return None;
+        }
+        let first = self.anchor_ns.load(Ordering::Relaxed) + (period as f64 * WRITER_PHASE) as u64;
+        let k = earliest_ns.saturating_sub(first).div_ceil(period);
+        Some(first + k * period)
+    }
+}
+
+/// The cycle's side of a recorder: a wait-free push that never blocks or allocates.
+pub struct Recorder<T: Copy + Send + 'static> {
+    producer: rtrb::Producer<T>,
+    phase: Arc<Phase>,
+    dropped: Arc<AtomicU64>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<std::io::Result<u64>>>,
+    path: PathBuf,
+}
+
+impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
+    /// Starts a writer thread that appends blocks to `path`; `capacity` records are buffered.
+    pub fn start(path: &Path, capacity: usize) -> std::io::Result<Self> {
+        let (producer, mut consumer) = rtrb::RingBuffer::<T>::new(capacity);
+        let mut writer = LogWriter::create(path)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let dropped = Arc::new(AtomicU64::new(0));
+        let stop2 = stop.clone();
+        let phase = Arc::new(Phase::default());
+        let phase2 = phase.clone();
+        let thread = std::thread::Builder::new()
+            .name("feedloop-recorder".into())
+            .spawn(move || -> std::io::Result<u64> {
+                // Wake when asked, not up to 50 us later (the default timer slack), so that the
+                // phase below holds.
+                // SAFETY: plain prctl on the calling thread.
+                unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000, 0, 0, 0) };
+                let mut block: Vec<T> = Vec::with_capacity(WRITER_CHUNK);
+                let mut written = 0u64;
+                loop {
+                    let finishing = stop2.load(Ordering::Acquire);
+                    while block.len() < WRITER_CHUNK {
+                        match consumer.pop() {
+                            Ok(r) => block.push(r),
+                            Err(_) => break,
+                        }
+                    }
+                    if !block.is_empty() {
+                        writer.write_block(&block)?;
+                        written += block.len() as u64;
+                        block.clear();
+                    }
+                    let backlog = consumer.slots();
+                    if backlog == 0 && finishing {
+                        return Ok(written);
+                    }
+                    // On a small machine this thread preempts a spinning loop whenever it runs,
+                    // and a loop preempted for more than a period misses its deadline. So it
+                    // writes short chunks (tens of microseconds each) and lets the core go in
+                    // between, unless the backlog grows (a lockstep run goes as fast as it can):
+                    // then it writes without pausing, so that nothing is dropped.
+                    if finishing || backlog > capacity / 8 {
+                        continue;
+                    }
+                    let pause = if backlog >= WRITER_CHUNK {
+                        WRITER_GAP
+                    } else {
+                        WRITER_PERIOD
+                    };
+                    // With a phase (a realtime loop), wake in the slack after a cycle's round
+                    // trip, not at a random moment that may fall on the next one.
+                    let earliest = now_ns() + pause.as_nanos() as u64;
+                    match phase2.next_slot(earliest) {
+                        Some(t) => sleep_until_ns(t),
+                        None => std::thread::sleep(pause),
+                    }
+                }
+            })?;
+        Ok(Self {
+            producer,
+            phase,
+            dropped,
+            stop,
+            thread: Some(thread),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Hands one record to the writer (wait-free). A full ring counts a dropped record.
+    #[inline]
+    pub fn push(&mut self, r: T) {
+        if self.producer.push(r).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Tells the writer where the loop's cycles start (`anchor_ns` on
+    /// [`crate::shared::clock::now_ns`], every `period_ns`), so that it writes in the slack after a
+    /// cycle instead of preempting the loop at a random moment. Two atomic stores: callable
+    /// from the cycle (e.g. when a realtime loop re-anchors its schedule after a stall).
+    #[inline]
+    pub fn set_phase(&self, anchor_ns: u64, period_ns: u64) {
+        self.phase.anchor_ns.store(anchor_ns, Ordering::Relaxed);
+        self.phase.period_ns.store(period_ns, Ordering::Relaxed);
+    }
+
+    /// Records dropped because the ring was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Flushes everything and stops the writer thread; returns the number of records written.
+    pub fn finish(mut self) -> std::io::Result<u64> {
+        self.stop.store(true, Ordering::Release);
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| {
+                std::io::Error::other(format!(
+                    "recorder thread for {} panicked",
+                    self.path.display()
+                ))
+            })?,
+            None => Ok(0),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use feedloop_trace::log::{read_log, PlantRecord};
+
+    fn tmp(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("feedloop-rec-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn the_writer_slot_sits_three_tenths_into_the_first_period_not_before_the_earliest() {
+        let p = Phase::default();
+        assert_eq!(p.next_slot(5), None);
+        p.anchor_ns.store(1_000, Ordering::Relaxed);
+        p.period_ns.store(100, Ordering::Relaxed);
+        assert_eq!(p.next_slot(0), Some(1_030));
+        assert_eq!(p.next_slot(1_030), Some(1_030));
+        assert_eq!(p.next_slot(1_031), Some(1_130));
+        assert_eq!(p.next_slot(10_000), Some(10_030));
+        for e in [0u64, 999, 1_234, 987_654] {
+            let t = p.next_slot(e).unwrap();
+            assert!(
+                t >= e && t < e.max(1_030) + 100 && (t - 1_030) % 100 == 0,
+                "{e} -> {t}"
+            );
+        }
+    }
+
+    #[test]
+    fn recorder_writes_every_record_in_order() {
+        let p = tmp("order.log");
+        let mut r = Recorder::<PlantRecord>::start(&p, 1024).unwrap();
+        for i in 0..10_000u64 {
+            r.push(PlantRecord {
+                seq: i,
+                ..Default::default()
+            });
+            if i % 500 == 0 {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        let dropped = r.dropped();
+        let n = r.finish().unwrap();
+        let log = read_log::<PlantRecord>(&p).unwrap();
+        assert_eq!(n + dropped, 10_000);
+        assert_eq!(log.records.len() as u64, n);
+        assert!(log.records.windows(2).all(|w| w[1].seq > w[0].seq));
+        assert_eq!(log.torn_bytes, 0);
+    }
+}

@@ -1,0 +1,256 @@
+//! Turning per-cycle records into `trace.csv` rows and `summary.json`.
+//!
+//! Both the two-process run (from the plant's log) and the in-process simulation go through
+//! [`trace_columns`] and [`row_values`], so the same cycles give byte-identical trace files.
+
+use std::collections::BTreeMap;
+
+use serde_json::{json, Value};
+
+use crate::log::AxisRecord;
+use crate::summary::{ContourFigures, Timing, Tracking};
+
+/// Trace columns for axes `names`: `t`, then per axis `A.cmd, A.load, A.motor, A.motor_vel, A.torque`.
+pub fn trace_columns(names: &[String]) -> Vec<String> {
+    let mut c = vec!["t".to_string()];
+    for n in names {
+        for s in ["cmd", "load", "motor", "motor_vel", "torque"] {
+            c.push(format!("{n}.{s}"));
+        }
+    }
+    c
+}
+
+/// Fills `out` with one trace row for cycle `seq` (t = seq * period).
+#[inline]
+pub fn row_values(seq: u64, period_s: f64, axes: &[AxisRecord], out: &mut Vec<f64>) {
+    out.clear();
+    out.push(seq as f64 * period_s);
+    for a in axes {
+        out.extend_from_slice(&[a.cmd, a.load, a.motor, a.motor_vel, a.torque]);
+    }
+}
+
+/// How a run ended, for `summary.json`'s `end`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EndInfo {
+    /// `completed`, `scheduler_lost`, `plant_lost`, `operator_stop`, ...
+    pub reason: String,
+    /// Cycle at which it ended.
+    pub cycle: u64,
+    /// Extra keys (e.g. `detected_after_cycles`, `safe_stop`, `detail`).
+    pub extra: BTreeMap<String, Value>,
+}
+
+impl EndInfo {
+    /// A plain end.
+    pub fn new(reason: &str, cycle: u64) -> Self {
+        Self {
+            reason: reason.to_string(),
+            cycle,
+            extra: BTreeMap::new(),
+        }
+    }
+}
+
+/// Everything `summary.json` says.
+#[derive(Debug, Clone)]
+pub struct SummaryInput<'a> {
+    /// Job name.
+    pub job: &'a str,
+    /// `realtime`, `lockstep` or `sim`.
+    pub mode: &'a str,
+    /// Control period, s.
+    pub period_s: f64,
+    /// Cycles in the trace.
+    pub cycles: u64,
+    /// Timing figures (None in sim).
+    pub timing: Option<&'a Timing>,
+    /// (plant, scheduler) process ids (None in sim).
+    pub pids: Option<(u32, u32)>,
+    /// CPU time in physics and control, s.
+    pub compute_s: f64,
+    /// Tracking figures.
+    pub tracking: &'a Tracking,
+    /// End of the run.
+    pub end: &'a EndInfo,
+    /// Extra top-level keys.
+    pub extra: BTreeMap<String, Value>,
+}
+
+/// Builds the `summary.json` value.
+pub fn summary_json(s: &SummaryInput<'_>) -> Value {
+    let t = s.timing.cloned().unwrap_or_default();
+    let latency = match (s.timing, t.latency_us) {
+        (Some(_), Some(p)) => json!({"p50": p.p50, "p99": p.p99, "p999": p.p999, "max": p.max}),
+        _ => Value::Null,
+    };
+    let processes = match s.pids {
+        Some((p, q)) => json!({"plant_pid": p, "scheduler_pid": q}),
+        None => Value::Null,
+    };
+    let axes: serde_json::Map<String, Value> = s
+        .tracking
+        .axes_in_order()
+        .into_iter()
+        .map(|(k, v, unit)| {
+            let mut a = json!({"max_following_error": v.max_following_error, "rms_following_error": v.rms_following_error});
+            if let Some(u) = unit {
+                a["unit"] = json!(u);
+            }
+            (k, a)
+        })
+        .collect();
+    let contour = match s.tracking.contour() {
+        Some(ContourFigures {
+            max_error,
+            rms_error,
+        }) => {
+            json!({"max_error": max_error, "rms_error": rms_error})
+        }
+        None => Value::Null,
+    };
+    let mut end = json!({"reason": s.end.reason, "cycle": s.end.cycle});
+    for (k, v) in &s.end.extra {
+        end[k] = v.clone();
+    }
+    let mut v = json!({
+        "job": s.job,
+        "mode": s.mode,
+        "period_s": s.period_s,
+        "cycles": s.cycles,
+        "deadline_misses": t.deadline_misses,
+        "plant_overruns": t.plant_overruns,
+        "stalls": {"count": t.stalls.count, "max_ms": t.stalls.max_ms},
+        "latency_us": latency,
+        "processes": processes,
+        "compute_s": s.compute_s,
+        "axes": axes,
+        "contour": contour,
+        "end": end,
+    });
+    for (k, x) in &s.extra {
+        v[k] = x.clone();
+    }
+    v
+}
+
+/// A short human-readable summary.
+pub fn human_summary(v: &Value) -> String {
+    let mut out = String::new();
+    let f = |x: &Value| x.as_f64().unwrap_or(f64::NAN);
+    out.push_str(&format!(
+        "{} [{}]: {} cycles of {} us, ended: {}\n",
+        v["job"].as_str().unwrap_or("?"),
+        v["mode"].as_str().unwrap_or("?"),
+        v["cycles"],
+        f(&v["period_s"]) * 1e6,
+        v["end"]["reason"].as_str().unwrap_or("?")
+    ));
+    if let Some(axes) = v["axes"].as_object() {
+        for (name, a) in axes {
+            // rotary axes are in rad: print urad, linear ones in m: print um
+            let unit = if a["unit"] == "rad" { "urad" } else { "um" };
+            out.push_str(&format!(
+                "  axis {name}: following error max {:.3} {unit}, rms {:.3} {unit}\n",
+                f(&a["max_following_error"]) * 1e6,
+                f(&a["rms_following_error"]) * 1e6
+            ));
+        }
+    }
+    if !v["contour"].is_null() {
+        out.push_str(&format!(
+            "  contour error max {:.3} um, rms {:.3} um\n",
+            f(&v["contour"]["max_error"]) * 1e6,
+            f(&v["contour"]["rms_error"]) * 1e6
+        ));
+    }
+    if !v["latency_us"].is_null() {
+        let l = &v["latency_us"];
+        out.push_str(&format!(
+            "  latency us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}\n",
+            f(&l["p50"]),
+            f(&l["p99"]),
+            f(&l["p999"]),
+            f(&l["max"])
+        ));
+    }
+    if v["mode"] == "realtime" {
+        out.push_str(&format!(
+            "  deadline misses {}, plant overruns {}, stalls {} (max {:.2} ms)\n",
+            v["deadline_misses"],
+            v["plant_overruns"],
+            v["stalls"]["count"],
+            f(&v["stalls"]["max_ms"])
+        ));
+    }
+    out.push_str(&format!(
+        "  compute {:.4} s (physics + control)\n",
+        f(&v["compute_s"])
+    ));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::AxisRecord;
+    use crate::summary::Tracking;
+
+    #[test]
+    fn summary_lists_axes_in_job_order_with_their_units_and_prints_rotary_errors_in_urad() {
+        let dir = std::env::temp_dir().join(format!("feedloop-export-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("x.toml"),
+            "kind = \"rigid\"\nmass_kg = 10\n[controller]\nkp_per_s = 30\nkv_ns_per_m = 2000\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("c.toml"),
+            "kind = \"rotary\"\njm_kgm2 = 0.01\nkl_nm_per_rad = 1e5\njl_kgm2 = 0.05\n[controller]\nkp_per_s = 30\nkv_nms_per_rad = 2\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("j.toml"),
+            "period_s = 0.001\n[axes.x]\nmodel = \"x.toml\"\n[axes.c]\nmodel = \"c.toml\"\n[trajectory]\nkind = \"dwell\"\n",
+        )
+        .unwrap();
+        let job = feedloop_model::job::Job::load(&dir.join("j.toml")).unwrap();
+        let mut t = Tracking::for_job(&job);
+        let rec = |cmd: f64, load: f64| AxisRecord {
+            cmd,
+            load,
+            ..Default::default()
+        };
+        t.push(&[rec(0.0, 2e-6), rec(0.0, -3e-3)], None);
+        let v = summary_json(&SummaryInput {
+            job: "j",
+            mode: "sim",
+            period_s: 0.001,
+            cycles: 1,
+            timing: None,
+            pids: None,
+            compute_s: 0.0,
+            tracking: &t,
+            end: &EndInfo::new("completed", 1),
+            extra: BTreeMap::new(),
+        });
+        let keys: Vec<&String> = v["axes"].as_object().unwrap().keys().collect();
+        assert_eq!(keys, ["x", "c"]);
+        assert_eq!(v["axes"]["x"]["unit"], "m");
+        assert_eq!(v["axes"]["c"]["unit"], "rad");
+        assert_eq!(v["axes"]["c"]["max_following_error"], 3e-3);
+        let text = human_summary(&v);
+        assert!(
+            text.contains("axis x: following error max 2.000 um"),
+            "{text}"
+        );
+        assert!(
+            text.contains("axis c: following error max 3000.000 urad"),
+            "{text}"
+        );
+        assert!(text.find("axis x").unwrap() < text.find("axis c").unwrap());
+        std::fs::remove_dir_all(dir).ok();
+    }
+}
