@@ -7,13 +7,13 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use hdrhistogram::Histogram;
 use serde_json::{json, Value};
 
-use feedloop_model::job::{Mode, WaitKind};
-use feedloop_trace::log::{
-    read_log, PlantRecord, SchedRecord, REC_MISSED, REC_OVERRUN, REC_STALL, REC_WAIT_INTERRUPTED,
+use feedloop_analysis::latency::{
+    attribute_misses, hist_json, percentile_svg, reference, Attribution, RunFigures,
 };
+use feedloop_model::job::{Mode, WaitKind};
+use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
 
@@ -109,17 +109,6 @@ fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<P
     Ok(p)
 }
 
-fn hist_json(h: &Histogram<u64>) -> Value {
-    let us = |v: u64| v as f64 / 1000.0;
-    json!({
-        "p50": us(h.value_at_quantile(0.5)),
-        "p99": us(h.value_at_quantile(0.99)),
-        "p999": us(h.value_at_quantile(0.999)),
-        "max": us(h.max()),
-        "count": h.len(),
-    })
-}
-
 fn latency(
     cycles: u64,
     period_s: f64,
@@ -146,20 +135,6 @@ fn latency(
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let job = bench_job(out, period_s, wait_kind, cycles)?;
-    let instance = format!("bench{}", std::process::id());
-    let extra = |i: usize| {
-        let mut v = vec!["--cycles".to_string(), cycles.to_string()];
-        if let Some(c) = cpus.get(i) {
-            v.extend(["--cpu".to_string(), c.to_string()]);
-        }
-        if let Some(f) = fifo {
-            v.extend(["--fifo".to_string(), f.to_string()]);
-        }
-        v
-    };
-    for f in ["plant.log", "plant.json", "scheduler.log", "scheduler.json"] {
-        let _ = std::fs::remove_file(out.join(f));
-    }
     let period_ns = (period_s * 1e9).round() as u64;
     let probe_cpus: Vec<usize> = if cpus.is_empty() {
         (0..std::thread::available_parallelism()
@@ -170,27 +145,7 @@ fn latency(
         cpus.clone()
     };
     let reference = if reference_s > 0.0 {
-        eprintln!(
-            "reference: a sleeping loop, then a spinning loop, {reference_s} s each on CPUs {probe_cpus:?}"
-        );
-        let secs = Duration::from_secs_f64(reference_s);
-        let sleeping = probe::sleeping_loop(&probe_cpus, period_ns, secs)?;
-        let spinning = probe::spinning_loop(&probe_cpus, period_ns / 2, secs)?;
-        json!({
-            "seconds": reference_s,
-            "cpus": probe_cpus,
-            "sleeping_loop": {
-                "jitter_us": hist_json(&sleeping.lateness),
-                "sched_fifo": sleeping.sched_fifo,
-            },
-            "spinning_loop": {
-                "threshold_us": (period_ns / 2) as f64 / 1000.0,
-                "interruptions": spinning.count,
-                "interruptions_per_s": spinning.count as f64 / reference_s,
-                "interrupted_share": spinning.lost_ns as f64 / (reference_s * 1e9 * probe_cpus.len() as f64),
-                "max_us": spinning.max_ns as f64 / 1000.0,
-            },
-        })
+        reference_loops(&probe_cpus, period_ns, reference_s)?
     } else {
         Value::Null
     };
@@ -199,66 +154,9 @@ fn latency(
         1e-3 / period_s,
         cycles as f64 * period_s
     );
-    let mut plant = spawn(
-        "plant",
-        &instance,
-        &job,
-        out,
-        Mode::Realtime,
-        wait_kind,
-        &extra(0),
-    )?;
-    let mut sched = spawn(
-        "scheduler",
-        &instance,
-        &job,
-        out,
-        Mode::Realtime,
-        wait_kind,
-        &extra(1),
-    )?;
-    let ps = plant.wait()?;
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while sched.try_wait()?.is_none() {
-        if std::time::Instant::now() > deadline {
-            let _ = sched.kill();
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    let _ = sched.wait();
-    if !ps.success() && !out.join("plant.json").exists() {
-        bail!("the plant process failed ({ps})");
-    }
+    run_processes(&job, out, wait_kind, cycles, &cpus, fifo)?;
     let recs = read_log::<PlantRecord>(&out.join("plant.log"))?.records;
-    let mut lat = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
-    let mut jit = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
-    let (mut misses, mut overruns, mut stall_count, mut stall_max, mut in_stall) =
-        (0u64, 0u64, 0u64, 0.0f64, false);
-    let mut miss_outside = 0u64;
-    for r in &recs {
-        if r.latency_ns != u64::MAX {
-            lat.saturating_record(r.latency_ns.max(1));
-        }
-        jit.saturating_record(r.wake_late_ns.max(1));
-        let stalled = r.flags & REC_STALL != 0;
-        if r.flags & REC_MISSED != 0 {
-            misses += 1;
-            if !stalled {
-                miss_outside += 1;
-            }
-        }
-        if r.flags & REC_OVERRUN != 0 {
-            overruns += 1;
-        }
-        if stalled {
-            if !in_stall {
-                stall_count += 1;
-            }
-            stall_max = stall_max.max(r.wake_late_ns as f64 * 1e-6);
-        }
-        in_stall = stalled;
-    }
+    let figures = RunFigures::from_records(&recs)?;
     // Which misses fell while the scheduler had lost its core (it records, per answered cycle,
     // the longest stretch without a poll): such a miss is the machine's, not the loop's.
     let sched = read_log::<SchedRecord>(&out.join("scheduler.log"))
@@ -271,12 +169,12 @@ fn latency(
         "cycles": recs.len(),
         "period_s": period_s,
         "wait": wait_kind.id(),
-        "latency_us": hist_json(&lat),
-        "jitter_us": hist_json(&jit),
-        "deadline_misses": misses,
-        "plant_overruns": overruns,
-        "stalls": {"count": stall_count, "max_ms": stall_max},
-        "misses_outside_stalls": miss_outside,
+        "latency_us": hist_json(&figures.latency),
+        "jitter_us": hist_json(&figures.jitter),
+        "deadline_misses": figures.misses,
+        "plant_overruns": figures.overruns,
+        "stalls": {"count": figures.stalls, "max_ms": figures.stall_max_ms},
+        "misses_outside_stalls": figures.misses_outside_stalls,
         "core_losses": {
             "threshold_us": (period_ns / 2) as f64 / 1000.0,
             "scheduler": attribution.scheduler_losses,
@@ -299,7 +197,105 @@ fn latency(
         "end": plant_info["end"],
     });
     write_json(&out.join("latency.json"), &v)?;
-    std::fs::write(out.join("latency.svg"), percentile_svg(&lat, &jit))?;
+    std::fs::write(
+        out.join("latency.svg"),
+        percentile_svg(&figures.latency, &figures.jitter),
+    )?;
+    print_report(&v, &figures, &attribution, period_ns);
+    println!(
+        "wrote {} and {}",
+        out.join("latency.json").display(),
+        out.join("latency.svg").display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The sleeping and the spinning reference loop on `cpus`, `seconds` each, as `latency.json`'s
+/// `reference`.
+fn reference_loops(cpus: &[usize], period_ns: u64, seconds: f64) -> Result<Value> {
+    eprintln!(
+        "reference: a sleeping loop, then a spinning loop, {seconds} s each on CPUs {cpus:?}"
+    );
+    let time = Duration::from_secs_f64(seconds);
+    let sleeping = reference::sleeping_loop(cpus, period_ns, time)?;
+    let spinning = reference::spinning_loop(cpus, period_ns / 2, time)?;
+    Ok(json!({
+        "seconds": seconds,
+        "cpus": cpus,
+        "sleeping_loop": {
+            "jitter_us": hist_json(&sleeping.lateness),
+            "sched_fifo": sleeping.sched_fifo,
+        },
+        "spinning_loop": {
+            "threshold_us": (period_ns / 2) as f64 / 1000.0,
+            "interruptions": spinning.count,
+            "interruptions_per_s": spinning.count as f64 / seconds,
+            "interrupted_share": spinning.lost_ns as f64 / (seconds * 1e9 * cpus.len() as f64),
+            "max_us": spinning.max_ns as f64 / 1000.0,
+        },
+    }))
+}
+
+/// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of
+/// `cpus` (when given), and waits for both.
+fn run_processes(
+    job: &Path,
+    out: &Path,
+    wait: WaitKind,
+    cycles: u64,
+    cpus: &[usize],
+    fifo: Option<i32>,
+) -> Result<()> {
+    let instance = format!("bench{}", std::process::id());
+    let extra = |i: usize| {
+        let mut v = vec!["--cycles".to_string(), cycles.to_string()];
+        if let Some(c) = cpus.get(i) {
+            v.extend(["--cpu".to_string(), c.to_string()]);
+        }
+        if let Some(f) = fifo {
+            v.extend(["--fifo".to_string(), f.to_string()]);
+        }
+        v
+    };
+    for f in ["plant.log", "plant.json", "scheduler.log", "scheduler.json"] {
+        let _ = std::fs::remove_file(out.join(f));
+    }
+    let mut plant = spawn(
+        "plant",
+        &instance,
+        job,
+        out,
+        Mode::Realtime,
+        wait,
+        &extra(0),
+    )?;
+    let mut sched = spawn(
+        "scheduler",
+        &instance,
+        job,
+        out,
+        Mode::Realtime,
+        wait,
+        &extra(1),
+    )?;
+    let ps = plant.wait()?;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while sched.try_wait()?.is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = sched.kill();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = sched.wait();
+    if !ps.success() && !out.join("plant.json").exists() {
+        bail!("the plant process failed ({ps})");
+    }
+    Ok(())
+}
+
+/// The figures of `latency.json` in a few lines.
+fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
     println!(
         "latency us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}",
         v["latency_us"]["p50"],
@@ -312,16 +308,17 @@ fn latency(
         v["jitter_us"]["p50"], v["jitter_us"]["p99"], v["jitter_us"]["p999"], v["jitter_us"]["max"]
     );
     println!(
-        "deadline misses {misses} ({miss_outside} outside stalls), overruns {overruns}, stalls {stall_count} (max {stall_max:.2} ms)"
+        "deadline misses {} ({} outside stalls), overruns {}, stalls {} (max {:.2} ms)",
+        f.misses, f.misses_outside_stalls, f.overruns, f.stalls, f.stall_max_ms
     );
     println!(
         "core lost for >= {:.0} us: scheduler {} times (max {:.0} us), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
         period_ns as f64 / 2000.0,
-        attribution.scheduler_losses,
-        attribution.scheduler_max_ns as f64 / 1000.0,
-        attribution.plant_losses,
-        attribution.explained,
-        attribution.unexplained
+        a.scheduler_losses,
+        a.scheduler_max_ns as f64 / 1000.0,
+        a.plant_losses,
+        a.explained,
+        a.unexplained
     );
     if !v["reference"].is_null() {
         let r = &v["reference"];
@@ -338,338 +335,5 @@ fn latency(
             r["spinning_loop"]["interruptions_per_s"].as_f64().unwrap_or(0.0),
             r["spinning_loop"]["max_us"].as_f64().unwrap_or(0.0),
         );
-    }
-    println!(
-        "wrote {} and {}",
-        out.join("latency.json").display(),
-        out.join("latency.svg").display()
-    );
-    Ok(ExitCode::SUCCESS)
-}
-
-/// Deadline misses split by whether a process had lost its core when they happened.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-struct Attribution {
-    /// Answered cycles around which the scheduler went at least half a period without progress.
-    scheduler_losses: u64,
-    /// Longest such stretch, ns.
-    scheduler_max_ns: u64,
-    /// Missed cycles during whose wait the plant itself lost its core for half a period.
-    plant_losses: u64,
-    /// Misses (outside plant stalls) covered by a core loss of either process.
-    explained: u64,
-    /// Misses outside plant stalls and outside core losses.
-    unexplained: u64,
-}
-
-/// A miss of cycle `s` is covered when the plant lost its core while waiting for it
-/// (`REC_WAIT_INTERRUPTED`), or when the first cycle the scheduler answered at or after `s` came
-/// after a stretch without progress (or a computation) of at least half a period that reaches
-/// back to `s`'s period: the scheduler could not have answered `s` in time.
-fn attribute_misses(plant: &[PlantRecord], sched: &[SchedRecord], period_ns: u64) -> Attribution {
-    let half = period_ns / 2;
-    let mut a = Attribution::default();
-    let lost = |r: &SchedRecord| u64::from(r.poll_gap_ns).max(u64::from(r.compute_ns));
-    for r in sched {
-        if lost(r) >= half {
-            a.scheduler_losses += 1;
-            a.scheduler_max_ns = a.scheduler_max_ns.max(lost(r));
-        }
-    }
-    let mut j = 0usize;
-    for p in plant {
-        if p.flags & REC_MISSED == 0 {
-            continue;
-        }
-        let plant_lost = p.flags & REC_WAIT_INTERRUPTED != 0;
-        if plant_lost {
-            a.plant_losses += 1;
-        }
-        if p.flags & REC_STALL != 0 {
-            continue;
-        }
-        // scheduler records are in cycle order: advance to the first at or after this cycle
-        while j < sched.len() && sched[j].seq < p.seq {
-            j += 1;
-        }
-        let covered = plant_lost
-            || sched.get(j).is_some_and(|r| {
-                let g = lost(r);
-                g >= half && (r.seq - p.seq) * period_ns <= g + period_ns
-            });
-        if covered {
-            a.explained += 1;
-        } else {
-            a.unexplained += 1;
-        }
-    }
-    a
-}
-
-/// Reference loops run on the benchmark's CPUs before the run, one thread per CPU.
-mod probe {
-    use std::time::Duration;
-
-    use anyhow::Result;
-    use hdrhistogram::Histogram;
-
-    use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
-    use feedloop_runtime::shared::rt::{apply, RtRequest};
-
-    /// Result of [`sleeping_loop`].
-    pub struct Sleeping {
-        /// Wake-up lateness of every period on every CPU, ns.
-        pub lateness: Histogram<u64>,
-        /// Whether SCHED_FIFO was granted on every CPU.
-        pub sched_fifo: bool,
-    }
-
-    /// A cyclictest-style loop on each CPU: sleep to an absolute deadline every `period_ns`
-    /// (SCHED_FIFO 80 when permitted, memory locked), record how late each wake-up is.
-    pub fn sleeping_loop(cpus: &[usize], period_ns: u64, time: Duration) -> Result<Sleeping> {
-        let results: Vec<(Histogram<u64>, bool)> = std::thread::scope(|sc| {
-            let handles: Vec<_> = cpus
-                .iter()
-                .map(|&cpu| {
-                    sc.spawn(move || -> Result<(Histogram<u64>, bool)> {
-                        let applied = apply(&RtRequest {
-                            mlockall: true,
-                            fifo_priority: Some(80),
-                            cpu: Some(cpu),
-                        });
-                        let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
-                        let start = now_ns() + 1_000_000;
-                        let end = start + time.as_nanos() as u64;
-                        let mut next = start;
-                        while next < end {
-                            sleep_until_ns(next);
-                            h.saturating_record(now_ns().saturating_sub(next).max(1));
-                            next += period_ns;
-                        }
-                        Ok((h, applied.sched_fifo))
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|t| {
-                    t.join()
-                        .unwrap_or_else(|_| Err(anyhow::anyhow!("probe thread panicked")))
-                })
-                .collect::<Result<Vec<_>>>()
-        })?;
-        let mut lateness = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3)?;
-        let mut fifo = !results.is_empty();
-        for (h, f) in &results {
-            lateness.add(h)?;
-            fifo &= *f;
-        }
-        Ok(Sleeping {
-            lateness,
-            sched_fifo: fifo,
-        })
-    }
-
-    /// Result of [`spinning_loop`].
-    pub struct Spinning {
-        /// Stretches of at least the threshold between two clock readings, all CPUs.
-        pub count: u64,
-        /// Their total length, ns.
-        pub lost_ns: u64,
-        /// The longest, ns.
-        pub max_ns: u64,
-    }
-
-    /// A bare spinning loop on each CPU (what a busy-polling process does, without any IPC):
-    /// counts the stretches of at least `threshold_ns` between two consecutive clock readings,
-    /// i.e. the times the OS or the hypervisor took the core away.
-    pub fn spinning_loop(cpus: &[usize], threshold_ns: u64, time: Duration) -> Result<Spinning> {
-        let results: Vec<(u64, u64, u64)> = std::thread::scope(|sc| {
-            let handles: Vec<_> = cpus
-                .iter()
-                .map(|&cpu| {
-                    sc.spawn(move || {
-                        apply(&RtRequest {
-                            mlockall: false,
-                            fifo_priority: None,
-                            cpu: Some(cpu),
-                        });
-                        let (mut count, mut lost, mut max) = (0u64, 0u64, 0u64);
-                        let end = now_ns() + time.as_nanos() as u64;
-                        let mut prev = now_ns();
-                        while prev < end {
-                            let now = now_ns();
-                            let gap = now - prev;
-                            if gap >= threshold_ns {
-                                count += 1;
-                                lost += gap;
-                                max = max.max(gap);
-                            }
-                            prev = now;
-                        }
-                        (count, lost, max)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|t| t.join().unwrap_or((0, 0, 0)))
-                .collect()
-        });
-        Ok(Spinning {
-            count: results.iter().map(|r| r.0).sum(),
-            lost_ns: results.iter().map(|r| r.1).sum(),
-            max_ns: results.iter().map(|r| r.2).max().unwrap_or(0),
-        })
-    }
-}
-
-/// A percentile plot (latency and jitter, log-scaled tail axis) as a standalone SVG.
-fn percentile_svg(lat: &Histogram<u64>, jit: &Histogram<u64>) -> String {
-    let (w, h, l, r, t, b) = (720.0, 420.0, 70.0, 20.0, 30.0, 60.0);
-    // x: -log10(1 - q) from 0 (p0) to 5 (p99.999)
-    let qs: Vec<f64> = (0..=100).map(|i| i as f64 * 0.05).collect();
-    let val = |hist: &Histogram<u64>, x: f64| {
-        let q = (1.0 - 10f64.powf(-x)).clamp(0.0, 1.0);
-        hist.value_at_quantile(q) as f64 / 1000.0
-    };
-    let ymax = qs
-        .iter()
-        .map(|x| val(lat, *x).max(val(jit, *x)))
-        .fold(1.0f64, f64::max);
-    let (ylo, yhi) = (0.1f64.log10(), (ymax * 1.5).log10());
-    let px = |x: f64| l + (w - l - r) * x / 5.0;
-    let py = |y: f64| t + (h - t - b) * (1.0 - ((y.max(0.1).log10() - ylo) / (yhi - ylo)));
-    let line = |hist: &Histogram<u64>| {
-        qs.iter()
-            .map(|x| format!("{:.1},{:.1}", px(*x), py(val(hist, *x))))
-            .collect::<Vec<_>>()
-            .join(" ")
-    };
-    let mut s = format!(
-        "<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}' font-family='sans-serif' font-size='12'>\
-         <rect width='100%' height='100%' fill='white'/>\
-         <text x='{l}' y='18' font-size='14'>feedloop bench latency: percentiles (us, log scale)</text>"
-    );
-    for (x, label) in [
-        (0.0, "p0"),
-        (0.301, "p50"),
-        (1.0, "p90"),
-        (2.0, "p99"),
-        (3.0, "p99.9"),
-        (4.0, "p99.99"),
-        (5.0, "p99.999"),
-    ] {
-        s += &format!(
-            "<line x1='{0:.1}' x2='{0:.1}' y1='{t}' y2='{1}' stroke='#ddd'/><text x='{0:.1}' y='{2}' text-anchor='middle'>{label}</text>",
-            px(x),
-            h - b,
-            h - b + 16.0
-        );
-    }
-    let mut y = 10f64.powf(ylo.ceil());
-    while y.log10() <= yhi {
-        s += &format!(
-            "<line x1='{l}' x2='{0}' y1='{1:.1}' y2='{1:.1}' stroke='#ddd'/><text x='{2}' y='{3:.1}' text-anchor='end'>{y}</text>",
-            w - r,
-            py(y),
-            l - 6.0,
-            py(y) + 4.0
-        );
-        y *= 10.0;
-    }
-    s += &format!(
-        "<polyline fill='none' stroke='#1f77b4' stroke-width='2' points='{}'/>",
-        line(lat)
-    );
-    s += &format!(
-        "<polyline fill='none' stroke='#d62728' stroke-width='2' points='{}'/>",
-        line(jit)
-    );
-    s += &format!(
-        "<text x='{0}' y='{1}' fill='#1f77b4'>round trip (sample -> command)</text><text x='{0}' y='{2}' fill='#d62728'>plant wake-up lateness (jitter)</text>",
-        l + 10.0,
-        t + 16.0,
-        t + 32.0
-    );
-    s += &format!(
-        "<text x='{0}' y='{1}' text-anchor='middle'>percentile</text></svg>\n",
-        (l + w - r) / 2.0,
-        h - 12.0
-    );
-    s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn plant(seq: u64, flags: u8) -> PlantRecord {
-        PlantRecord {
-            seq,
-            flags,
-            ..Default::default()
-        }
-    }
-
-    fn sched(seq: u64, poll_gap_us: u32) -> SchedRecord {
-        SchedRecord {
-            seq,
-            compute_ns: 300,
-            poll_gap_ns: poll_gap_us * 1000,
-            ..Default::default()
-        }
-    }
-
-    #[test]
-    fn misses_are_explained_only_by_a_core_loss_that_reaches_back_to_them() {
-        let period = 100_000;
-        // cycles 10..=12 missed; the scheduler answered 13 after 350 us without a poll: all three
-        // are covered. Cycle 20 missed, but 21 was answered after only 2 us: not covered. Cycle 30
-        // missed during a plant stall: neither. Cycle 40 missed and the next answer (45) came
-        // after a 120 us loss that cannot reach back five periods: not covered.
-        let mut p: Vec<PlantRecord> = (0..50).map(|k| plant(k, 0)).collect();
-        for k in [10, 11, 12, 20, 40] {
-            p[k].flags = REC_MISSED;
-        }
-        p[30].flags = REC_MISSED | REC_STALL;
-        let mut s: Vec<SchedRecord> = (0..50)
-            .filter(|k| ![10, 11, 12, 20, 30, 40, 41, 42, 43, 44].contains(k))
-            .map(|k| sched(k, 1))
-            .collect();
-        for r in s.iter_mut() {
-            match r.seq {
-                13 => r.poll_gap_ns = 350_000,
-                21 => r.poll_gap_ns = 2_000,
-                45 => r.poll_gap_ns = 120_000,
-                _ => {}
-            }
-        }
-        let a = attribute_misses(&p, &s, period);
-        assert_eq!(a.scheduler_losses, 2);
-        assert_eq!(a.scheduler_max_ns, 350_000);
-        assert_eq!(a.explained, 3);
-        assert_eq!(a.unexplained, 2);
-        // a long computation counts like a long stretch without a poll
-        s.iter_mut().find(|r| r.seq == 21).unwrap().compute_ns = 90_000;
-        let b = attribute_misses(&p, &s, period);
-        assert_eq!((b.explained, b.unexplained, b.scheduler_losses), (4, 1, 3));
-        // and so does the plant losing its core while it waited for cycle 40
-        p[40].flags |= REC_WAIT_INTERRUPTED;
-        let c = attribute_misses(&p, &s, period);
-        assert_eq!((c.explained, c.unexplained, c.plant_losses), (5, 0, 1));
-    }
-
-    #[test]
-    fn a_spinning_probe_sees_a_forced_gap_and_a_sleeping_probe_records_every_period() {
-        // with a zero threshold every stretch between two clock readings counts, and together
-        // they cover the whole window; with an unreachable threshold none does
-        let all = probe::spinning_loop(&[0], 0, Duration::from_millis(20)).unwrap();
-        assert!(all.count > 1000, "{} stretches", all.count);
-        assert!(all.lost_ns > 10_000_000 && all.lost_ns <= 40_000_000);
-        let none = probe::spinning_loop(&[0], u64::MAX, Duration::from_millis(20)).unwrap();
-        assert_eq!((none.count, none.lost_ns, none.max_ns), (0, 0, 0));
-        let s = probe::sleeping_loop(&[0], 1_000_000, Duration::from_millis(50)).unwrap();
-        assert_eq!(s.lateness.len(), 50);
     }
 }

@@ -40,8 +40,6 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
             "{h}: {q:?}"
         );
     }
-    // a 1 kHz loop answers within the period nearly always
-    assert!(v["latency_us"]["p50"].as_f64().unwrap() < 1000.0, "{v}");
     let misses = v["deadline_misses"].as_u64().unwrap();
     let outside = v["misses_outside_stalls"].as_u64().unwrap();
     let explained = v["misses_during_core_losses"].as_u64().unwrap();
@@ -61,6 +59,21 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     assert_eq!(logged_misses, misses);
     let answered = plant.iter().filter(|r| r.latency_ns != u64::MAX).count() as u64;
     assert_eq!(v["latency_us"]["count"].as_u64().unwrap(), answered);
+    // the reported median is the logged one, within the histogram's three significant digits
+    // (how fast the machine answers is the bench's figure, not this test's business)
+    let mut lat: Vec<u64> = plant
+        .iter()
+        .filter(|r| r.latency_ns != u64::MAX)
+        .map(|r| r.latency_ns.max(1))
+        .collect();
+    lat.sort_unstable();
+    let lo = lat[(lat.len() - 1) / 2] as f64 / 1000.0;
+    let hi = lat[lat.len() / 2] as f64 / 1000.0;
+    let p50 = v["latency_us"]["p50"].as_f64().unwrap();
+    assert!(
+        p50 >= lo * (1.0 - 2e-3) - 1e-3 && p50 <= hi * (1.0 + 2e-3) + 1e-3,
+        "p50 {p50} us vs the log's median {lo}..{hi} us"
+    );
     let sched = read_log::<SchedRecord>(&out.join("scheduler.log"))
         .unwrap()
         .records;
