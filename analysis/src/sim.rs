@@ -20,21 +20,6 @@ use feedloop_trace::log::AxisRecord;
 use feedloop_trace::summary::Tracking;
 use feedloop_trace::TraceWriter;
 
-/// The simulated plant behind the plant process's device trait.
-pub struct SimDevice(pub Plant);
-
-impl feedloop_runtime::plant::PlantDevice for SimDevice {
-    fn axis_count(&self) -> usize {
-        self.0.axis_count()
-    }
-    fn sense(&mut self, out: &mut SensorSample) {
-        self.0.sense(out)
-    }
-    fn step(&mut self, cmd: &ActuatorCommand) {
-        self.0.step(cmd)
-    }
-}
-
 /// Errors of a simulation.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
@@ -96,9 +81,9 @@ impl Simulation {
         let k = self.k;
         self.sample.seq = k;
         self.sample.plant_time_s = self.cycle.time_of(k);
-        self.plant.sense(&mut self.sample);
+        self.plant.sense(&mut self.sample.axes);
         self.cycle.step(&self.sample, &mut self.cmd);
-        self.plant.step(&self.cmd);
+        self.plant.step(&self.cmd.axes);
         for ((row, s), c) in rows
             .iter_mut()
             .zip(&self.sample.axes)

@@ -77,9 +77,9 @@ fn plant_steps(c: &mut Criterion) {
         let mut plant = start.clone();
         for (k, cmd) in cmds.iter_mut().enumerate() {
             sample.seq = k as u64;
-            plant.sense(&mut sample);
+            plant.sense(&mut sample.axes);
             cycle.step(&sample, cmd);
-            plant.step(cmd);
+            plant.step(&cmd.axes);
         }
         let mut plant = start.clone();
         let mut j = 0usize;
@@ -89,8 +89,8 @@ fn plant_steps(c: &mut Criterion) {
                     plant = start.clone();
                     j = 0;
                 }
-                plant.step(black_box(&cmds[j]));
-                plant.sense(black_box(&mut sample));
+                plant.step(black_box(&cmds[j].axes));
+                plant.sense(black_box(&mut sample.axes));
                 j += 1;
             })
         });
@@ -117,7 +117,7 @@ fn control_cycles(c: &mut Criterion) {
         plant.set_initial_positions(&cycle.initial_positions());
         let mut sample = SensorSample::empty(n, 0);
         let mut cmd = ActuatorCommand::empty(n, 0);
-        plant.sense(&mut sample);
+        plant.sense(&mut sample.axes);
         let mut k = 0u64;
         g.bench_function(name, |b| {
             b.iter(|| {
@@ -145,7 +145,7 @@ fn control_cycles(c: &mut Criterion) {
             r
         })
         .collect();
-    plant.sense(&mut sample);
+    plant.sense(&mut sample.axes);
     let period_s = job.period_s;
     let mut k = 0u64;
     g.bench_function("full chain only (xc-full-chain, references given)", |b| {

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
 
-use feedloop_analysis::sim::{simulate, ContourJudge, SimDevice};
+use feedloop_analysis::sim::{simulate, ContourJudge};
 use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
@@ -211,7 +211,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
             .collect(),
         cycle_hook: None,
     };
-    let mut dev = SimDevice(plant);
+    let mut dev = plant;
     let outcome = match run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP) {
         Ok(o) => o,
         // The scheduler vanished before the first cycle: nothing moved, report it as lost.

@@ -4,10 +4,12 @@
 //!   [`controller::PluginRegistry`]) and the signals one axis passes along its chain each cycle.
 //! - [`axis_io`]: what the plant measures on one axis and what the scheduler asks of it.
 //! - [`abi`]: the C ABI of plugins built as shared libraries.
+//! - [`device`]: what the plant loop needs of a plant (simulated or real).
 #![warn(missing_docs)]
 
 pub mod abi;
 pub mod axis_io;
 pub mod controller;
+pub mod device;
 
 pub use feedloop_model as model;

@@ -11,9 +11,9 @@
 
 use std::f64::consts::PI;
 
+use feedloop_control::axis_io::AxisSensor;
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::ConfigError;
-use feedloop_runtime::shared::wire::AxisSensor;
 use nalgebra::DMatrix;
 
 use crate::effects::pitch_error::PitchError;

@@ -26,10 +26,12 @@ pub mod effects;
 mod linear;
 pub mod sensor;
 
+use feedloop_control::axis_io::{AxisCommand, AxisSensor};
+use feedloop_control::device::PlantDevice;
 use feedloop_model::job::Job;
 use feedloop_model::model::ModelFile;
 use feedloop_model::params::ConfigError;
-use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample, MAX_AXES};
+use feedloop_model::MAX_AXES;
 
 pub use axis::{AxisPlant, TORQUE_BOUND};
 pub use effects::{Side, EFFECT_IDS};
@@ -102,21 +104,34 @@ impl Plant {
     }
 
     /// Writes the measurement at the current time (sensor model applied) into
-    /// `out.axes[..axis_count]`: motor_pos, motor_vel, load_pos, and the torque applied during
+    /// `out[..axis_count]`: motor_pos, motor_vel, load_pos, and the torque applied during
     /// the previous period. Other fields of `out` are left as they are.
     #[inline]
-    pub fn sense(&mut self, out: &mut SensorSample) {
-        for (o, a) in out.axes.iter_mut().zip(&self.axes) {
+    pub fn sense(&mut self, out: &mut [AxisSensor]) {
+        for (o, a) in out.iter_mut().zip(&self.axes) {
             *o = a.sense_axis();
         }
     }
 
-    /// Advances one period with each axis' commanded torque `cmd.axes[i].torque` (N m, or N on
-    /// a rigid axis) held constant. Non-finite torques count as 0.
+    /// Advances one period with each axis' commanded torque `cmd[i].torque` (N m, or N on a
+    /// rigid axis) held constant. Non-finite torques count as 0.
     #[inline]
-    pub fn step(&mut self, cmd: &ActuatorCommand) {
-        for (a, c) in self.axes.iter_mut().zip(&cmd.axes) {
+    pub fn step(&mut self, cmd: &[AxisCommand]) {
+        for (a, c) in self.axes.iter_mut().zip(cmd) {
             a.step_axis(c.torque);
         }
+    }
+}
+
+/// The simulated plant is what the plant process drives when no hardware is attached.
+impl PlantDevice for Plant {
+    fn axis_count(&self) -> usize {
+        Plant::axis_count(self)
+    }
+    fn sense(&mut self, out: &mut [AxisSensor]) {
+        Plant::sense(self, out)
+    }
+    fn step(&mut self, cmd: &[AxisCommand]) {
+        Plant::step(self, cmd)
     }
 }

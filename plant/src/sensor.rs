@@ -19,9 +19,9 @@
 
 use std::f64::consts::PI;
 
+use feedloop_control::axis_io::AxisSensor;
 use feedloop_model::model::{AxisKind, ModelFile};
 use feedloop_model::params::{ConfigError, Fields, Range};
-use feedloop_runtime::shared::wire::AxisSensor;
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;

@@ -5,8 +5,8 @@ mod common;
 use std::f64::consts::PI;
 
 use common::*;
+use feedloop_control::axis_io::{AxisCommand, AxisSensor};
 use feedloop_plant::{AxisPlant, Plant, EFFECT_IDS};
-use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample};
 
 const UNDAMPED: &str = r#"
 kind = "ballscrew"
@@ -269,14 +269,14 @@ fn same_inputs_give_bit_identical_outputs_including_noise() {
     .unwrap();
     let run = || {
         let mut p = Plant::from_models(&[&model, &model], 1e-4).unwrap();
-        let mut s = SensorSample::empty(2, 0);
-        let mut c = ActuatorCommand::empty(2, 0);
+        let mut s = [AxisSensor::default(); 2];
+        let mut c = [AxisCommand::default(); 2];
         let mut out = Vec::new();
         for k in 0..5000 {
             p.sense(&mut s);
             out.push(s);
-            c.axes[0].torque = (k as f64 * 0.01).sin();
-            c.axes[1].torque = (k as f64 * 0.013).cos();
+            c[0].torque = (k as f64 * 0.01).sin();
+            c[1].torque = (k as f64 * 0.013).cos();
             p.step(&c);
         }
         out
@@ -284,7 +284,7 @@ fn same_inputs_give_bit_identical_outputs_including_noise() {
     let (a, b) = (run(), run());
     assert!(a == b);
     // The two axes share a model file but get independent noise.
-    assert_ne!(a[10].axes[0].motor_vel - a[10].axes[1].motor_vel, 0.0);
+    assert_ne!(a[10][0].motor_vel - a[10][1].motor_vel, 0.0);
 }
 
 #[test]
@@ -313,17 +313,17 @@ fn plant_new_reads_the_axes_of_a_job_in_file_order() {
     assert_eq!(p.axis_count(), 2);
     assert_eq!(p.period_s(), 0.001);
     p.set_initial_positions(&[0.01, 0.2]);
-    let mut s = SensorSample::empty(2, 0);
+    let mut s = [AxisSensor::default(); 2];
     p.sense(&mut s);
-    assert!((s.axes[0].motor_pos - 2.0 * PI).abs() < 1e-12);
-    assert_eq!(s.axes[1].load_pos, 0.2);
-    let mut c = ActuatorCommand::empty(2, 0);
-    c.axes[1].torque = 10.0;
+    assert!((s[0].motor_pos - 2.0 * PI).abs() < 1e-12);
+    assert_eq!(s[1].load_pos, 0.2);
+    let mut c = [AxisCommand::default(); 2];
+    c[1].torque = 10.0;
     p.step(&c);
     p.sense(&mut s);
     // 10 N on 10 kg for 1 ms: v = 1 mm/s, x = 0.2 + 0.5 um.
-    assert!((s.axes[1].motor_vel - 1e-3).abs() < 1e-15);
-    assert!((s.axes[1].load_pos - 0.2000005).abs() < 1e-12);
-    assert_eq!(s.axes[1].applied_torque, 10.0);
+    assert!((s[1].motor_vel - 1e-3).abs() < 1e-15);
+    assert!((s[1].load_pos - 0.2000005).abs() < 1e-12);
+    assert_eq!(s[1].applied_torque, 10.0);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -25,8 +25,8 @@ fn pattern(n: usize, w: f64) -> Vec<f64> {
 }
 
 use common::*;
+use feedloop_control::axis_io::{AxisCommand, AxisSensor};
 use feedloop_plant::Plant;
-use feedloop_runtime::shared::wire::{ActuatorCommand, SensorSample};
 
 const SHIPPED: &str = r#"
 [effects.coulomb_friction]
@@ -54,8 +54,8 @@ fn timing_of_two_axes_at_10_khz_for_60_s_with_friction_backlash_and_noise() {
     let mut plant = Plant::from_models(&[&model, &model], h).unwrap();
     let r = 2.0 * std::f64::consts::PI / 0.01;
     let mut ctl = [Cascade::brief(h, r), Cascade::brief(h, r)];
-    let mut s = SensorSample::empty(2, 0);
-    let mut c = ActuatorCommand::empty(2, 0);
+    let mut s = [AxisSensor::default(); 2];
+    let mut c = [AxisCommand::default(); 2];
     let n = 600_000;
     let traj: Vec<[(f64, f64); 2]> = (0..n)
         .map(|k| {
@@ -74,7 +74,7 @@ fn timing_of_two_axes_at_10_khz_for_60_s_with_friction_backlash_and_noise() {
             plant.sense(&mut s);
             for (i, ctl) in ctl.iter_mut().enumerate() {
                 let (p, v) = tr[i];
-                c.axes[i].torque = ctl.torque(p, v, &s.axes[i]);
+                c[i].torque = ctl.torque(p, v, &s[i]);
             }
             plant.step(&c);
         }
@@ -91,8 +91,8 @@ fn timing_of_two_axes_at_10_khz_for_60_s_with_friction_backlash_and_noise() {
     let c1 = cpu_ns();
     for k in 0..n {
         plant2.sense(&mut s);
-        c.axes[0].torque = p0[k];
-        c.axes[1].torque = p1[k];
+        c[0].torque = p0[k];
+        c[1].torque = p1[k];
         plant2.step(&c);
     }
     let plant_only = (cpu_ns() - c1) / n as f64;

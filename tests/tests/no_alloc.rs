@@ -8,7 +8,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use feedloop_analysis::sim::SimDevice;
 use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
@@ -102,14 +101,7 @@ fn ten_thousand_cycles_of_both_loops_allocate_nothing_outside_iceoryx2_send() {
             torque_limit: vec![30.0; job.axes.len()],
             cycle_hook: Some(hook),
         };
-        run_plant(
-            &cfg,
-            &mut SimDevice(p),
-            &ep,
-            &plant_dir.join("plant.log"),
-            &plant_stop,
-        )
-        .unwrap()
+        run_plant(&cfg, &mut p, &ep, &plant_dir.join("plant.log"), &plant_stop).unwrap()
     });
 
     let mut cycle = ControlCycle::new(&job, &Builtins).unwrap();

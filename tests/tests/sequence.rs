@@ -7,7 +7,6 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-use feedloop_analysis::sim::SimDevice;
 use feedloop_model::job::{Job, Mode, WaitKind};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
@@ -72,14 +71,7 @@ fn the_plant_counts_bad_duplicate_late_and_missing_commands() {
             torque_limit: vec![30.0; job.axes.len()],
             cycle_hook: None,
         };
-        run_plant(
-            &cfg,
-            &mut SimDevice(p),
-            &ep,
-            &dir.join("plant.log"),
-            &plant_stop,
-        )
-        .unwrap()
+        run_plant(&cfg, &mut p, &ep, &dir.join("plant.log"), &plant_stop).unwrap()
     });
 
     let ep = scheduler_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();

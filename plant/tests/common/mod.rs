@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
+use feedloop_control::axis_io::AxisSensor;
 use feedloop_model::model::ModelFile;
 use feedloop_model::params::ConfigError;
 use feedloop_plant::AxisPlant;
-use feedloop_runtime::shared::wire::AxisSensor;
 
 /// The brief's ball-screw axis: JM = 2e-3, JL = 3e-3 kg m^2, KL = 3000 N m/rad, 10 mm lead.
 pub const BALLSCREW: &str = r#"

@@ -24,15 +24,7 @@ use feedloop_trace::log::{
     REC_STALL, REC_WAIT_INTERRUPTED,
 };
 
-/// What the loop needs of the physics (implemented by the plant simulator, later by a drive bridge).
-pub trait PlantDevice {
-    /// Number of axes.
-    fn axis_count(&self) -> usize;
-    /// Writes the current measurement into `out.axes[..n]`.
-    fn sense(&mut self, out: &mut SensorSample);
-    /// Applies `cmd` for one period.
-    fn step(&mut self, cmd: &ActuatorCommand);
-}
+pub use feedloop_control::device::PlantDevice;
 
 /// Settings of one plant run.
 #[derive(Debug, Clone)]
@@ -263,7 +255,7 @@ pub fn run_plant<P: PlantDevice>(
         } else {
             0
         };
-        plant.sense(&mut sample);
+        plant.sense(&mut sample.axes);
         sample.deadline_misses = deadline_misses;
         let sense_ns = now_ns() - c0;
         let published = now_ns();
@@ -371,7 +363,7 @@ pub fn run_plant<P: PlantDevice>(
         }
 
         let c1 = now_ns();
-        plant.step(&applied);
+        plant.step(&applied.axes);
         let compute_ns = (now_ns() - c1 + sense_ns).min(u32::MAX as u64) as u32;
 
         let mut r = PlantRecord {
@@ -401,7 +393,7 @@ pub fn run_plant<P: PlantDevice>(
     }
     // Safe state: no torque. Tell the scheduler we are done.
     let off = ActuatorCommand::empty(n as u32, tag);
-    plant.step(&off);
+    plant.step(&off.axes);
     sample.flags = FLAG_END;
     sample.seq = k;
     let _ = ep.send(sample);
