@@ -5,8 +5,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use serde_json::json;
-
+use feedloop_runtime::scheduler::control::protocol::{Answer, Request, SwapRequest};
 use feedloop_runtime::scheduler::control::request;
 
 /// `feedloop swap`.
@@ -38,28 +37,33 @@ pub fn swap(
         ),
         None => None,
     };
-    let req = json!({"op": "swap", "axis": axis, "stage": stage, "plugin": plugin,
-                     "params": params_text, "lib": lib_path});
-    let (code, v) = request(instance, &req, Duration::from_secs_f64(timeout_s))?;
-    println!("{}", serde_json::to_string_pretty(&v)?);
-    Ok(if code == 0 {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    let req = Request::Swap(SwapRequest {
+        axis: axis.to_string(),
+        stage: stage.to_string(),
+        plugin: plugin.to_string(),
+        params: params_text,
+        lib: lib_path,
+    });
+    let answer = request(instance, &req, Duration::from_secs_f64(timeout_s))?;
+    print_answer(&answer)
 }
 
 /// `feedloop status`.
 pub fn status(instance: &str, timeout_s: f64) -> Result<ExitCode> {
-    let (code, v) = request(
+    let answer = request(
         instance,
-        &json!({"op": "status"}),
+        &Request::Status,
         Duration::from_secs_f64(timeout_s),
     )?;
-    println!("{}", serde_json::to_string_pretty(&v)?);
-    Ok(if code == 0 {
-        ExitCode::SUCCESS
-    } else {
+    print_answer(&answer)
+}
+
+/// Prints `answer` as indented JSON; exit code 1 when it is a refusal.
+fn print_answer(answer: &Answer) -> Result<ExitCode> {
+    println!("{}", serde_json::to_string_pretty(answer)?);
+    Ok(if answer.is_refused() {
         ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
     })
 }

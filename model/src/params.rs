@@ -8,6 +8,22 @@ use std::collections::BTreeSet;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+/// What kind of configuration error it is, for callers that react to some kinds (the message
+/// is the same whatever the kind).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ConfigErrorKind {
+    /// A required key is absent.
+    Missing,
+    /// A key nobody reads (a typo, or a key of another version).
+    UnknownKey,
+    /// A value of the right type outside its range (negative, non-finite, past a bound).
+    OutOfRange,
+    /// A value of the wrong type (a string for a number, a table for an array, ...).
+    WrongType,
+    /// Anything else: unreadable file, bad syntax, inconsistent values.
+    Invalid,
+}
+
 /// A configuration error: which file, which key (dotted path), and what is wrong.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub struct ConfigError {
@@ -17,6 +33,8 @@ pub struct ConfigError {
     pub key: String,
     /// What is wrong, in words.
     pub reason: String,
+    /// What kind of error it is (not part of the message).
+    pub kind: ConfigErrorKind,
 }
 
 impl fmt::Display for ConfigError {
@@ -32,15 +50,49 @@ impl fmt::Display for ConfigError {
 }
 
 impl ConfigError {
-    /// Builds an error.
+    /// Builds an error of kind [`ConfigErrorKind::Invalid`].
     pub fn new(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::of_kind(ConfigErrorKind::Invalid, file, key, reason)
+    }
+
+    /// Builds an error of `kind`.
+    pub fn of_kind(
+        kind: ConfigErrorKind,
+        file: &Path,
+        key: impl Into<String>,
+        reason: impl Into<String>,
+    ) -> Self {
         Self {
             file: file.to_path_buf(),
             key: key.into(),
             reason: reason.into(),
+            kind,
         }
     }
+
+    /// `key` is required but missing.
+    pub fn missing(file: &Path, key: impl Into<String>) -> Self {
+        Self::of_kind(ConfigErrorKind::Missing, file, key, MISSING)
+    }
+
+    /// `key` is not known here; `reason` says so (e.g. `unknown key (keys read here: ...)`).
+    pub fn unknown_key(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::of_kind(ConfigErrorKind::UnknownKey, file, key, reason)
+    }
+
+    /// The value of `key` is out of its range.
+    pub fn out_of_range(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::of_kind(ConfigErrorKind::OutOfRange, file, key, reason)
+    }
+
+    /// The value of `key` has the wrong type.
+    pub fn wrong_type(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::of_kind(ConfigErrorKind::WrongType, file, key, reason)
+    }
 }
+
+/// The reason of a [`ConfigErrorKind::Missing`] error.
+const MISSING: &str = "is required but missing";
 
 /// Reads a TOML file into a table; a syntax error names the file and the line.
 pub fn read_toml_file(path: &Path) -> Result<toml::Table, ConfigError> {
@@ -77,21 +129,30 @@ pub enum Range {
 }
 
 impl Range {
-    fn check(self, v: f64) -> Result<(), String> {
+    /// Checks `v`: the error says how it is outside the range (the reason of a
+    /// [`ConfigErrorKind::OutOfRange`] error).
+    pub fn check(self, v: f64) -> Result<(), RangeError> {
         if !v.is_finite() {
-            return Err(format!("must be a finite number, got {v}"));
+            return Err(RangeError(format!("must be a finite number, got {v}")));
         }
         match self {
             Range::Finite => Ok(()),
             Range::Positive if v > 0.0 => Ok(()),
-            Range::Positive => Err(format!("must be > 0, got {v}")),
+            Range::Positive => Err(RangeError(format!("must be > 0, got {v}"))),
             Range::NonNegative if v >= 0.0 => Ok(()),
-            Range::NonNegative => Err(format!("must be >= 0, got {v}")),
+            Range::NonNegative => Err(RangeError(format!("must be >= 0, got {v}"))),
             Range::Within(lo, hi) if (lo..=hi).contains(&v) => Ok(()),
-            Range::Within(lo, hi) => Err(format!("must be within [{lo}, {hi}], got {v}")),
+            Range::Within(lo, hi) => {
+                Err(RangeError(format!("must be within [{lo}, {hi}], got {v}")))
+            }
         }
     }
 }
+
+/// Why a number failed its [`Range`], e.g. `must be > 0, got -1`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct RangeError(pub String);
 
 /// A view of one TOML table that remembers which keys were read, so unknown keys can be refused.
 pub struct Fields<'a> {
@@ -126,9 +187,34 @@ impl<'a> Fields<'a> {
         }
     }
 
-    /// An error about `key` of this table.
+    /// An error about `key` of this table (kind [`ConfigErrorKind::Invalid`]).
     pub fn error(&self, key: &str, reason: impl Into<String>) -> ConfigError {
-        ConfigError::new(self.file, self.path(key), reason)
+        self.error_of(ConfigErrorKind::Invalid, key, reason)
+    }
+
+    /// An error of `kind` about `key` of this table.
+    pub fn error_of(
+        &self,
+        kind: ConfigErrorKind,
+        key: &str,
+        reason: impl Into<String>,
+    ) -> ConfigError {
+        ConfigError::of_kind(kind, self.file, self.path(key), reason)
+    }
+
+    /// `key` of this table is required but missing.
+    pub fn missing(&self, key: &str) -> ConfigError {
+        ConfigError::missing(self.file, self.path(key))
+    }
+
+    /// The value of `key` of this table has the wrong type.
+    pub fn wrong_type(&self, key: &str, reason: impl Into<String>) -> ConfigError {
+        self.error_of(ConfigErrorKind::WrongType, key, reason)
+    }
+
+    /// The value of `key` of this table is out of its range.
+    pub fn out_of_range(&self, key: &str, reason: impl Into<String>) -> ConfigError {
+        self.error_of(ConfigErrorKind::OutOfRange, key, reason)
     }
 
     /// The raw value of `key`, marking it used.
@@ -154,17 +240,18 @@ impl<'a> Fields<'a> {
             toml::Value::Float(f) => *f,
             toml::Value::Integer(i) => *i as f64,
             other => {
-                return Err(self.error(key, format!("must be a number, got {}", other.type_str())))
+                return Err(
+                    self.wrong_type(key, format!("must be a number, got {}", other.type_str()))
+                )
             }
         };
-        range.check(x).map_err(|r| self.error(key, r))?;
+        range.check(x).map_err(|r| self.out_of_range(key, r.0))?;
         Ok(Some(x))
     }
 
     /// A required number.
     pub fn f64(&mut self, key: &str, range: Range) -> Result<f64, ConfigError> {
-        self.opt_f64(key, range)?
-            .ok_or_else(|| self.error(key, "is required but missing"))
+        self.opt_f64(key, range)?.ok_or_else(|| self.missing(key))
     }
 
     /// A number with a default.
@@ -181,14 +268,14 @@ impl<'a> Fields<'a> {
             toml::Value::Integer(i) => *i,
             toml::Value::Float(f) if f.fract() == 0.0 && f.is_finite() => *f as i64,
             other => {
-                return Err(self.error(
+                return Err(self.wrong_type(
                     key,
                     format!("must be a whole number, got {}", describe(other)),
                 ))
             }
         };
         if x < lo || x > hi {
-            return Err(self.error(key, format!("must be within [{lo}, {hi}], got {x}")));
+            return Err(self.out_of_range(key, format!("must be within [{lo}, {hi}], got {x}")));
         }
         Ok(Some(x))
     }
@@ -199,15 +286,14 @@ impl<'a> Fields<'a> {
             None => Ok(None),
             Some(toml::Value::String(s)) => Ok(Some(s.as_str())),
             Some(other) => {
-                Err(self.error(key, format!("must be a string, got {}", other.type_str())))
+                Err(self.wrong_type(key, format!("must be a string, got {}", other.type_str())))
             }
         }
     }
 
     /// A required string.
     pub fn str(&mut self, key: &str) -> Result<&'a str, ConfigError> {
-        self.opt_str(key)?
-            .ok_or_else(|| self.error(key, "is required but missing"))
+        self.opt_str(key)?.ok_or_else(|| self.missing(key))
     }
 
     /// An optional boolean.
@@ -215,7 +301,7 @@ impl<'a> Fields<'a> {
         match self.raw(key) {
             None => Ok(None),
             Some(toml::Value::Boolean(b)) => Ok(Some(*b)),
-            Some(other) => Err(self.error(
+            Some(other) => Err(self.wrong_type(
                 key,
                 format!("must be true or false, got {}", other.type_str()),
             )),
@@ -228,7 +314,7 @@ impl<'a> Fields<'a> {
             None => Ok(None),
             Some(toml::Value::Table(t)) => Ok(Some(t)),
             Some(other) => {
-                Err(self.error(key, format!("must be a table, got {}", other.type_str())))
+                Err(self.wrong_type(key, format!("must be a table, got {}", other.type_str())))
             }
         }
     }
@@ -239,7 +325,7 @@ impl<'a> Fields<'a> {
             return Ok(None);
         };
         let arr = v.as_array().ok_or_else(|| {
-            self.error(
+            self.wrong_type(
                 key,
                 format!("must be an array of numbers, got {}", v.type_str()),
             )
@@ -250,14 +336,14 @@ impl<'a> Fields<'a> {
                 toml::Value::Float(f) => *f,
                 toml::Value::Integer(n) => *n as f64,
                 other => {
-                    return Err(self.error(
+                    return Err(self.wrong_type(
                         key,
                         format!("element {i} must be a number, got {}", other.type_str()),
                     ))
                 }
             };
             if !f.is_finite() {
-                return Err(self.error(key, format!("element {i} must be finite, got {f}")));
+                return Err(self.out_of_range(key, format!("element {i} must be finite, got {f}")));
             }
             out.push(f);
         }
@@ -270,7 +356,7 @@ impl<'a> Fields<'a> {
             return Ok(None);
         };
         let arr = v.as_array().ok_or_else(|| {
-            self.error(
+            self.wrong_type(
                 key,
                 format!("must be an array of strings, got {}", v.type_str()),
             )
@@ -279,7 +365,7 @@ impl<'a> Fields<'a> {
             .enumerate()
             .map(|(i, x)| {
                 x.as_str().map(str::to_string).ok_or_else(|| {
-                    self.error(
+                    self.wrong_type(
                         key,
                         format!("element {i} must be a string, got {}", x.type_str()),
                     )
@@ -304,7 +390,11 @@ impl<'a> Fields<'a> {
                 } else {
                     format!(" (keys read here: {})", known.join(", "))
                 };
-                return Err(self.error(key, format!("unknown key{hint}")));
+                return Err(self.error_of(
+                    ConfigErrorKind::UnknownKey,
+                    key,
+                    format!("unknown key{hint}"),
+                ));
             }
         }
         Ok(())
@@ -365,5 +455,88 @@ mod tests {
     fn toml_syntax_error_names_the_line() {
         let e = parse_toml(Path::new("j.toml"), "a = 1\nb = = 2\n").unwrap_err();
         assert!(e.reason.contains("line 2"), "{e}");
+    }
+
+    fn kind<T>(r: Result<T, ConfigError>) -> ConfigErrorKind {
+        r.map(|_| ()).unwrap_err().kind
+    }
+
+    #[test]
+    fn each_kind_can_be_matched_on() {
+        let t = table("n = -1.0\ns = 3\nb = \"yes\"\narr = [1.0, \"a\"]\nk = 12\nextra = 1");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "plant");
+        assert_eq!(
+            kind(f.f64("absent", Range::Finite)),
+            ConfigErrorKind::Missing
+        );
+        assert_eq!(kind(f.str("absent_too")), ConfigErrorKind::Missing);
+        assert_eq!(
+            kind(f.f64("n", Range::Positive)),
+            ConfigErrorKind::OutOfRange
+        );
+        assert_eq!(kind(f.opt_i64("k", 0, 10)), ConfigErrorKind::OutOfRange);
+        assert_eq!(kind(f.opt_str("s")), ConfigErrorKind::WrongType);
+        assert_eq!(kind(f.opt_bool("b")), ConfigErrorKind::WrongType);
+        assert_eq!(kind(f.opt_f64_array("arr")), ConfigErrorKind::WrongType);
+        let e = f.finish().unwrap_err();
+        assert_eq!(e.kind, ConfigErrorKind::UnknownKey);
+        assert_eq!(e.key, "plant.extra");
+        let e = parse_toml(Path::new("j.toml"), "a = = 1").unwrap_err();
+        assert_eq!(e.kind, ConfigErrorKind::Invalid);
+        assert_eq!(
+            ConfigError::new(Path::new(""), "k", "bad").kind,
+            ConfigErrorKind::Invalid
+        );
+    }
+
+    #[test]
+    fn kind_constructors_keep_the_message() {
+        let file = Path::new("j.toml");
+        let e = ConfigError::missing(file, "axes.x.model");
+        assert_eq!(e.kind, ConfigErrorKind::Missing);
+        assert_eq!(
+            e.to_string(),
+            "j.toml: key `axes.x.model`: is required but missing"
+        );
+        for (e, kind) in [
+            (
+                ConfigError::unknown_key(file, "k", "r"),
+                ConfigErrorKind::UnknownKey,
+            ),
+            (
+                ConfigError::out_of_range(file, "k", "r"),
+                ConfigErrorKind::OutOfRange,
+            ),
+            (
+                ConfigError::wrong_type(file, "k", "r"),
+                ConfigErrorKind::WrongType,
+            ),
+            (ConfigError::new(file, "k", "r"), ConfigErrorKind::Invalid),
+        ] {
+            assert_eq!(e.kind, kind);
+            assert_eq!(e.to_string(), "j.toml: key `k`: r");
+        }
+        let t = table("");
+        let f = Fields::new(&t, file, "axes.x");
+        let e = f.missing("model");
+        assert_eq!(e, ConfigError::missing(file, "axes.x.model"));
+    }
+
+    #[test]
+    fn messages_are_unchanged_by_the_kind() {
+        let t = table("n = -1.0\ns = 3");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        assert_eq!(
+            f.f64("n", Range::Positive).unwrap_err().to_string(),
+            "m.toml: key `n`: must be > 0, got -1"
+        );
+        assert_eq!(
+            f.opt_str("s").unwrap_err().to_string(),
+            "m.toml: key `s`: must be a string, got integer"
+        );
+        assert_eq!(
+            f.f64("gone", Range::Finite).unwrap_err().to_string(),
+            "m.toml: key `gone`: is required but missing"
+        );
     }
 }

@@ -271,28 +271,49 @@ impl XcGeometry {
 
     /// Checks the profile can be ground with this wheel: `r > 0` everywhere and, where the
     /// profile is concave, its radius of curvature exceeds `R`. Returns what is wrong.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), GeometryError> {
         let n = 3600;
         for i in 0..n {
             let phi = 2.0 * PI * i as f64 / n as f64;
             let [r, dr, ddr] = self.profile.derivatives(phi);
             if !r.is_finite() || r <= 0.0 {
-                return Err(format!(
-                    "the profile radius is {r} m at phi = {phi:.4} rad (must be > 0)"
-                ));
+                return Err(GeometryError::NonPositiveRadius { r, phi });
             }
             let s = r.hypot(dr);
             let curvature = (r * r + 2.0 * dr * dr - r * ddr) / (s * s * s);
             if curvature < 0.0 && 1.0 / -curvature <= self.wheel_radius_m {
-                return Err(format!(
-                    "the profile is concave at phi = {phi:.4} rad with a radius of curvature of {:.6} m, not more than the wheel radius {} m",
-                    1.0 / -curvature,
-                    self.wheel_radius_m
-                ));
+                return Err(GeometryError::WheelTooLarge {
+                    phi,
+                    radius: 1.0 / -curvature,
+                    wheel: self.wheel_radius_m,
+                });
             }
         }
         Ok(())
     }
+}
+
+/// Why a cam profile cannot be ground with a wheel ([`XcGeometry::check`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GeometryError {
+    /// The profile radius is not positive (or not finite) somewhere.
+    #[error("the profile radius is {r} m at phi = {phi:.4} rad (must be > 0)")]
+    NonPositiveRadius {
+        /// The radius there, m.
+        r: f64,
+        /// Where, rad.
+        phi: f64,
+    },
+    /// A concave part is tighter than the wheel.
+    #[error("the profile is concave at phi = {phi:.4} rad with a radius of curvature of {radius:.6} m, not more than the wheel radius {wheel} m")]
+    WheelTooLarge {
+        /// Where, rad.
+        phi: f64,
+        /// The profile's radius of curvature there, m.
+        radius: f64,
+        /// The wheel radius, m.
+        wheel: f64,
+    },
 }
 
 /// An X-C cam grinding trajectory (kind `xc_cam`).
@@ -512,7 +533,9 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         profile,
         wheel_radius_m: wheel,
     };
-    geometry.check().map_err(|r| f.error("profile", r))?;
+    geometry
+        .check()
+        .map_err(|r| f.error("profile", r.to_string()))?;
     f.finish()?;
 
     let (x0, c0) = geometry.axes_at(phi0);

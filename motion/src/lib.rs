@@ -260,21 +260,6 @@ impl Ctx<'_> {
     }
 }
 
-fn range_check(v: f64, range: Range) -> Result<(), String> {
-    if !v.is_finite() {
-        return Err(format!("must be a finite number, got {v}"));
-    }
-    match range {
-        Range::Finite => Ok(()),
-        Range::Positive if v > 0.0 => Ok(()),
-        Range::Positive => Err(format!("must be > 0, got {v}")),
-        Range::NonNegative if v >= 0.0 => Ok(()),
-        Range::NonNegative => Err(format!("must be >= 0, got {v}")),
-        Range::Within(lo, hi) if (lo..=hi).contains(&v) => Ok(()),
-        Range::Within(lo, hi) => Err(format!("must be within [{lo}, {hi}], got {v}")),
-    }
-}
-
 fn number(v: &toml::Value) -> Option<f64> {
     match v {
         toml::Value::Float(x) => Some(*x),
@@ -297,8 +282,8 @@ fn per_axis_one(
     let mut out = vec![None; axes.len()];
     let check = |f: &Fields, k: &str, x: &toml::Value| -> Result<f64, ConfigError> {
         let n = number(x)
-            .ok_or_else(|| f.error(k, format!("must be a number, got {}", x.type_str())))?;
-        range_check(n, range).map_err(|r| f.error(k, r))?;
+            .ok_or_else(|| f.wrong_type(k, format!("must be a number, got {}", x.type_str())))?;
+        range.check(n).map_err(|r| f.out_of_range(k, r.0))?;
         Ok(n)
     };
     match v {

@@ -148,7 +148,9 @@ impl NlPidCouplerParams {
             profile,
             wheel_radius_m: wheel,
         };
-        geometry.check().map_err(|r| f.error("profile", r))?;
+        geometry
+            .check()
+            .map_err(|r| f.error("profile", r.to_string()))?;
         f.finish()?;
         Ok(Self {
             geometry,

@@ -13,24 +13,28 @@ use std::sync::mpsc;
 use std::sync::Arc;
 use std::time::Duration;
 
-use iceoryx2::active_request::ActiveRequest;
-use iceoryx2::port::server::Server;
-use iceoryx2::prelude::*;
-use serde_json::{json, Value};
-
 use crate::scheduler::cycle::ControlCycle;
 use crate::shared::clock::now_ns;
 use crate::shared::ipc::{create_node, IpcError};
 use crate::shared::wire::{ActuatorCommand, MAX_AXES};
 use feedloop_control::controller::{AxisContext, Controller, PluginRegistry, Stage};
 use feedloop_model::job::Job;
+use feedloop_model::params::ConfigError;
+use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::port::server::Server;
+use iceoryx2::prelude::*;
+
+pub mod protocol;
+
+use crate::scheduler::plugin_lib::AbiError;
+use protocol::{Answer, AxisStatus, Request, RequestError, StagePlugins, Status, SwapEvent};
 
 /// Capacity of a request's JSON text, bytes.
 pub const REQUEST_BYTES: usize = 8192;
 /// Capacity of a response's JSON text, bytes.
 pub const RESPONSE_BYTES: usize = 16384;
 
-/// A control request: JSON text, e.g. `{"op":"swap","axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_nms_per_rad = 4.0"}`.
+/// A control request: a [`Request`] as JSON text, e.g. `{"op":"swap","axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_nms_per_rad = 4.0"}`.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
 #[type_name("FeedloopControlRequestV1")]
@@ -43,7 +47,8 @@ pub struct ControlRequest {
     pub text: [u8; REQUEST_BYTES],
 }
 
-/// A control response: `code` 0 = done, 1 = refused (reason in the JSON's `error`).
+/// A control response: an [`Answer`] as JSON text; `code` 0 = done, 1 = refused (reason in the
+/// JSON's `error`).
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
 #[type_name("FeedloopControlResponseV1")]
@@ -77,14 +82,14 @@ impl Default for ControlResponse {
 }
 
 impl ControlRequest {
-    /// A request holding `v` (refused when its JSON is longer than the buffer).
-    pub fn from_json(v: &Value) -> Result<Self, String> {
-        let s = v.to_string();
+    /// A request holding `req` (refused when its JSON is longer than the buffer).
+    pub fn new(req: &Request) -> Result<Self, RequestError> {
+        let s = json_text(req);
         if s.len() > REQUEST_BYTES {
-            return Err(format!(
-                "request is {} bytes, more than the {REQUEST_BYTES} a control request holds",
-                s.len()
-            ));
+            return Err(RequestError::TooLong {
+                len: s.len(),
+                capacity: REQUEST_BYTES,
+            });
         }
         let mut r = Self::default();
         r.text[..s.len()].copy_from_slice(s.as_bytes());
@@ -92,21 +97,22 @@ impl ControlRequest {
         Ok(r)
     }
 
-    /// The JSON it holds.
-    pub fn json(&self) -> Result<Value, String> {
+    /// The request it holds.
+    pub fn request(&self) -> Result<Request, RequestError> {
         let n = (self.len as usize).min(REQUEST_BYTES);
-        serde_json::from_slice(&self.text[..n]).map_err(|e| format!("malformed request: {e}"))
+        Request::from_slice(&self.text[..n])
     }
 }
 
 impl ControlResponse {
-    /// A response holding `v` (truncated to an error when too long).
-    pub fn from_json(code: u32, v: &Value) -> Self {
-        let mut s = v.to_string();
-        let mut code = code;
+    /// A response holding `answer` (replaced by a refusal when too long), with its code.
+    pub fn new(answer: &Answer) -> Self {
+        let mut s = json_text(answer);
+        let mut code = answer.code();
         if s.len() > RESPONSE_BYTES {
-            s = json!({"error": "response too long for the control buffer"}).to_string();
-            code = 1;
+            let short = Answer::refused("response too long for the control buffer");
+            s = json_text(&short);
+            code = short.code();
         }
         let mut r = Self::default();
         r.text[..s.len()].copy_from_slice(s.as_bytes());
@@ -115,11 +121,16 @@ impl ControlResponse {
         r
     }
 
-    /// The JSON it holds.
-    pub fn json(&self) -> Value {
+    /// The answer it holds.
+    pub fn answer(&self) -> Result<Answer, serde_json::Error> {
         let n = (self.len as usize).min(RESPONSE_BYTES);
-        serde_json::from_slice(&self.text[..n]).unwrap_or(Value::Null)
+        serde_json::from_slice(&self.text[..n])
     }
+}
+
+/// The JSON text of a request or an answer (their types always serialise).
+fn json_text<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_else(|e| unreachable!("control messages serialise: {e}"))
 }
 
 type CtlServer = Server<ipc::Service, ControlRequest, (), ControlResponse, ()>;
@@ -133,7 +144,7 @@ fn service_name(instance: &str) -> Result<ServiceName, IpcError> {
 }
 
 /// Sends one request to the scheduler of `instance` and waits up to `timeout` for the answer.
-pub fn request(instance: &str, req: &Value, timeout: Duration) -> Result<(u32, Value), IpcError> {
+pub fn request(instance: &str, req: &Request, timeout: Duration) -> Result<Answer, IpcError> {
     let node = create_node(instance, "control-client")?;
     let setup = |what: &str, e: &dyn std::fmt::Debug| IpcError::Setup {
         what: what.to_string(),
@@ -153,7 +164,7 @@ pub fn request(instance: &str, req: &Value, timeout: Duration) -> Result<(u32, V
         .client_builder()
         .create()
         .map_err(|e| setup("create a control client", &e))?;
-    let msg = ControlRequest::from_json(req).map_err(IpcError::Send)?;
+    let msg = ControlRequest::new(req).map_err(|e| IpcError::Send(e.to_string()))?;
     let start = now_ns();
     let limit = timeout.as_nanos() as u64;
     // The server connects lazily: resend until a response arrives.
@@ -166,7 +177,9 @@ pub fn request(instance: &str, req: &Value, timeout: Duration) -> Result<(u32, V
             .receive()
             .map_err(|e| IpcError::Receive(format!("{e:?}")))?
         {
-            return Ok((r.code, r.json()));
+            return r
+                .answer()
+                .map_err(|e| IpcError::Receive(format!("malformed answer: {e}")));
         }
         if now_ns() - start > limit {
             return Err(IpcError::PeerTimeout {
@@ -183,32 +196,6 @@ pub fn request(instance: &str, req: &Value, timeout: Duration) -> Result<(u32, V
         }
         std::thread::sleep(Duration::from_micros(200));
     }
-}
-
-/// One swap, as reported in `summary.json`'s `swaps`.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct SwapEvent {
-    /// Time of the swap cycle, s.
-    pub t_s: f64,
-    /// Swap cycle.
-    pub cycle: u64,
-    /// Axis name.
-    pub axis: String,
-    /// Stage name.
-    pub stage: String,
-    /// Previous plugin id.
-    pub from: String,
-    /// New plugin id.
-    pub to: String,
-    /// |torque(swap cycle) - torque(previous cycle)|, N m (N).
-    pub torque_step: f64,
-    /// The bumpless bound: the largest cycle-to-cycle change in the 100 cycles before, times the
-    /// gain ratio when the new gain is higher, plus 0.1 % of the torque limit.
-    pub allowed_step: f64,
-    /// Whether the swap was rolled back.
-    pub rolled_back: bool,
-    /// Why it was rolled back.
-    pub reason: Option<String>,
 }
 
 /// A refused control request, as reported in `summary.json`'s `rejected_requests`.
@@ -254,10 +241,27 @@ enum ToBuilder {
     Retire(Box<dyn Controller>),
 }
 
+/// Why a swap was refused.
+#[derive(Debug, thiserror::Error)]
+enum SwapError {
+    /// No axis of that name.
+    #[error("axis `{axis}` does not exist (axes: {known})")]
+    UnknownAxis { axis: String, known: String },
+    /// No stage of that name.
+    #[error("unknown stage `{0}` (position, feedforward, compensator, velocity)")]
+    UnknownStage(String),
+    /// The plugin library refused.
+    #[error(transparent)]
+    Library(#[from] AbiError),
+    /// The parameters, or the plugin built from them, were refused.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
+
 struct Built {
     axis: usize,
     stage: Stage,
-    controller: Result<Box<dyn Controller>, String>,
+    controller: Result<Box<dyn Controller>, SwapError>,
     /// The stage's current (plugin, parameters) once this controller is confirmed.
     entry: (String, toml::Table),
 }
@@ -298,7 +302,7 @@ pub struct ControlPlane {
     names: Vec<String>,
     limits: Vec<f64>,
     period_s: f64,
-    plugin_ids: Vec<[Option<String>; 4]>,
+    plugin_ids: Vec<StagePlugins>,
 }
 
 impl ControlPlane {
@@ -333,7 +337,7 @@ impl ControlPlane {
         let mut plugin_ids = Vec::new();
         for (i, a) in cycle.chain().axes().iter().enumerate() {
             let mut cur: [(String, toml::Table); 4] = Default::default();
-            let mut ids: [Option<String>; 4] = Default::default();
+            let mut ids = StagePlugins::default();
             for st in Stage::ALL {
                 if let Some(c) = &a.stages[st.index()] {
                     let params = job
@@ -343,7 +347,7 @@ impl ControlPlane {
                         .map(|e| e.params.clone())
                         .unwrap_or_default();
                     cur[st.index()] = (c.id().to_string(), params);
-                    ids[st.index()] = Some(c.id().to_string());
+                    ids.set(st, Some(c.id().to_string()));
                 }
             }
             current.push(cur);
@@ -406,7 +410,7 @@ impl ControlPlane {
         };
         match built.controller {
             Err(reason) => {
-                self.refuse(&req, seq, "swap", reason);
+                self.refuse(&req, seq, "swap", reason.to_string());
             }
             Ok(new) => {
                 let _ = (built.axis, built.stage);
@@ -432,7 +436,7 @@ impl ControlPlane {
                     rolled_back: false,
                     reason: None,
                 });
-                self.plugin_ids[axis][stage.index()] = Some(new_id);
+                self.plugin_ids[axis].set(stage, Some(new_id));
                 self.probation = Some(Probation {
                     axis,
                     stage,
@@ -485,10 +489,10 @@ impl ControlPlane {
                 let p = self.probation.take().unwrap_or_else(|| unreachable!());
                 if let Some(old) = p.old {
                     let failed = cycle.chain_mut().replace(p.axis, p.stage, old);
-                    self.plugin_ids[p.axis][p.stage.index()] = cycle.chain().axes()[p.axis].stages
-                        [p.stage.index()]
-                    .as_ref()
-                    .map(|c| c.id().to_string());
+                    let id = cycle.chain().axes()[p.axis].stages[p.stage.index()]
+                        .as_ref()
+                        .map(|c| c.id().to_string());
+                    self.plugin_ids[p.axis].set(p.stage, id);
                     if let Some(f) = failed {
                         let _ = self.graveyard.send(ToBuilder::Retire(f));
                     }
@@ -499,8 +503,10 @@ impl ControlPlane {
                 if let Some((req, _, _)) = self.pending.take() {
                     respond(
                         &req,
-                        1,
-                        &json!({"error": format!("rolled back: {reason}"), "swap": ev}),
+                        &Answer::Refused {
+                            error: format!("rolled back: {reason}"),
+                            swap: Some(ev.clone()),
+                        },
                     );
                 }
             } else if p.left == 0 {
@@ -516,7 +522,12 @@ impl ControlPlane {
                     });
                 }
                 if let Some((req, _, _)) = self.pending.take() {
-                    respond(&req, 0, &json!({"swap": self.swaps[p.event]}));
+                    respond(
+                        &req,
+                        &Answer::Swapped {
+                            swap: self.swaps[p.event].clone(),
+                        },
+                    );
                 }
             }
         }
@@ -533,65 +544,55 @@ impl ControlPlane {
         let Ok(Some(req)) = self.server.receive() else {
             return;
         };
-        let msg = match req.payload().json() {
-            Ok(v) => v,
+        let msg = match req.payload().request() {
+            Ok(m) => m,
             Err(e) => {
-                self.refuse(&req, seq, "", e.to_string());
+                self.refuse(&req, seq, e.op(), e.to_string());
                 return;
             }
         };
-        match msg["op"].as_str().unwrap_or("") {
-            "status" => {
-                let axes: Vec<Value> = self
+        match msg {
+            Request::Status => {
+                let axes = self
                     .names
                     .iter()
-                    .enumerate()
-                    .map(|(i, name)| {
-                        let stages: serde_json::Map<String, Value> = Stage::ALL
-                            .iter()
-                            .filter_map(|st| {
-                                self.plugin_ids[i][st.index()]
-                                    .as_ref()
-                                    .map(|id| (st.id().to_string(), json!(id)))
-                            })
-                            .collect();
-                        json!({"axis": name, "stages": stages, "torque": cmd.axes[i].torque, "reference": cmd.axes[i].reference})
+                    .zip(&self.plugin_ids)
+                    .zip(&cmd.axes)
+                    .map(|((name, ids), a)| AxisStatus {
+                        axis: name.clone(),
+                        stages: ids.clone(),
+                        torque: a.torque,
+                        reference: a.reference,
                     })
                     .collect();
-                respond(
-                    &req,
-                    0,
-                    &json!({"cycle": seq, "t_s": seq as f64 * self.period_s, "axes": axes,
-                            "swaps": self.swaps.len(), "nonfinite_faults": cycle.chain().nonfinite_faults,
-                            "deadline_misses": self.plant_deadline_misses,
-                            "rejected_requests": self.rejected_count}),
-                );
+                let status = Status {
+                    cycle: seq,
+                    t_s: seq as f64 * self.period_s,
+                    axes,
+                    swaps: self.swaps.len() as u64,
+                    nonfinite_faults: cycle.chain().nonfinite_faults,
+                    deadline_misses: self.plant_deadline_misses,
+                    rejected_requests: self.rejected_count,
+                };
+                respond(&req, &Answer::Status(status));
             }
-            "swap" => match self.parse_swap(&msg) {
-                Err(e) => self.refuse(&req, seq, "swap", e),
+            Request::Swap(swap) => match self.parse_swap(swap) {
+                Err(e) => self.refuse(&req, seq, "swap", e.to_string()),
                 Ok(job) => {
                     let (axis, stage) = (job.axis, job.stage);
                     if self.to_builder.send(ToBuilder::Build(job)).is_err() {
-                        respond(
-                            &req,
-                            1,
-                            &json!({"error": "the plugin builder thread is gone"}),
-                        );
+                        respond(&req, &Answer::refused("the plugin builder thread is gone"));
                     } else {
                         self.pending = Some((req, axis, stage));
                     }
                 }
             },
-            other => {
-                let e = format!("unknown op `{other}` (status, swap)");
-                self.refuse(&req, seq, other, e);
-            }
         }
     }
 
     /// Answers `req` with a refusal and keeps it for the summary.
     fn refuse(&mut self, req: &CtlActive, seq: u64, op: &str, error: String) {
-        respond(req, 1, &json!({ "error": error }));
+        respond(req, &Answer::refused(error.as_str()));
         self.rejected_count += 1;
         if self.rejected.len() < MAX_REJECTIONS {
             self.rejected.push(Rejection {
@@ -603,32 +604,22 @@ impl ControlPlane {
         }
     }
 
-    fn parse_swap(&self, msg: &Value) -> Result<BuildJob, String> {
-        let axis_name = msg["axis"].as_str().ok_or("swap needs `axis`")?;
+    fn parse_swap(&self, msg: protocol::SwapRequest) -> Result<BuildJob, SwapError> {
         let axis = self
             .names
             .iter()
-            .position(|n| n == axis_name)
-            .ok_or_else(|| {
-                format!(
-                    "axis `{axis_name}` does not exist (axes: {})",
-                    self.names.join(", ")
-                )
+            .position(|n| *n == msg.axis)
+            .ok_or_else(|| SwapError::UnknownAxis {
+                known: self.names.join(", "),
+                axis: msg.axis,
             })?;
-        let stage_s = msg["stage"].as_str().ok_or("swap needs `stage`")?;
-        let stage = Stage::parse(stage_s).ok_or_else(|| {
-            format!("unknown stage `{stage_s}` (position, feedforward, compensator, velocity)")
-        })?;
-        let plugin = msg["plugin"]
-            .as_str()
-            .ok_or("swap needs `plugin`")?
-            .to_string();
+        let stage = Stage::parse(&msg.stage).ok_or(SwapError::UnknownStage(msg.stage))?;
         Ok(BuildJob {
             axis,
             stage,
-            plugin,
-            params: msg["params"].as_str().map(str::to_string),
-            lib: msg["lib"].as_str().map(str::to_string),
+            plugin: msg.plugin,
+            params: msg.params,
+            lib: msg.lib,
         })
     }
 }
@@ -641,8 +632,8 @@ fn finite_or(x: f64, d: f64) -> f64 {
     }
 }
 
-fn respond(req: &CtlActive, code: u32, v: &Value) {
-    let _ = req.send_copy(ControlResponse::from_json(code, v));
+fn respond(req: &CtlActive, answer: &Answer) {
+    let _ = req.send_copy(ControlResponse::new(answer));
 }
 
 fn builder(
@@ -694,15 +685,14 @@ fn build_one(
     contexts: &[AxisContext],
     current: &[[(String, toml::Table); 4]],
     job_path: &Path,
-) -> Result<(Box<dyn Controller>, StageEntry), String> {
+) -> Result<(Box<dyn Controller>, StageEntry), SwapError> {
     if let Some(lib) = &job.lib {
         let c = crate::scheduler::plugin_lib::LibController::load(
             Path::new(lib),
             &job.plugin,
             job.params.as_deref().unwrap_or(""),
             &contexts[job.axis],
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
         // A library's parameters are its own text: a later built-in retune starts afresh.
         return Ok((
             Box::new(c),
@@ -717,14 +707,12 @@ fn build_one(
         toml::Table::new()
     };
     if let Some(text) = &job.params {
-        let t = feedloop_model::params::parse_toml(src, text).map_err(|e| e.to_string())?;
+        let t = feedloop_model::params::parse_toml(src, text)?;
         for (k, v) in t {
             params.insert(k, v);
         }
     }
-    let c = registry
-        .create(&job.plugin, &params, &contexts[job.axis], src)
-        .map_err(|e| e.to_string())?;
+    let c = registry.create(&job.plugin, &params, &contexts[job.axis], src)?;
     let _ = job_path;
     Ok((c, (job.plugin.clone(), params)))
 }
