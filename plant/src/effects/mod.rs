@@ -27,6 +27,12 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{ConfigError, Fields};
 pub use feedloop_model::{EffectId, Side};
 
+pub(crate) use cogging::CoggingHarmonic;
+pub(crate) use coulomb_friction::DryFriction;
+pub(crate) use pitch_error::PitchError;
+pub(crate) use third_mass::ThirdMass;
+pub(crate) use viscous_friction::Viscous;
+
 /// The unit family of one body: suffixes of its keys and the factors to motor units.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Units {
@@ -141,37 +147,6 @@ pub(crate) fn read_side(f: &mut Fields<'_>) -> Result<Side, ConfigError> {
     }
 }
 
-/// Dry friction of one body, motor units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct DryFriction {
-    /// Coulomb (sliding) level for positive / negative velocity, N m (or N), >= 0.
-    pub fc: [f64; 2],
-    /// Static (breakaway) level for positive / negative direction, >= fc.
-    pub fs: [f64; 2],
-    /// Stribeck velocity, motor units per s (infinite for pure Coulomb).
-    pub vs: f64,
-    /// Stribeck exponent (dimensionless).
-    pub exponent: f64,
-}
-
-/// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Viscous {
-    /// N m s/rad (or N s/m) for positive and negative velocity.
-    pub c: [f64; 2],
-}
-
-/// One cogging harmonic in motor units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct CoggingHarmonic {
-    /// Amplitude, N m (N on a rigid axis).
-    pub amplitude: f64,
-    /// Spatial frequency, rad of phase per motor unit (N per rad, or 2 pi / period_m per m).
-    pub wavenumber: f64,
-    /// Phase, rad.
-    pub phase_rad: f64,
-}
-
 /// Largest number of cogging harmonics per axis.
 pub const MAX_COGGING_HARMONICS: usize = 8;
 
@@ -185,13 +160,13 @@ pub(crate) struct EffectSet {
     /// Backlash: full gap width, motor rad (ballscrew/rotary).
     pub backlash_gap: Option<f64>,
     /// Pitch error.
-    pub pitch: Option<pitch_error::PitchError>,
+    pub pitch: Option<PitchError>,
     /// Cogging harmonics.
     pub cogging: Vec<CoggingHarmonic>,
     /// Constant torque on the load, motor units.
     pub load_torque: Option<f64>,
     /// Third mass (inertia, stiffness, damping) in motor units.
-    pub third_mass: Option<third_mass::ThirdMass>,
+    pub third_mass: Option<ThirdMass>,
     /// Transport delay, cycles.
     pub delay_cycles: usize,
     /// Current-loop lag time constant, s.
