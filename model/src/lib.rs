@@ -5,15 +5,18 @@
 //! - [`model`]: a model file (plant, effects, sensors, controller defaults) for one axis.
 //! - [`job`]: a job file (axes, trajectory, chains, timing).
 //! - [`Stage`]: the stages of an axis chain.
+//! - [`EffectId`], [`Side`]: the effects a model file may switch on, and the body one acts on.
 //!
 //! No IPC, no physics: every other crate reads its configuration through this one.
 #![warn(missing_docs)]
 
+pub mod effect;
 pub mod job;
 pub mod model;
 pub mod params;
 mod stage;
 
+pub use effect::{EffectId, Side};
 pub use stage::Stage;
 
 /// Largest number of axes one instance can drive. The wire types and logs are sized for it.

@@ -16,8 +16,12 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::ConfigError;
 use nalgebra::DMatrix;
 
-use crate::effects::pitch_error::PitchError;
-use crate::effects::{self, CoggingHarmonic, Side, MAX_COGGING_HARMONICS};
+use crate::effects::coulomb_friction::DryLaw;
+use crate::effects::delay::DelayLine;
+use crate::effects::{
+    self, backlash, current_lag, third_mass, torque_saturation, viscous_friction, CoggingHarmonic,
+    PitchError, Side, Viscous, MAX_COGGING_HARMONICS,
+};
 use crate::linear::{dot8, Bank, State, MAX_N, NU};
 use crate::sensor::{self, Sensor};
 
@@ -36,13 +40,7 @@ struct Body {
     pos: usize,
     vel: usize,
     dry: bool,
-    fc: [f64; 2],
-    fs: [f64; 2],
-    inv_vs: f64,
-    exponent: f64,
-    stribeck: bool,
-    /// Beyond this |v|/vs the Stribeck term is below 1e-17 of (fs - fc) and is skipped.
-    r_cut: f64,
+    law: DryLaw,
     /// Explicit direction-dependent viscous part: torque = -c_half |v|.
     c_half: f64,
     stuck: bool,
@@ -59,12 +57,7 @@ impl Body {
             pos,
             vel,
             dry: false,
-            fc: [0.0; 2],
-            fs: [0.0; 2],
-            inv_vs: 0.0,
-            exponent: 2.0,
-            stribeck: false,
-            r_cut: 0.0,
+            law: DryLaw::NONE,
             c_half: 0.0,
             stuck: false,
             dir: 1.0,
@@ -77,22 +70,9 @@ impl Body {
     #[inline]
     fn friction(&self, v: f64) -> f64 {
         let av = v.abs();
-        let mut t = -self.c_half * av;
+        let mut t = viscous_friction::asymmetric_torque(self.c_half, av);
         if self.dry && !self.stuck {
-            let i = usize::from(self.dir < 0.0);
-            let mut mag = self.fc[i];
-            let r = av * self.inv_vs;
-            if self.stribeck && r < self.r_cut {
-                let g = if self.exponent == 2.0 {
-                    (-r * r).exp()
-                } else if self.exponent == 1.0 {
-                    (-r).exp()
-                } else {
-                    (-r.powf(self.exponent)).exp()
-                };
-                mag += (self.fs[i] - self.fc[i]) * g;
-            }
-            t -= self.dir * mag;
+            t -= self.dir * self.law.sliding_level(self.dir, av);
         }
         t
     }
@@ -105,7 +85,7 @@ impl Body {
 
     #[inline]
     fn holds(&self, net: f64) -> bool {
-        net <= self.fs[0] && net >= -self.fs[1]
+        self.law.holds(net)
     }
 }
 
@@ -164,24 +144,11 @@ impl Structure {
         } else {
             b[(1, 2)] = 1.0 / self.jm;
         }
-        if let Some((i3, j3, k3, c3)) = self.third {
-            let v3 = i3 + 1;
-            a[(i3, v3)] = 1.0;
-            a[(lv, lp)] -= k3 / jload;
-            a[(lv, i3)] += k3 / jload;
-            a[(lv, lv)] -= c3 / jload;
-            a[(lv, v3)] += c3 / jload;
-            a[(v3, lp)] += k3 / j3;
-            a[(v3, i3)] -= k3 / j3;
-            a[(v3, lv)] += c3 / j3;
-            a[(v3, v3)] -= c3 / j3;
+        if let Some(t) = self.third {
+            third_mass::stamp(&mut a, (lp, lv), jload, t);
         }
         match self.lag {
-            Some((il, tau)) => {
-                a[(1, il)] = 1.0 / self.jm;
-                a[(il, il)] = -1.0 / tau;
-                b[(il, 0)] = 1.0 / tau;
-            }
+            Some((il, tau)) => current_lag::stamp(&mut a, &mut b, il, tau, self.jm),
             None => b[(1, 0)] = 1.0 / self.jm,
         }
         (a, b)
@@ -250,8 +217,7 @@ pub struct AxisPlant {
     ncog: usize,
     load_torque: f64,
     lag_mean: f64,
-    delay: Vec<f64>,
-    delay_pos: usize,
+    delay: DelayLine,
     limit: f64,
     sensor: Sensor,
     meas: AxisSensor,
@@ -290,19 +256,17 @@ impl AxisPlant {
         let sp = sensor::parse(model)?;
         let kind = model.plant.kind();
         let motor_per_load = model.plant.motor_per_load();
-        let mean = |v: Option<effects::Viscous>| v.map_or(0.0, |v| 0.5 * (v.c[0] + v.c[1]));
-        let half = |v: Option<effects::Viscous>| v.map_or(0.0, |v| 0.5 * (v.c[0] - v.c[1]));
         let mut st = match model.plant {
             PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
                 Structure {
                     two_mass: true,
                     n: 4,
                     jm: two_mass.jm_kgm2,
-                    dm: two_mass.dm_nms_per_rad + mean(fx.viscous[0]),
+                    dm: two_mass.dm_nms_per_rad + Viscous::mean(fx.viscous[0]),
                     kl: two_mass.kl_nm_per_rad,
                     cl: two_mass.cl_nms_per_rad,
                     jl: two_mass.jl_kgm2,
-                    dl: two_mass.dl_nms_per_rad + mean(fx.viscous[1]),
+                    dl: two_mass.dl_nms_per_rad + Viscous::mean(fx.viscous[1]),
                     third: None,
                     lag: None,
                 }
@@ -311,7 +275,7 @@ impl AxisPlant {
                 two_mass: false,
                 n: 2,
                 jm: r.mass_kg,
-                dm: r.viscous_ns_per_m + mean(fx.viscous[0]),
+                dm: r.viscous_ns_per_m + Viscous::mean(fx.viscous[0]),
                 kl: 0.0,
                 cl: 0.0,
                 jl: 0.0,
@@ -332,15 +296,10 @@ impl AxisPlant {
         let (lp, lv) = st.load_idx();
         let mut bodies = [Body::inert(0, 1), Body::inert(lp, lv)];
         for (b, body) in bodies.iter_mut().enumerate().take(nbodies) {
-            body.c_half = half(fx.viscous[b]);
+            body.c_half = Viscous::half(fx.viscous[b]);
             if let Some(d) = fx.dry[b] {
                 body.dry = true;
-                body.fc = d.fc;
-                body.fs = d.fs;
-                body.stribeck = d.vs.is_finite() && (d.fs[0] > d.fc[0] || d.fs[1] > d.fc[1]);
-                body.inv_vs = if d.vs.is_finite() { 1.0 / d.vs } else { 0.0 };
-                body.exponent = d.exponent;
-                body.r_cut = 40.0f64.powf(1.0 / d.exponent);
+                body.law = DryLaw::new(d);
             }
             let inertia = if b == 0 { st.jm } else { st.jl };
             for spring in 0..2 {
@@ -396,15 +355,11 @@ impl AxisPlant {
                 (a, b, frozen)
             },
         );
-        let mut cogging = [CoggingHarmonic {
-            amplitude: 0.0,
-            wavenumber: 0.0,
-            phase_rad: 0.0,
-        }; MAX_COGGING_HARMONICS];
+        let mut cogging = [CoggingHarmonic::ZERO; MAX_COGGING_HARMONICS];
         let ncog = fx.cogging.len().min(MAX_COGGING_HARMONICS);
         cogging[..ncog].copy_from_slice(&fx.cogging[..ncog]);
         let lag_mean = match fx.lag_tau_s {
-            Some(tau) => tau / period_s * (1.0 - (-period_s / tau).exp()),
+            Some(tau) => current_lag::mean_factor(tau, period_s),
             None => 0.0,
         };
         let mut axis = Self {
@@ -428,8 +383,7 @@ impl AxisPlant {
             ncog,
             load_torque: fx.load_torque.unwrap_or(0.0),
             lag_mean,
-            delay: vec![0.0; fx.delay_cycles],
-            delay_pos: 0,
+            delay: DelayLine::new(fx.delay_cycles),
             limit: fx.limit.unwrap_or(TORQUE_BOUND),
             sensor: Sensor::new(sp, axis_index),
             meas: AxisSensor::default(),
@@ -500,8 +454,7 @@ impl AxisPlant {
             b.dir = 1.0;
         }
         self.contact = 0;
-        self.delay.iter_mut().for_each(|d| *d = 0.0);
-        self.delay_pos = 0;
+        self.delay.clear();
         self.applied = 0.0;
         self.sensor.reset_position(self.x[0]);
         self.measure();
@@ -557,32 +510,18 @@ impl AxisPlant {
                 } else {
                     past_torque.first().copied().unwrap_or(0.0)
                 };
-                fin(v).clamp(-self.limit, self.limit)
+                torque_saturation::clamp(fin(v), self.limit)
             };
             let decay = (-self.period_s / tau).exp();
             let mut x = if m > 0 { input(m - back) } else { 0.0 };
             for j in m - back..m {
                 let u = input(j);
-                applied = u + (x - u) * self.lag_mean;
-                x = u + (x - u) * decay;
+                applied = current_lag::relax(u, x, self.lag_mean);
+                x = current_lag::relax(u, x, decay);
             }
             self.x[il] = x;
         }
-        // the delay line holds the commands of the last `len` periods; the next one read is the
-        // oldest
-        let len = self.delay.len();
-        let oldest = past_torque.first().copied().map(fin).unwrap_or(0.0);
-        for i in 0..len {
-            // slot i (read i periods from now) holds the command of `len - i` periods ago
-            let back = len - i;
-            let v = if back <= past_torque.len() {
-                fin(past_torque[past_torque.len() - back])
-            } else {
-                oldest
-            };
-            self.delay[i] = v;
-        }
-        self.delay_pos = 0;
+        self.delay.restore(past_torque, fin);
         self.e_m = 0.0;
         if let Some(p) = self.pitch {
             self.e_m = p.eval(mp * self.load_per_motor).0 * self.motor_per_load;
@@ -590,13 +529,7 @@ impl AxisPlant {
         self.contact = 0;
         if self.backlash && self.st.two_mass {
             let d = self.x[0] + self.e_m - self.x[2];
-            self.contact = if d > self.gap_half {
-                1
-            } else if d < -self.gap_half {
-                -1
-            } else {
-                0
-            };
+            self.contact = backlash::contact(d, self.gap_half);
         }
         for b in &mut self.bodies[..self.nbodies] {
             let v = self.x[b.vel];
@@ -687,13 +620,7 @@ impl AxisPlant {
             e += 0.5 * st.jl * x[3] * x[3];
             let d = x[0] + self.e_m - x[2];
             let dz = if self.backlash {
-                if d > self.gap_half {
-                    d - self.gap_half
-                } else if d < -self.gap_half {
-                    d + self.gap_half
-                } else {
-                    0.0
-                }
+                backlash::stretch(d, self.gap_half)
             } else {
                 d
             };
@@ -724,17 +651,10 @@ impl AxisPlant {
         } else {
             0.0
         };
-        let len = self.delay.len();
-        if let Some(slot) = self.delay.get_mut(self.delay_pos) {
-            u = std::mem::replace(slot, u);
-            self.delay_pos += 1;
-            if self.delay_pos >= len {
-                self.delay_pos = 0;
-            }
-        }
-        u = u.clamp(-self.limit, self.limit);
+        u = self.delay.push(u);
+        u = torque_saturation::clamp(u, self.limit);
         self.applied = match self.st.lag {
-            Some((il, _)) => u + (self.x[il] - u) * self.lag_mean,
+            Some((il, _)) => current_lag::relax(u, self.x[il], self.lag_mean),
             None => u,
         };
         let before = self.x;
@@ -807,13 +727,16 @@ impl AxisPlant {
         let th_mid = self.x[0] + 0.5 * self.period_s * self.x[1];
         let mut tm = 0.0;
         for c in &self.cogging[..self.ncog] {
-            tm += c.amplitude * (c.wavenumber * th_mid + c.phase_rad).sin();
+            tm += c.torque(th_mid);
         }
         let mut pt = 0.0;
         if let Some(p) = &self.pitch {
-            let (e, de) = p.eval(th_mid * self.load_per_motor);
-            self.e_m = e * self.motor_per_load;
-            pt = self.st.kl * self.e_m + self.st.cl * de * self.x[1];
+            (self.e_m, pt) = p.held(
+                th_mid,
+                self.x[1],
+                (self.load_per_motor, self.motor_per_load),
+                (self.st.kl, self.st.cl),
+            );
         }
         (tm, self.load_torque, pt)
     }
@@ -829,11 +752,7 @@ impl AxisPlant {
         let rem = if !self.backlash {
             pt
         } else {
-            match self.contact {
-                1 => pt - self.st.kl * self.gap_half,
-                -1 => pt + self.st.kl * self.gap_half,
-                _ => 0.0,
-            }
+            backlash::held_spring(self.contact, pt, self.st.kl, self.gap_half)
         };
         (bm - rem, bl + rem)
     }
@@ -863,12 +782,7 @@ impl AxisPlant {
         }
         if self.backlash {
             let d = y[0] + self.e_m - y[2];
-            let ok = match self.contact {
-                1 => d >= self.gap_half,
-                -1 => d <= -self.gap_half,
-                _ => d.abs() <= self.gap_half,
-            };
-            if !ok {
+            if !backlash::consistent(self.contact, d, self.gap_half) {
                 return false;
             }
         }
@@ -891,13 +805,7 @@ impl AxisPlant {
     fn transition(&mut self, u: f64, bm: f64, bl: f64, pt: f64) {
         if self.backlash {
             let d = self.x[0] + self.e_m - self.x[2];
-            self.contact = if d > self.gap_half {
-                1
-            } else if d < -self.gap_half {
-                -1
-            } else {
-                0
-            };
+            self.contact = backlash::contact(d, self.gap_half);
         }
         let (um, ul) = self.spring_inputs(bm, bl, pt);
         let uu = [u, um, ul];

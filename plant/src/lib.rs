@@ -34,7 +34,7 @@ use feedloop_model::params::ConfigError;
 use feedloop_model::MAX_AXES;
 
 pub use axis::{AxisPlant, TORQUE_BOUND};
-pub use effects::{Side, EFFECT_IDS};
+pub use feedloop_model::{EffectId, Side};
 
 /// All axes of a job, stepped together.
 #[derive(Debug, Clone)]

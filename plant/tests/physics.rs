@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 
 use common::*;
 use feedloop_control::axis_io::{AxisCommand, AxisSensor};
-use feedloop_plant::{AxisPlant, Plant, EFFECT_IDS};
+use feedloop_plant::{AxisPlant, EffectId, Plant};
 
 const UNDAMPED: &str = r#"
 kind = "ballscrew"
@@ -222,8 +222,8 @@ fn unknown_effect_id_is_refused_listing_the_known_ids() {
     ));
     println!("{e}");
     assert_eq!(e.key, "effects.magic_friction");
-    for id in EFFECT_IDS {
-        assert!(e.reason.contains(id), "{e}");
+    for id in EffectId::ALL {
+        assert!(e.reason.contains(id.id()), "{e}");
     }
     assert!(e
         .to_string()

@@ -24,19 +24,11 @@ use serde_json::{json, Value};
 
 use super::data::AxisData;
 use super::effects::{
-    base_class, base_column, base_keys, channel, Channel, Effect, Side, WbModel, EFFECT_IDS,
+    base_class, base_column, base_keys, channel, Channel, Effect, EffectId, Side, WbModel,
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_model::model::AxisKind;
-
-/// Effects that may appear several times in a model file.
-const REPEATABLE: [&str; 4] = [
-    "viscous_friction",
-    "coulomb_friction",
-    "stribeck_friction",
-    "cogging",
-];
 
 /// Folds of the blocked cross-validation.
 pub const FOLDS: usize = 5;
@@ -543,8 +535,9 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         });
     }
     let mut untested = Vec::new();
-    for id in EFFECT_IDS {
-        if !REPEATABLE.contains(&id) && model.effects.iter().any(|e| e.id == id) {
+    for effect in EffectId::ALL {
+        let id = effect.id();
+        if !effect.repeatable() && model.effects.iter().any(|e| e.id == id) {
             untested.push((
                 id.to_string(),
                 "already in the model (it is not repeatable; refit it with `fit`)".to_string(),

@@ -19,34 +19,12 @@ use feedloop_model::params::{read_toml_file, ConfigError};
 use super::data::AxisData;
 use super::WorkbenchError;
 
-/// Every effect id of the physics library (the model file's `[effects.<id>]`).
-pub const EFFECT_IDS: [&str; 11] = [
-    "viscous_friction",
-    "coulomb_friction",
-    "stribeck_friction",
-    "backlash",
-    "pitch_error",
-    "cogging",
-    "constant_force",
-    "third_mass",
-    "delay",
-    "current_lag",
-    "torque_saturation",
-];
-
-/// Which body a friction effect acts on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Side {
-    /// The motor.
-    Motor,
-    /// The load.
-    Load,
-}
+pub use feedloop_model::{EffectId, Side};
 
 /// One effect in regressor form.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Effect {
-    /// Effect id (one of [`EFFECT_IDS`]).
+    /// Effect id (the [`EffectId::id`] of one effect).
     pub id: String,
     /// Body it acts on (friction effects).
     pub side: Side,
@@ -258,16 +236,7 @@ impl Effect {
         } else {
             (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
         };
-        let side = || {
-            toml::Value::String(
-                if self.side == Side::Load {
-                    "load"
-                } else {
-                    "motor"
-                }
-                .into(),
-            )
-        };
+        let side = || toml::Value::String(self.side.id().into());
         match self.id.as_str() {
             "viscous_friction" => {
                 put(&mut t, &format!("c_{cs}"), self.coef[0] * tf / vf);
@@ -360,11 +329,7 @@ impl Effect {
             }
             _ => {}
         }
-        if matches!(
-            self.id.as_str(),
-            "viscous_friction" | "coulomb_friction" | "stribeck_friction"
-        ) && kind != AxisKind::Rigid
-        {
+        if EffectId::parse(&self.id).is_some_and(EffectId::has_side) && kind != AxisKind::Rigid {
             t.insert("side".into(), side());
         }
         t
@@ -397,11 +362,11 @@ impl Effect {
                 ConfigError::new(file, format!("{key}.{k}"), "is required but missing")
             })
         };
-        let side = match t.get("side").and_then(|v| v.as_str()) {
-            Some("load") => Side::Load,
-            _ if kind == AxisKind::Rigid => Side::Motor,
-            _ => Side::Motor,
-        };
+        let side = t
+            .get("side")
+            .and_then(|v| v.as_str())
+            .and_then(Side::parse)
+            .unwrap_or(Side::Motor);
         let load_lin = kind != AxisKind::Rotary && (side == Side::Load || kind == AxisKind::Rigid);
         let (tf, vf, ts, vs, cs) = if load_lin {
             let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
@@ -494,7 +459,7 @@ impl Effect {
                     key,
                     format!(
                         "unknown effect `{other}` (known: {})",
-                        EFFECT_IDS.join(", ")
+                        EffectId::list(|_| true)
                     ),
                 ))
             }

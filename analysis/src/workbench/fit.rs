@@ -12,7 +12,7 @@ use serde_json::{json, Value};
 use super::compare::equation_error;
 use super::data::AxisData;
 use super::diagnose::{best_effect, deflection, flat, moving_mask, FOLDS};
-use super::effects::{base_column, base_keys, channel, Channel, Effect, WbModel, EFFECT_IDS};
+use super::effects::{base_column, base_keys, channel, Channel, Effect, EffectId, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
 use super::window::window_sim;
 use super::WorkbenchError;
@@ -86,12 +86,12 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
         .map(str::trim)
         .filter(|s| !s.is_empty())
     {
-        if !EFFECT_IDS.contains(&s) {
+        if EffectId::parse(s).is_none() {
             return Err(WorkbenchError::BadArgument {
                 arg: format!("--add {s}"),
                 reason: format!(
                     "unknown effect (effects of the library: {})",
-                    EFFECT_IDS.join(", ")
+                    EffectId::list(|_| true)
                 ),
             });
         }

@@ -25,6 +25,53 @@ use feedloop_model::params::{ConfigError, Fields, Range};
 
 use super::{check_keys, table_error, Ctx};
 
+/// Contact state at deflection `d` (motor units) with half gap `gap_half`: +1 driving in +, -1
+/// driving in -, 0 inside the gap.
+#[inline]
+pub(crate) fn contact(d: f64, gap_half: f64) -> i8 {
+    if d > gap_half {
+        1
+    } else if d < -gap_half {
+        -1
+    } else {
+        0
+    }
+}
+
+/// Whether deflection `d` is consistent with contact state `contact` (on or beyond its flank,
+/// or inside the gap).
+#[inline]
+pub(crate) fn consistent(contact: i8, d: f64, gap_half: f64) -> bool {
+    match contact {
+        1 => d >= gap_half,
+        -1 => d <= -gap_half,
+        _ => d.abs() <= gap_half,
+    }
+}
+
+/// The held spring torque on the load in contact state `contact`: the other held spring torque
+/// `pt` less the spring's torque over the half gap (`KL gap/2`); 0 inside the gap.
+#[inline]
+pub(crate) fn held_spring(contact: i8, pt: f64, kl: f64, gap_half: f64) -> f64 {
+    match contact {
+        1 => pt - kl * gap_half,
+        -1 => pt + kl * gap_half,
+        _ => 0.0,
+    }
+}
+
+/// The spring's stretch at deflection `d`: `d -+ gap/2` in contact, 0 inside the gap.
+#[inline]
+pub(crate) fn stretch(d: f64, gap_half: f64) -> f64 {
+    if d > gap_half {
+        d - gap_half
+    } else if d < -gap_half {
+        d + gap_half
+    } else {
+        0.0
+    }
+}
+
 /// Parses `[effects.backlash]`; returns the full gap in motor rad (None for a zero gap).
 pub(crate) fn parse(
     f: &mut Fields<'_>,

@@ -21,7 +21,33 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, CoggingHarmonic, Ctx};
+use super::{check_keys, Ctx};
+
+/// One cogging harmonic in motor units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct CoggingHarmonic {
+    /// Amplitude, N m (N on a rigid axis).
+    pub amplitude: f64,
+    /// Spatial frequency, rad of phase per motor unit (N per rad, or 2 pi / period_m per m).
+    pub wavenumber: f64,
+    /// Phase, rad.
+    pub phase_rad: f64,
+}
+
+impl CoggingHarmonic {
+    /// A harmonic of zero amplitude.
+    pub const ZERO: CoggingHarmonic = CoggingHarmonic {
+        amplitude: 0.0,
+        wavenumber: 0.0,
+        phase_rad: 0.0,
+    };
+
+    /// Torque on the motor at motor position `th`.
+    #[inline]
+    pub fn torque(&self, th: f64) -> f64 {
+        self.amplitude * (self.wavenumber * th + self.phase_rad).sin()
+    }
+}
 
 /// Parses one `[effects.cogging]` table.
 pub(crate) fn parse(

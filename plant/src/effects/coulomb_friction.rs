@@ -24,7 +24,81 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, read_side, Ctx, DryFriction, Side};
+use super::{check_keys, read_side, stribeck_friction, Ctx, Side};
+
+/// Dry friction of one body, motor units (`coulomb_friction`, or `stribeck_friction` with a
+/// higher breakaway level).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct DryFriction {
+    /// Coulomb (sliding) level for positive / negative velocity, N m (or N), >= 0.
+    pub fc: [f64; 2],
+    /// Static (breakaway) level for positive / negative direction, >= fc.
+    pub fs: [f64; 2],
+    /// Stribeck velocity, motor units per s (infinite for pure Coulomb).
+    pub vs: f64,
+    /// Stribeck exponent (dimensionless).
+    pub exponent: f64,
+}
+
+/// The dry-friction law of one body, with what the integrator precomputes from [`DryFriction`].
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct DryLaw {
+    /// Coulomb level for positive / negative velocity.
+    pub fc: [f64; 2],
+    /// Breakaway level for positive / negative direction.
+    pub fs: [f64; 2],
+    /// 1 / Stribeck velocity (0 for pure Coulomb).
+    pub inv_vs: f64,
+    /// Stribeck exponent.
+    pub exponent: f64,
+    /// Whether the level rises above `fc` at low speed.
+    pub stribeck: bool,
+    /// Beyond this |v|/vs the Stribeck term is below 1e-17 of (fs - fc) and is skipped.
+    pub r_cut: f64,
+}
+
+impl DryLaw {
+    /// No dry friction.
+    pub const NONE: DryLaw = DryLaw {
+        fc: [0.0; 2],
+        fs: [0.0; 2],
+        inv_vs: 0.0,
+        exponent: 2.0,
+        stribeck: false,
+        r_cut: 0.0,
+    };
+
+    /// The law of `d`.
+    pub fn new(d: DryFriction) -> Self {
+        Self {
+            fc: d.fc,
+            fs: d.fs,
+            stribeck: d.vs.is_finite() && (d.fs[0] > d.fc[0] || d.fs[1] > d.fc[1]),
+            inv_vs: if d.vs.is_finite() { 1.0 / d.vs } else { 0.0 },
+            exponent: d.exponent,
+            r_cut: 40.0f64.powf(1.0 / d.exponent),
+        }
+    }
+
+    /// Magnitude of the friction while sliding at speed `av = |v|` in direction `dir` (+-1):
+    /// `fc`, plus the Stribeck hump `(fs - fc) g(|v| / vs)`.
+    #[inline]
+    pub fn sliding_level(&self, dir: f64, av: f64) -> f64 {
+        let i = usize::from(dir < 0.0);
+        let mut mag = self.fc[i];
+        let r = av * self.inv_vs;
+        if self.stribeck && r < self.r_cut {
+            mag += (self.fs[i] - self.fc[i]) * stribeck_friction::hump(r, self.exponent);
+        }
+        mag
+    }
+
+    /// Whether a body at rest stays stuck under the net other torque `net`.
+    #[inline]
+    pub fn holds(&self, net: f64) -> bool {
+        net <= self.fs[0] && net >= -self.fs[1]
+    }
+}
 
 /// Parses one `[effects.coulomb_friction]` table.
 pub(crate) fn parse(

@@ -14,8 +14,30 @@
 //! Integration: one more state of the exactly discretised linear part (exact).
 
 use feedloop_model::params::{ConfigError, Fields, Range};
+use nalgebra::DMatrix;
 
 use super::check_keys;
+
+/// Mean over a period of the share of the distance to the held command still left:
+/// `tau / period (1 - exp(-period / tau))` (the applied torque is its [`relax`] by this).
+pub(crate) fn mean_factor(tau_s: f64, period_s: f64) -> f64 {
+    tau_s / period_s * (1.0 - (-period_s / tau_s).exp())
+}
+
+/// The lagged torque relaxing from `x` toward the held command `u` by `factor` (the decay over
+/// a period, or [`mean_factor`] for its mean over the period).
+#[inline]
+pub(crate) fn relax(u: f64, x: f64, factor: f64) -> f64 {
+    u + (x - u) * factor
+}
+
+/// Adds the lag's state `il` to the continuous `(A, B)`: `tau T' = T_cmd - T`, `T` driving the
+/// motor of inertia `jm`.
+pub(crate) fn stamp(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>, il: usize, tau: f64, jm: f64) {
+    a[(1, il)] = 1.0 / jm;
+    a[(il, il)] = -1.0 / tau;
+    b[(il, 0)] = 1.0 / tau;
+}
 
 /// Parses `[effects.current_lag]`.
 pub(crate) fn parse(f: &mut Fields<'_>, table: &toml::Table) -> Result<f64, ConfigError> {

@@ -18,6 +18,72 @@ use feedloop_model::params::{ConfigError, Fields};
 
 use super::check_keys;
 
+/// The delay line: the commands of the last `delay_cycles` periods (allocated when the model is
+/// built).
+#[derive(Debug, Clone)]
+pub(crate) struct DelayLine {
+    buf: Vec<f64>,
+    pos: usize,
+}
+
+impl DelayLine {
+    /// An empty line of `cycles` periods (0: no delay).
+    pub fn new(cycles: usize) -> Self {
+        Self {
+            buf: vec![0.0; cycles],
+            pos: 0,
+        }
+    }
+
+    /// Puts command `u` in and returns the one of `delay_cycles` periods ago (`u` itself without
+    /// a delay).
+    #[inline]
+    pub fn push(&mut self, u: f64) -> f64 {
+        let len = self.buf.len();
+        match self.buf.get_mut(self.pos) {
+            Some(slot) => {
+                let out = std::mem::replace(slot, u);
+                self.pos += 1;
+                if self.pos >= len {
+                    self.pos = 0;
+                }
+                out
+            }
+            None => u,
+        }
+    }
+
+    /// Length in periods.
+    pub fn len(&self) -> usize {
+        self.buf.len()
+    }
+
+    /// Empties the line (commands before count as 0).
+    pub fn clear(&mut self) {
+        self.buf.iter_mut().for_each(|d| *d = 0.0);
+        self.pos = 0;
+    }
+
+    /// Fills the line with the last commands of `past` (oldest first, each through `fin`);
+    /// missing ones count as the oldest given, or 0.
+    pub fn restore(&mut self, past: &[f64], fin: impl Fn(f64) -> f64) {
+        // the line holds the commands of the last `len` periods; the next one read is the oldest
+        let len = self.buf.len();
+        let oldest = past.first().copied().map(&fin).unwrap_or(0.0);
+        for i in 0..len {
+            // slot i (read i periods from now) holds the command of `len - i` periods ago
+            let back = len - i;
+            let v = if back <= past.len() {
+                fin(past[past.len() - back])
+            } else {
+                oldest
+            };
+            self.buf[i] = v;
+        }
+        self.pos = 0;
+    }
+}
+
 /// Parses `[effects.delay]`.
 pub(crate) fn parse(f: &mut Fields<'_>, table: &toml::Table) -> Result<usize, ConfigError> {
     check_keys(f, table, &["delay_cycles"])?;

@@ -25,58 +25,13 @@ pub mod viscous_friction;
 
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{ConfigError, Fields};
+pub use feedloop_model::{EffectId, Side};
 
-/// Every effect id a model file may name under `[effects.<id>]` (a fixed contract).
-pub const EFFECT_IDS: [&str; 11] = [
-    "viscous_friction",
-    "coulomb_friction",
-    "stribeck_friction",
-    "backlash",
-    "pitch_error",
-    "cogging",
-    "constant_force",
-    "third_mass",
-    "delay",
-    "current_lag",
-    "torque_saturation",
-];
-
-/// Effect ids that may appear several times (`[[effects.<id>]]`).
-const REPEATABLE: [&str; 4] = [
-    "viscous_friction",
-    "coulomb_friction",
-    "stribeck_friction",
-    "cogging",
-];
-
-/// Which body of the axis a friction effect acts on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Side {
-    /// The motor (rotor, coupling, screw): N m and rad/s on rotary motors, N and m/s on a rigid axis.
-    Motor,
-    /// The load (table, rotary load): N and m/s on a ball-screw table, N m and rad/s on a rotary
-    /// load. On a rigid axis motor and load are the same mass.
-    Load,
-}
-
-impl Side {
-    /// Name used in model files.
-    pub fn id(self) -> &'static str {
-        match self {
-            Side::Motor => "motor",
-            Side::Load => "load",
-        }
-    }
-
-    /// Index of the body this side acts on: 0 motor, 1 load (a rigid axis has only body 0).
-    pub(crate) fn body(self, kind: AxisKind) -> usize {
-        match (self, kind) {
-            (_, AxisKind::Rigid) => 0,
-            (Side::Motor, _) => 0,
-            (Side::Load, _) => 1,
-        }
-    }
-}
+pub(crate) use cogging::CoggingHarmonic;
+pub(crate) use coulomb_friction::DryFriction;
+pub(crate) use pitch_error::PitchError;
+pub(crate) use third_mass::ThirdMass;
+pub(crate) use viscous_friction::Viscous;
 
 /// The unit family of one body: suffixes of its keys and the factors to motor units.
 #[derive(Debug, Clone, Copy)]
@@ -182,44 +137,14 @@ pub(crate) fn table_error(f: &Fields<'_>, reason: impl Into<String>) -> ConfigEr
 /// Reads the optional `side` key (default motor).
 pub(crate) fn read_side(f: &mut Fields<'_>) -> Result<Side, ConfigError> {
     match f.opt_str("side")? {
-        None | Some("motor") => Ok(Side::Motor),
-        Some("load") => Ok(Side::Load),
-        Some(other) => Err(f.error(
-            "side",
-            format!("unknown side `{other}` (expected \"motor\" or \"load\")"),
-        )),
+        None => Ok(Side::Motor),
+        Some(s) => Side::parse(s).ok_or_else(|| {
+            f.error(
+                "side",
+                format!("unknown side `{s}` (expected \"motor\" or \"load\")"),
+            )
+        }),
     }
-}
-
-/// Dry friction of one body, motor units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct DryFriction {
-    /// Coulomb (sliding) level for positive / negative velocity, N m (or N), >= 0.
-    pub fc: [f64; 2],
-    /// Static (breakaway) level for positive / negative direction, >= fc.
-    pub fs: [f64; 2],
-    /// Stribeck velocity, motor units per s (infinite for pure Coulomb).
-    pub vs: f64,
-    /// Stribeck exponent (dimensionless).
-    pub exponent: f64,
-}
-
-/// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Viscous {
-    /// N m s/rad (or N s/m) for positive and negative velocity.
-    pub c: [f64; 2],
-}
-
-/// One cogging harmonic in motor units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct CoggingHarmonic {
-    /// Amplitude, N m (N on a rigid axis).
-    pub amplitude: f64,
-    /// Spatial frequency, rad of phase per motor unit (N per rad, or 2 pi / period_m per m).
-    pub wavenumber: f64,
-    /// Phase, rad.
-    pub phase_rad: f64,
 }
 
 /// Largest number of cogging harmonics per axis.
@@ -235,13 +160,13 @@ pub(crate) struct EffectSet {
     /// Backlash: full gap width, motor rad (ballscrew/rotary).
     pub backlash_gap: Option<f64>,
     /// Pitch error.
-    pub pitch: Option<pitch_error::PitchError>,
+    pub pitch: Option<PitchError>,
     /// Cogging harmonics.
     pub cogging: Vec<CoggingHarmonic>,
     /// Constant torque on the load, motor units.
     pub load_torque: Option<f64>,
     /// Third mass (inertia, stiffness, damping) in motor units.
-    pub third_mass: Option<third_mass::ThirdMass>,
+    pub third_mass: Option<ThirdMass>,
     /// Transport delay, cycles.
     pub delay_cycles: usize,
     /// Current-loop lag time constant, s.
@@ -266,19 +191,19 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
     let mut visc_from: [Option<String>; 2] = [None, None];
     for (id, value) in &model.effects {
         let key = format!("effects.{id}");
-        if !EFFECT_IDS.contains(&id.as_str()) {
+        let Some(effect) = EffectId::parse(id) else {
             return Err(ConfigError::new(
                 &model.path,
                 &key,
                 format!(
                     "unknown effect `{id}` (known effects: {})",
-                    EFFECT_IDS.join(", ")
+                    EffectId::list(|_| true)
                 ),
             ));
-        }
+        };
         let tables: Vec<(String, &toml::Table)> = match value {
             toml::Value::Table(t) => vec![(key.clone(), t)],
-            toml::Value::Array(arr) if REPEATABLE.contains(&id.as_str()) => {
+            toml::Value::Array(arr) if effect.repeatable() => {
                 if arr.is_empty() {
                     return Err(ConfigError::new(&model.path, &key, "empty array of tables"));
                 }
@@ -298,7 +223,7 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                     &key,
                     format!(
                         "`{id}` may be given only once ([effects.{id}]); only {} may repeat",
-                        REPEATABLE.join(", ")
+                        EffectId::list(EffectId::repeatable)
                     ),
                 ))
             }
@@ -312,8 +237,8 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
         };
         for (prefix, table) in tables {
             let mut f = Fields::new(table, &model.path, &prefix);
-            match id.as_str() {
-                "viscous_friction" => {
+            match effect {
+                EffectId::ViscousFriction => {
                     let (side, v) = viscous_friction::parse(&mut f, table, &ctx)?;
                     let b = side.body(ctx.kind);
                     if let Some(prev) = &visc_from[b] {
@@ -322,8 +247,8 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                     visc_from[b] = Some(prefix.clone());
                     set.viscous[b] = Some(v);
                 }
-                "coulomb_friction" | "stribeck_friction" => {
-                    let (side, d) = if id == "coulomb_friction" {
+                EffectId::CoulombFriction | EffectId::StribeckFriction => {
+                    let (side, d) = if effect == EffectId::CoulombFriction {
                         coulomb_friction::parse(&mut f, table, &ctx)?
                     } else {
                         stribeck_friction::parse(&mut f, table, &ctx)?
@@ -335,9 +260,9 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                     dry_from[b] = Some(prefix.clone());
                     set.dry[b] = Some(d);
                 }
-                "backlash" => set.backlash_gap = backlash::parse(&mut f, table, &ctx)?,
-                "pitch_error" => set.pitch = Some(pitch_error::parse(&mut f, table, &ctx)?),
-                "cogging" => {
+                EffectId::Backlash => set.backlash_gap = backlash::parse(&mut f, table, &ctx)?,
+                EffectId::PitchError => set.pitch = Some(pitch_error::parse(&mut f, table, &ctx)?),
+                EffectId::Cogging => {
                     if set.cogging.len() >= MAX_COGGING_HARMONICS {
                         return Err(ConfigError::new(
                             &model.path,
@@ -347,16 +272,17 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                     }
                     set.cogging.push(cogging::parse(&mut f, table, &ctx)?);
                 }
-                "constant_force" => {
+                EffectId::ConstantForce => {
                     set.load_torque = Some(constant_force::parse(&mut f, table, &ctx)?)
                 }
-                "third_mass" => set.third_mass = Some(third_mass::parse(&mut f, table, &ctx)?),
-                "delay" => set.delay_cycles = delay::parse(&mut f, table)?,
-                "current_lag" => set.lag_tau_s = Some(current_lag::parse(&mut f, table)?),
-                "torque_saturation" => {
+                EffectId::ThirdMass => {
+                    set.third_mass = Some(third_mass::parse(&mut f, table, &ctx)?)
+                }
+                EffectId::Delay => set.delay_cycles = delay::parse(&mut f, table)?,
+                EffectId::CurrentLag => set.lag_tau_s = Some(current_lag::parse(&mut f, table)?),
+                EffectId::TorqueSaturation => {
                     set.limit = Some(torque_saturation::parse(&mut f, table, &ctx)?)
                 }
-                _ => return Err(table_error(&f, "effect not implemented")),
             }
             f.finish()?;
         }

@@ -49,6 +49,16 @@ impl PitchError {
             self.amplitude_m * k * c + self.slope,
         )
     }
+
+    /// At motor angle `th_m` (motor velocity `wm`): the deflection offset `r e(thM / r)` in motor
+    /// units and the spring torque it adds, `KL r e + CL e' wM`. `scale` is (load units per motor
+    /// unit, motor units per load unit), `spring` the transmission's (KL, CL).
+    #[inline]
+    pub fn held(&self, th_m: f64, wm: f64, scale: (f64, f64), spring: (f64, f64)) -> (f64, f64) {
+        let (e, de) = self.eval(th_m * scale.0);
+        let e_m = e * scale.1;
+        (e_m, spring.0 * e_m + spring.1 * de * wm)
+    }
 }
 
 /// Parses `[effects.pitch_error]`.

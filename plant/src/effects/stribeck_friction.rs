@@ -24,6 +24,19 @@ use feedloop_model::params::{ConfigError, Fields, Range};
 
 use super::{check_keys, read_side, Ctx, DryFriction, Side};
 
+/// The Stribeck curve `g(r) = exp(-r^exponent)` at `r = |v| / vs`: the share of `fs - fc` added to
+/// the sliding level (see `coulomb_friction::DryLaw::sliding_level`).
+#[inline]
+pub(crate) fn hump(r: f64, exponent: f64) -> f64 {
+    if exponent == 2.0 {
+        (-r * r).exp()
+    } else if exponent == 1.0 {
+        (-r).exp()
+    } else {
+        (-r.powf(exponent)).exp()
+    }
+}
+
 /// Parses one `[effects.stribeck_friction]` table.
 pub(crate) fn parse(
     f: &mut Fields<'_>,

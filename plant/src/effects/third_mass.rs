@@ -19,6 +19,7 @@
 
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
+use nalgebra::DMatrix;
 
 use super::{check_keys, Ctx};
 
@@ -31,6 +32,28 @@ pub(crate) struct ThirdMass {
     pub stiffness: f64,
     /// Damping, N m s/rad (N s/m).
     pub damping: f64,
+}
+
+/// Adds the third mass (position state `i3`, inertia `j3`, stiffness `k3`, damping `c3`, motor
+/// units) to the continuous `A`, hung on the load (position and velocity states `load`, inertia
+/// `jload`).
+pub(crate) fn stamp(
+    a: &mut DMatrix<f64>,
+    load: (usize, usize),
+    jload: f64,
+    (i3, j3, k3, c3): (usize, f64, f64, f64),
+) {
+    let (lp, lv) = load;
+    let v3 = i3 + 1;
+    a[(i3, v3)] = 1.0;
+    a[(lv, lp)] -= k3 / jload;
+    a[(lv, i3)] += k3 / jload;
+    a[(lv, lv)] -= c3 / jload;
+    a[(lv, v3)] += c3 / jload;
+    a[(v3, lp)] += k3 / j3;
+    a[(v3, i3)] -= k3 / j3;
+    a[(v3, lv)] += c3 / j3;
+    a[(v3, v3)] -= c3 / j3;
 }
 
 /// Parses `[effects.third_mass]`.

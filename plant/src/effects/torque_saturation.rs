@@ -17,6 +17,12 @@ use feedloop_model::params::{ConfigError, Fields, Range};
 
 use super::{check_keys, Ctx};
 
+/// The applied command: `u` clamped to `+-limit`.
+#[inline]
+pub(crate) fn clamp(u: f64, limit: f64) -> f64 {
+    u.clamp(-limit, limit)
+}
+
 /// Parses `[effects.torque_saturation]`.
 pub(crate) fn parse(
     f: &mut Fields<'_>,

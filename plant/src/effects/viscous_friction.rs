@@ -21,7 +21,32 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, read_side, Ctx, Side, Viscous};
+use super::{check_keys, read_side, Ctx, Side};
+
+/// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Viscous {
+    /// N m s/rad (or N s/m) for positive and negative velocity.
+    pub c: [f64; 2],
+}
+
+impl Viscous {
+    /// The mean coefficient `(c_pos + c_neg)/2` (0 without the effect): it enters the linear part.
+    pub fn mean(v: Option<Viscous>) -> f64 {
+        v.map_or(0.0, |v| 0.5 * (v.c[0] + v.c[1]))
+    }
+
+    /// The half difference `(c_pos - c_neg)/2` (0 without the effect), see [`asymmetric_torque`].
+    pub fn half(v: Option<Viscous>) -> f64 {
+        v.map_or(0.0, |v| 0.5 * (v.c[0] - v.c[1]))
+    }
+}
+
+/// The direction-dependent part of the law at speed `av = |v|`: `-c_half |v|`, held per sub-step.
+#[inline]
+pub(crate) fn asymmetric_torque(c_half: f64, av: f64) -> f64 {
+    -c_half * av
+}
 
 /// Parses one `[effects.viscous_friction]` table.
 pub(crate) fn parse(
