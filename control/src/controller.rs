@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use feedloop_model::model::{ControllerParams, PlantParams};
-use feedloop_model::params::ConfigError;
+use feedloop_model::params::{ConfigError, ConfigErrorKind};
 pub use feedloop_model::Stage;
 
 /// Number of reference derivatives carried (position and its 1st..5th time derivatives).
@@ -79,6 +79,15 @@ impl ControllerState {
     pub fn as_slice(&self) -> &[f64] {
         &self.values[..self.len]
     }
+
+    /// Value `i` for a restore: 0 where the snapshot is shorter or the value is not finite.
+    pub fn finite_or_zero(&self, i: usize) -> f64 {
+        self.as_slice()
+            .get(i)
+            .copied()
+            .filter(|x| x.is_finite())
+            .unwrap_or(0.0)
+    }
 }
 
 /// What a plugin is told about the axis it will control.
@@ -94,6 +103,31 @@ pub struct AxisContext {
     pub period_s: f64,
 }
 
+impl AxisContext {
+    /// The value of a plugin parameter `key`: `given` in the plugin's params, else the model's
+    /// `[controller]` default `model_default`; neither is an error naming `key` in `file` that
+    /// says where it may be given.
+    pub fn param_or_model(
+        &self,
+        given: Option<f64>,
+        model_default: Option<f64>,
+        key: &str,
+        file: &Path,
+    ) -> Result<f64, ConfigError> {
+        given.or(model_default).ok_or_else(|| {
+            ConfigError::of_kind(
+                ConfigErrorKind::Missing,
+                file,
+                key,
+                format!(
+                    "is required: give it in the plugin params or in the [controller] table of axis `{}`'s model",
+                    self.name
+                ),
+            )
+        })
+    }
+}
+
 /// A control law for one stage of one axis.
 ///
 /// Implementations must not allocate, lock, log or panic in [`Controller::step`].
@@ -102,10 +136,15 @@ pub trait Controller: Send {
     fn id(&self) -> &str;
     /// Runs one cycle: reads and updates `io`.
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals);
-    /// Snapshot of the internal state (for replay and swaps).
-    fn snapshot(&self) -> ControllerState;
-    /// Restores a snapshot taken from a controller of the same id.
-    fn restore(&mut self, state: &ControllerState);
+    /// Snapshot of the internal state (for replay and swaps). The default, for a stateless
+    /// law, is an empty snapshot.
+    fn snapshot(&self) -> ControllerState {
+        ControllerState::EMPTY
+    }
+    /// Restores a snapshot taken from a controller of the same id (values that are missing or
+    /// not finite read as 0: [`ControllerState::finite_or_zero`]). The default, for a stateless
+    /// law, does nothing.
+    fn restore(&mut self, _state: &ControllerState) {}
     /// Initialises internal state so that, given the signals of the last cycle (`last`, whose
     /// outputs were produced by the previous controller of this stage), the next output continues
     /// without a step (bumpless switching). The default does nothing.
@@ -155,5 +194,72 @@ pub trait PluginRegistry: Send + Sync {
             "plugin",
             format!("unknown coupler plugin `{id}`"),
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use feedloop_model::model::RigidParams;
+
+    fn axis() -> AxisContext {
+        AxisContext {
+            name: "x".into(),
+            plant: PlantParams::Rigid(RigidParams {
+                mass_kg: 10.0,
+                viscous_ns_per_m: 0.0,
+            }),
+            defaults: ControllerParams::default(),
+            period_s: 1e-4,
+        }
+    }
+
+    #[test]
+    fn a_plugin_parameter_comes_from_the_params_then_the_model_else_a_missing_error() {
+        let a = axis();
+        let f = Path::new("job.toml");
+        assert_eq!(
+            a.param_or_model(Some(2.0), Some(3.0), "kp_per_s", f)
+                .unwrap(),
+            2.0
+        );
+        assert_eq!(
+            a.param_or_model(None, Some(3.0), "kp_per_s", f).unwrap(),
+            3.0
+        );
+        let e = a.param_or_model(None, None, "kp_per_s", f).unwrap_err();
+        assert_eq!(e.kind, ConfigErrorKind::Missing);
+        assert_eq!(e.key, "kp_per_s");
+        assert!(
+            e.to_string().contains("[controller] table of axis `x`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_restore_reads_missing_or_non_finite_values_as_zero() {
+        let s = ControllerState::from_slice(&[1.5, f64::NAN, f64::INFINITY]);
+        assert_eq!(
+            [0, 1, 2, 3, 99].map(|i| s.finite_or_zero(i)),
+            [1.5, 0.0, 0.0, 0.0, 0.0]
+        );
+    }
+
+    struct Stateless;
+    impl Controller for Stateless {
+        fn id(&self) -> &str {
+            "stateless"
+        }
+        fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
+            io.torque = 1.0;
+        }
+    }
+
+    #[test]
+    fn a_stateless_law_needs_no_snapshot_or_restore_of_its_own() {
+        let mut c = Stateless;
+        assert_eq!(c.snapshot(), ControllerState::EMPTY);
+        c.restore(&ControllerState::from_slice(&[1.0]));
+        assert_eq!(c.snapshot().as_slice(), &[] as &[f64]);
     }
 }

@@ -12,9 +12,7 @@
 
 use std::path::Path;
 
-use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
-};
+use feedloop_control::controller::{AxisContext, AxisSignals, Controller, CycleContext};
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
@@ -65,12 +63,6 @@ impl Controller for FrictionFeedforward {
             io.torque_ff -= self.fc;
         }
     }
-
-    fn snapshot(&self) -> ControllerState {
-        ControllerState::EMPTY
-    }
-
-    fn restore(&mut self, _state: &ControllerState) {}
 }
 
 #[cfg(test)]

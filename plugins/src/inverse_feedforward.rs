@@ -503,8 +503,7 @@ impl Controller for InverseFeedforward {
     }
 
     fn restore(&mut self, state: &ControllerState) {
-        let v = state.as_slice();
-        let at = |i: usize| v.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0);
+        let at = |i: usize| state.finite_or_zero(i);
         self.lag_tv.s = at(0);
         self.lag_spring.s = at(1);
         self.last_crackle = (at(3) != 0.0).then(|| at(2));

@@ -165,26 +165,15 @@ impl PiVelocityParams {
         let filters = LoopFilterParams::read(&mut f, axis.period_s, base.map(|b| &b.filters))?;
         f.finish()?;
         let d = &axis.defaults;
-        let missing = |key: &str| {
-            ConfigError::new(
-                file,
-                key,
-                format!(
-                    "is required: give it in the plugin params or in the [controller] table of axis `{}`'s model",
-                    axis.name
-                ),
-            )
-        };
         Ok(Self {
-            kv: kv
-                .or(base.map(|b| b.kv))
-                .or(d.kv)
-                .ok_or_else(|| missing(kv_key))?,
+            kv: axis.param_or_model(kv.or(base.map(|b| b.kv)), d.kv, kv_key, file)?,
             tv_s: tv.or(base.map(|b| b.tv_s)).or(d.tv_s).unwrap_or(0.0),
-            torque_limit: lim
-                .or(base.map(|b| b.torque_limit))
-                .or(d.torque_limit)
-                .ok_or_else(|| missing(lim_key))?,
+            torque_limit: axis.param_or_model(
+                lim.or(base.map(|b| b.torque_limit)),
+                d.torque_limit,
+                lim_key,
+                file,
+            )?,
             filters,
         })
     }
@@ -376,8 +365,7 @@ impl Controller for PiVelocity {
     }
 
     fn restore(&mut self, state: &ControllerState) {
-        let v = state.as_slice();
-        let at = |i: usize| v.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0);
+        let at = |i: usize| state.finite_or_zero(i);
         self.integral = at(0);
         self.filters.set_state([at(1), at(2), at(3), at(4)]);
     }

@@ -44,16 +44,7 @@ impl PositionPParams {
         let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
         let vel_filter_hz = read_hz(&mut f, "vel_filter_hz", axis.period_s)?.flatten();
         f.finish()?;
-        let kp_per_s = kp.or(axis.defaults.kp_per_s).ok_or_else(|| {
-            ConfigError::new(
-                file,
-                "kp_per_s",
-                format!(
-                    "is required: give it in the plugin params or in the [controller] table of axis `{}`'s model",
-                    axis.name
-                ),
-            )
-        })?;
+        let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         Ok(Self {
             kp_per_s,
             vel_filter_hz,
@@ -116,8 +107,7 @@ impl Controller for PositionP {
 
     fn restore(&mut self, state: &ControllerState) {
         if let Some(f) = &mut self.filter {
-            let s = state.as_slice().first().copied().unwrap_or(0.0);
-            f.set_state(if s.is_finite() { s } else { 0.0 });
+            f.set_state(state.finite_or_zero(0));
         }
     }
 
