@@ -150,3 +150,23 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
         );
     }
 }
+
+#[test]
+fn the_example_plugin_depends_on_feedloop_control_alone_and_not_on_the_ipc_stack() {
+    // `cargo tree` resolves the example's dependency graph from its own manifest and lock file
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let o = std::process::Command::new(cargo)
+        .current_dir(repo_file("examples/plugins/pi-velocity-c"))
+        .args(["tree", "--edges", "normal", "--prefix", "none"])
+        .output()
+        .expect("running cargo tree");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let tree = String::from_utf8_lossy(&o.stdout);
+    assert!(tree.contains("feedloop-control"), "{tree}");
+    for absent in ["iceoryx2", "libloading", "feedloop-runtime", "rtrb"] {
+        assert!(
+            !tree.contains(absent),
+            "{absent} in the plugin's tree:\n{tree}"
+        );
+    }
+}

@@ -6,49 +6,21 @@
 //! For fault-injection tests: `test_fault = 1 | 2 | 3` makes the plugin, after
 //! `test_fault_after_cycles` steps, report a failure (1: non-zero return code), write a NaN torque
 //! (2), or abort the whole process (3: what a crashing native library does).
+//! The layouts and the ABI version come from `feedloop-control`, the only feedloop crate a plugin
+//! needs (no IPC stack: `cargo tree` here shows no iceoryx2).
 //! Build: `cargo build --release` here, then
 //! `feedloop swap --instance NAME --axis x --stage velocity --plugin pi_velocity_c --lib target/release/libfeedloop_plugin_pi_velocity_c.so`.
 
 use std::ffi::c_void;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
+use feedloop_control::abi::FlAxis;
+use feedloop_control::controller::{AxisSignals, CycleContext};
+
 #[cfg(not(feature = "wrong-abi"))]
-const ABI_VERSION: u32 = 1;
+const ABI_VERSION: u32 = feedloop_control::abi::ABI_VERSION;
 #[cfg(feature = "wrong-abi")]
 const ABI_VERSION: u32 = 999;
-
-/// Mirrors feedloop's `FlAxis`.
-#[repr(C)]
-pub struct FlAxis {
-    period_s: f64,
-    kind: u32,
-    reserved: u32,
-    motor_per_load: f64,
-    kp_per_s: f64,
-    kv: f64,
-    tv_s: f64,
-    torque_limit: f64,
-}
-
-/// Mirrors feedloop's `CycleContext`.
-#[repr(C)]
-pub struct Cycle {
-    period_s: f64,
-    cycle: u64,
-    t_s: f64,
-}
-
-/// Mirrors feedloop's `AxisSignals`.
-#[repr(C)]
-pub struct Signals {
-    reference: [f64; 6],
-    load_pos: f64,
-    motor_pos: f64,
-    motor_vel: f64,
-    vel_cmd: f64,
-    torque_ff: f64,
-    torque: f64,
-}
 
 struct Pi {
     kv: f64,
@@ -168,8 +140,8 @@ pub unsafe extern "C" fn feedloop_plugin_create(
 #[no_mangle]
 pub unsafe extern "C" fn feedloop_plugin_step(
     state: *mut c_void,
-    ctx: *const Cycle,
-    io: *mut Signals,
+    ctx: *const CycleContext,
+    io: *mut AxisSignals,
 ) -> i32 {
     let r = catch_unwind(AssertUnwindSafe(|| {
         let pi = unsafe { &mut *(state as *mut Pi) };
