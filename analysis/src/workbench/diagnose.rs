@@ -27,7 +27,7 @@ use super::effects::{
     base_class, base_column, base_keys, channel, Channel, Effect, EffectId, Side, WbModel,
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
-use super::signal::{autocorrelation, mean, quantile, rms};
+use super::signal::{autocorrelation, mean, quantile};
 use feedloop_model::model::AxisKind;
 
 /// Folds of the blocked cross-validation.
@@ -472,40 +472,109 @@ pub struct DiagOptions {
     pub skip: Vec<String>,
 }
 
-/// Diagnoses `model` on `d` (which must carry torque).
+/// Diagnoses `model` on `d` (which must carry torque), in named steps: the torque channel's
+/// residual and its reference fits ([`TorqueChannel::new`]), a candidate per base parameter
+/// ([`base_parameter_candidates`]), a candidate per effect of the library on the channel where
+/// it shows ([`effect_candidates`]), forward selection beyond the first ([`condition_on_top`]),
+/// candidates the data cannot tell apart ([`mark_indistinguishable`]), and the verdict with the
+/// whiteness of what is left ([`residual_whiteness`], [`verdict`]).
 pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis {
-    let y = d
-        .torque
-        .as_ref()
-        .expect("diagnose needs the torque column (checked by the caller)");
-    let kind = d.kind;
-    let _ = y;
-    let y_app = model.applied(d).expect("checked above");
-    let needed = model.torque_needed(d);
-    let res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
-    let bl = blocks(d.range, FOLDS);
+    let ch = TorqueChannel::new(model, d);
+    let mut cands = base_parameter_candidates(model, d, &ch);
+    let untested = effect_candidates(model, d, &ch, &mut cands);
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+    let tf = TorqueFit {
+        base_cols: &ch.base_cols,
+        res: &ch.res,
+        bl: &ch.bl,
+        mask: ch.mask.as_deref(),
+    };
+    condition_on_top(&mut cands, model, d, &tf, ch.e0);
+    mark_indistinguishable(&mut cands);
+    let (white, ac) = residual_whiteness(d, &ch);
+    let verdict = verdict(&cands, white, &ac);
+    Diagnosis {
+        candidates: cands,
+        verdict,
+        model_rms: ch.e0,
+        base_refit_rms: ch.cvb.rms,
+        whiteness_passed: white,
+        untested,
+    }
+}
+
+/// The torque channel of a diagnosis: the residual (applied minus needed torque), the base
+/// parameters that may be refitted with their columns, the cross-validation blocks and rows,
+/// and the two reference fits every candidate is scored against.
+struct TorqueChannel<'d> {
+    /// Recorded torque as applied to the axis (delay, lag, limit of the model included).
+    y_app: Vec<f64>,
+    /// Applied minus needed torque.
+    res: Vec<f64>,
+    /// Cross-validation blocks.
+    bl: Vec<(usize, usize)>,
+    /// Base-parameter keys that can be refitted on this trace.
+    free_keys: Vec<&'static str>,
+    /// Their regressor columns.
+    base_cols: Vec<&'d [f64]>,
+    /// Rows that carry information (see [`moving_mask`]).
+    mask: Option<Vec<f64>>,
+    /// Cross-validation of the residual with nothing refitted.
+    cv0: Cv,
+    /// Its RMS (the model's error), never 0.
+    e0: f64,
+    /// Cross-validation with every base parameter refitted.
+    cvb: Cv,
+}
+
+impl<'d> TorqueChannel<'d> {
+    fn new(model: &WbModel, d: &'d AxisData) -> Self {
+        assert!(
+            d.torque.is_some(),
+            "diagnose needs the torque column (checked by the caller)"
+        );
+        let y_app = model.applied(d).expect("checked above");
+        let needed = model.torque_needed(d);
+        let res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
+        let bl = blocks(d.range, FOLDS);
+        // with one position column, motor and load columns coincide: keep one of each pair
+        let free_keys: Vec<&'static str> = base_keys(d.kind)
+            .iter()
+            .copied()
+            .filter(|k| d.has_motor() || !matches!(*k, "jl_kgm2" | "dl_nms_per_rad"))
+            .collect();
+        let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
+        let mask = moving_mask(d);
+        let cv0 = cv_cols_masked(&[], &[], &res, &bl, mask.as_deref());
+        let e0 = cv0.rms.max(1e-300);
+        let cvb = cv_cols_masked(&base_cols, &[], &res, &bl, mask.as_deref());
+        Self {
+            y_app,
+            res,
+            bl,
+            free_keys,
+            base_cols,
+            mask,
+            cv0,
+            e0,
+            cvb,
+        }
+    }
+}
+
+/// One candidate per base parameter, refitted alone.
+fn base_parameter_candidates(
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+) -> Vec<Candidate> {
     let (a, b) = d.range;
-    let keys = base_keys(kind);
-    // with one position column, motor and load columns coincide: keep one of each pair
-    let free_keys: Vec<&str> = keys
-        .iter()
-        .copied()
-        .filter(|k| d.has_motor() || !matches!(*k, "jl_kgm2" | "dl_nms_per_rad"))
-        .collect();
-    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
-    let mask = moving_mask(d);
-    let mk = mask.as_deref();
-    let cv0 = cv_cols_masked(&[], &[], &res, &bl, mk);
-    let e0 = cv0.rms.max(1e-300);
-    let cvb = cv_cols_masked(&base_cols, &[], &res, &bl, mk);
-    let defl = deflection(model, d);
     let mut cands = Vec::new();
-    // base parameters, one at a time
-    for k in &free_keys {
+    for k in &ch.free_keys {
         let col = base_column(k, d);
-        let cv = cv_cols_masked(&[col], &[], &res, &bl, mk);
-        let red = 100.0 * (e0 - cv.rms) / e0;
-        let wins = fold_wins(&cv, &cv0.fold_mse);
+        let cv = cv_cols_masked(&[col], &[], &ch.res, &ch.bl, ch.mask.as_deref());
+        let red = 100.0 * (ch.e0 - cv.rms) / ch.e0;
+        let wins = fold_wins(&cv, &ch.cv0.fold_mse);
         let delta = cv.theta[0];
         let old = model.base_value(k);
         let mut params = BTreeMap::new();
@@ -534,6 +603,20 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             channel: "torque",
         });
     }
+    cands
+}
+
+/// One candidate per effect of the library, each on the channel where it shows: the
+/// deflection for `backlash` and `pitch_error`, the torque for the others. Returns the effects
+/// that could not be tested on this trace, with the reason.
+fn effect_candidates(
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+    cands: &mut Vec<Candidate>,
+) -> Vec<(String, String)> {
+    let kind = d.kind;
+    let defl = deflection(model, d);
     let mut untested = Vec::new();
     for effect in EffectId::ALL {
         let id = effect.id();
@@ -560,165 +643,215 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 ));
                 continue;
             };
-            // backlash says where the deflection is only while a flank transmits torque:
-            // inside the gap (the transmitted torque within its dead band) the samples are
-            // left out of its score (zero weight in the residual and every column)
-            let mask: Option<Vec<f64>> = (id == "backlash")
-                .then(|| backlash_hyper(model, d))
-                .flatten()
-                .map(|h| {
-                    Effect::new(id, default_side(kind), h).columns(d)[0]
-                        .iter()
-                        .map(|x| x.abs())
-                        .collect()
-                });
-            let masked = |x: &[f64]| -> Vec<f64> {
-                match &mask {
-                    Some(m) => x.iter().zip(m).map(|(v, w)| v * w).collect(),
-                    None => x.to_vec(),
-                }
-            };
-            let rd = &masked(rd);
-            let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
-            let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-            let dbase = cv_cols(&dref, &[], rd, &bl);
-            if let Some((e, cv)) = best_effect(id, model, d, &dref, rd, &bl, None) {
-                // % of the deflection's misfit after its base refit (compliance, zero offset)
-                let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
-                let wins = fold_wins(&cv, &dbase.fold_mse);
-                let params = flat(&e.to_table(kind, d.r));
-                let contribution = decimate(&e.contribution(d), a, b);
-                cands.push(Candidate {
-                    effect: id.to_string(),
-                    is_param: false,
-                    class: class_of(id).into(),
-                    significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                    error_reduction_pct: red.min(100.0),
-                    evidence: evidence(&e, d, &params),
-                    params,
-                    same_as: vec![],
-                    add: vec![e],
-                    contribution,
-                    channel: "deflection",
-                });
-            }
+            cands.extend(deflection_candidate(id, model, d, rd, dcols, &ch.bl));
             continue;
         }
         if id == "viscous_friction" {
-            // the same column as the damping parameter: scored the same way, one class
-            let e = Effect::new(id, default_side(kind), vec![]);
-            let cols = e.columns(d);
-            let cv = cv_cols_masked(&[], &[&cols[0]], &res, &bl, mk);
-            let mut e = e;
-            e.coef = vec![cv.theta[0]];
-            let red = 100.0 * (e0 - cv.rms) / e0;
-            let wins = fold_wins(&cv, &cv0.fold_mse);
-            let params = flat(&e.to_table(kind, d.r));
-            cands.push(Candidate {
-                effect: id.to_string(),
-                is_param: false,
-                class: "damping".into(),
-                significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
-                error_reduction_pct: red.min(100.0),
-                evidence: evidence(&e, d, &params),
-                params,
-                same_as: vec![],
-                contribution: decimate(&e.contribution(d), a, b),
-                add: vec![e],
-                channel: "torque",
-            });
+            cands.push(viscous_candidate(d, ch));
             continue;
         }
-        let Some((e, cv)) = best_effect(id, model, d, &base_cols, &res, &bl, mk) else {
-            continue;
-        };
-        let mut add = vec![e.clone()];
-        let mut cv = cv;
-        let mut params = flat(&e.to_table(kind, d.r));
-        let mut ev = evidence(&e, d, &params);
-        if id == "coulomb_friction" {
-            // asymmetric Coulomb friction = Coulomb + a constant force while the axis moves:
-            // fit them together and report both.
-            let cols = e.columns(d);
-            let one = vec![1.0; d.len()];
-            let cv2 = cv_cols_masked(&base_cols, &[&cols[0], &one], &res, &bl, mk);
-            if cv2.rms <= cv.rms * 1.02 {
-                let nb = base_cols.len();
-                let mut ec = e.clone();
-                ec.coef = vec![cv2.theta[nb], 0.0];
-                let mut cf = Effect::new("constant_force", ec.side, vec![]);
-                cf.coef = vec![cv2.theta[nb + 1]];
-                params = flat(&ec.to_table(kind, d.r));
-                let off = cv2.theta[nb + 1]
-                    * if kind == AxisKind::BallScrew {
-                        d.r
-                    } else {
-                        1.0
-                    };
-                let key = if kind == AxisKind::Rotary {
-                    "offset_nm"
-                } else {
-                    "offset_n"
-                };
-                params.insert(key.into(), off);
-                ev = format!(
-                    "{}, with an offset of {} {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
-                    evidence(&ec, d, &params),
-                    fmt(off),
-                    if kind == AxisKind::Rotary { "N m" } else { "N" }
-                );
-                add = vec![ec, cf];
-                cv = cv2;
-            }
-        }
-        // credited with all it achieves (with the base refit) when it is significant beyond a
-        // base refit, else only with what it adds to the base refit
-        let extra = 100.0 * (cvb.rms - cv.rms) / e0;
-        let wins = fold_wins(&cv, &cvb.fold_mse);
-        let significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
-        let red = if significant {
-            (100.0 * (e0 - cv.rms) / e0).max(extra)
-        } else {
-            extra
-        };
-        let mut contribution = vec![0.0; d.len()];
-        for e in &add {
-            if channel(&e.id) == Channel::TorquePath {
-                let mut with = model.clone();
-                with.effects.push(e.clone());
-                let t = with.applied(d).unwrap_or_else(|| y_app.clone());
-                for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&y_app)) {
-                    *c += x - z;
-                }
-            } else {
-                for (c, x) in contribution.iter_mut().zip(e.contribution(d)) {
-                    *c += x;
-                }
-            }
-        }
-        cands.push(Candidate {
-            effect: id.to_string(),
-            is_param: false,
-            class: class_of(id).into(),
-            significant,
-            error_reduction_pct: red.min(100.0),
-            evidence: ev,
-            params,
-            same_as: vec![],
-            add,
-            contribution: decimate(&contribution, a, b),
-            channel: "torque",
-        });
+        cands.extend(torque_effect_candidate(id, model, d, ch));
     }
-    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-    let tf = TorqueFit {
-        base_cols: &base_cols,
-        res: &res,
-        bl: &bl,
-        mask: mk,
+    untested
+}
+
+/// `backlash` or `pitch_error` scored on the deflection channel (residual `rd`, base columns
+/// `dcols`: compliance and zero offset).
+fn deflection_candidate(
+    id: &str,
+    model: &WbModel,
+    d: &AxisData,
+    rd: &[f64],
+    dcols: &[Vec<f64>],
+    bl: &[(usize, usize)],
+) -> Option<Candidate> {
+    let (a, b) = d.range;
+    let kind = d.kind;
+    // backlash says where the deflection is only while a flank transmits torque:
+    // inside the gap (the transmitted torque within its dead band) the samples are
+    // left out of its score (zero weight in the residual and every column)
+    let mask: Option<Vec<f64>> = (id == "backlash")
+        .then(|| backlash_hyper(model, d))
+        .flatten()
+        .map(|h| {
+            Effect::new(id, default_side(kind), h).columns(d)[0]
+                .iter()
+                .map(|x| x.abs())
+                .collect()
+        });
+    let masked = |x: &[f64]| -> Vec<f64> {
+        match &mask {
+            Some(m) => x.iter().zip(m).map(|(v, w)| v * w).collect(),
+            None => x.to_vec(),
+        }
     };
-    condition_on_top(&mut cands, model, d, &tf, e0);
-    // candidates the data cannot tell apart
+    let rd = &masked(rd);
+    let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
+    let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
+    let dbase = cv_cols(&dref, &[], rd, bl);
+    let (e, cv) = best_effect(id, model, d, &dref, rd, bl, None)?;
+    // % of the deflection's misfit after its base refit (compliance, zero offset)
+    let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
+    let wins = fold_wins(&cv, &dbase.fold_mse);
+    let params = flat(&e.to_table(kind, d.r));
+    let contribution = decimate(&e.contribution(d), a, b);
+    Some(Candidate {
+        effect: id.to_string(),
+        is_param: false,
+        class: class_of(id).into(),
+        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+        error_reduction_pct: red.min(100.0),
+        evidence: evidence(&e, d, &params),
+        params,
+        same_as: vec![],
+        add: vec![e],
+        contribution,
+        channel: "deflection",
+    })
+}
+
+/// `viscous_friction`: the same column as the damping parameter, scored the same way, one class.
+fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
+    let (a, b) = d.range;
+    let id = "viscous_friction";
+    let e = Effect::new(id, default_side(d.kind), vec![]);
+    let cols = e.columns(d);
+    let cv = cv_cols_masked(&[], &[&cols[0]], &ch.res, &ch.bl, ch.mask.as_deref());
+    let mut e = e;
+    e.coef = vec![cv.theta[0]];
+    let red = 100.0 * (ch.e0 - cv.rms) / ch.e0;
+    let wins = fold_wins(&cv, &ch.cv0.fold_mse);
+    let params = flat(&e.to_table(d.kind, d.r));
+    Candidate {
+        effect: id.to_string(),
+        is_param: false,
+        class: "damping".into(),
+        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+        error_reduction_pct: red.min(100.0),
+        evidence: evidence(&e, d, &params),
+        params,
+        same_as: vec![],
+        contribution: decimate(&e.contribution(d), a, b),
+        add: vec![e],
+        channel: "torque",
+    }
+}
+
+/// An effect of the torque channel, refitted together with every base parameter. It is
+/// credited with all it achieves (with the base refit) when it is significant beyond a base
+/// refit, else only with what it adds to the base refit.
+fn torque_effect_candidate(
+    id: &str,
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+) -> Option<Candidate> {
+    let (a, b) = d.range;
+    let mk = ch.mask.as_deref();
+    let (e, cv) = best_effect(id, model, d, &ch.base_cols, &ch.res, &ch.bl, mk)?;
+    let mut add = vec![e.clone()];
+    let mut cv = cv;
+    let mut params = flat(&e.to_table(d.kind, d.r));
+    let mut ev = evidence(&e, d, &params);
+    if id == "coulomb_friction" {
+        if let Some(with_offset) = coulomb_with_offset(&e, &cv, d, ch) {
+            (add, cv, params, ev) = with_offset;
+        }
+    }
+    let extra = 100.0 * (ch.cvb.rms - cv.rms) / ch.e0;
+    let wins = fold_wins(&cv, &ch.cvb.fold_mse);
+    let significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
+    let red = if significant {
+        (100.0 * (ch.e0 - cv.rms) / ch.e0).max(extra)
+    } else {
+        extra
+    };
+    let mut contribution = vec![0.0; d.len()];
+    for e in &add {
+        if channel(&e.id) == Channel::TorquePath {
+            let mut with = model.clone();
+            with.effects.push(e.clone());
+            let t = with.applied(d).unwrap_or_else(|| ch.y_app.clone());
+            for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&ch.y_app)) {
+                *c += x - z;
+            }
+        } else {
+            for (c, x) in contribution.iter_mut().zip(e.contribution(d)) {
+                *c += x;
+            }
+        }
+    }
+    Some(Candidate {
+        effect: id.to_string(),
+        is_param: false,
+        class: class_of(id).into(),
+        significant,
+        error_reduction_pct: red.min(100.0),
+        evidence: ev,
+        params,
+        same_as: vec![],
+        add,
+        contribution: decimate(&contribution, a, b),
+        channel: "torque",
+    })
+}
+
+/// What [`coulomb_with_offset`] returns: the effects to add, their cross-validation, the
+/// fitted parameters and the evidence sentence.
+type WithOffset = (Vec<Effect>, Cv, BTreeMap<String, f64>, String);
+
+/// Asymmetric Coulomb friction = Coulomb + a constant force while the axis moves: fitted
+/// together and reported both, when that fits at least as well (within 2 %) as Coulomb alone.
+fn coulomb_with_offset(
+    e: &Effect,
+    cv: &Cv,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+) -> Option<WithOffset> {
+    let kind = d.kind;
+    let cols = e.columns(d);
+    let one = vec![1.0; d.len()];
+    let cv2 = cv_cols_masked(
+        &ch.base_cols,
+        &[&cols[0], &one],
+        &ch.res,
+        &ch.bl,
+        ch.mask.as_deref(),
+    );
+    if cv2.rms > cv.rms * 1.02 {
+        return None;
+    }
+    let nb = ch.base_cols.len();
+    let mut ec = e.clone();
+    ec.coef = vec![cv2.theta[nb], 0.0];
+    let mut cf = Effect::new("constant_force", ec.side, vec![]);
+    cf.coef = vec![cv2.theta[nb + 1]];
+    let mut params = flat(&ec.to_table(kind, d.r));
+    let off = cv2.theta[nb + 1]
+        * if kind == AxisKind::BallScrew {
+            d.r
+        } else {
+            1.0
+        };
+    let key = if kind == AxisKind::Rotary {
+        "offset_nm"
+    } else {
+        "offset_n"
+    };
+    params.insert(key.into(), off);
+    let ev = format!(
+        "{}, with an offset of {} {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
+        evidence(&ec, d, &params),
+        fmt(off),
+        if kind == AxisKind::Rotary { "N m" } else { "N" }
+    );
+    Some((vec![ec, cf], cv2, params, ev))
+}
+
+/// Candidates the data cannot tell apart (same channel, scores within 10 % of each other,
+/// contributions correlated above 0.95) name each other in `same_as`, and share the class of
+/// the first of them.
+fn mark_indistinguishable(cands: &mut [Candidate]) {
     for i in 0..cands.len() {
         let mut same = Vec::new();
         for j in 0..cands.len() {
@@ -743,7 +876,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             }
         }
     }
-    // a class shared by indistinguishable candidates: the first one's class
     for i in 0..cands.len() {
         let cls = cands[i].class.clone();
         for other in cands[i].same_as.clone() {
@@ -754,25 +886,34 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
             }
         }
     }
-    // whiteness of the residual after the base refit
-    let nb = base_cols.len();
-    let mut rb = res.clone();
-    for (k, c) in base_cols.iter().enumerate() {
-        let th = cvb.theta.get(k).copied().unwrap_or(0.0);
+}
+
+/// Whiteness of the torque residual after the base refit: whether at most one of its first 20
+/// autocorrelation lags lies outside the 99 % band, and the lags. The residual is decimated to
+/// the filter's correlation length first, so that filtering alone does not colour it.
+fn residual_whiteness(d: &AxisData, ch: &TorqueChannel<'_>) -> (bool, Vec<f64>) {
+    let (a, b) = d.range;
+    let mut rb = ch.res.clone();
+    for (k, c) in ch.base_cols.iter().enumerate() {
+        let th = ch.cvb.theta.get(k).copied().unwrap_or(0.0);
         for (x, v) in rb.iter_mut().zip(c.iter()) {
             *x -= th * v;
         }
     }
-    let _ = nb;
-    // decimated to the filter's correlation length, so that filtering alone does not colour it
     let corr_len = (2.0 / (d.cutoff_hz * d.dt)).ceil() as usize;
     let step = ((b - a) / 20000).max(corr_len).max(1);
     let rb_d: Vec<f64> = rb[a..b].iter().step_by(step).copied().collect();
     let ac = autocorrelation(&rb_d, 20);
     let bound = 2.58 / (rb_d.len() as f64).sqrt();
     let white = ac.iter().filter(|x| x.abs() > bound).count() <= 1;
+    (white, ac)
+}
+
+/// The one-sentence verdict: the first significant candidate with what to do about it, or why
+/// nothing was found.
+fn verdict(cands: &[Candidate], white: bool, ac: &[f64]) -> String {
     let sig: Vec<&Candidate> = cands.iter().filter(|c| c.significant).collect();
-    let verdict = match sig.first() {
+    match sig.first() {
         None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
         None => format!(
             "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more",
@@ -796,15 +937,6 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
                 }
             )
         }
-    };
-    let _ = rms(&res);
-    Diagnosis {
-        candidates: cands,
-        verdict,
-        model_rms: e0,
-        base_refit_rms: cvb.rms,
-        whiteness_passed: white,
-        untested,
     }
 }
 
