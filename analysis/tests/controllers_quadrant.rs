@@ -5,8 +5,8 @@ mod controllers_util;
 use std::path::Path;
 
 use controllers_util::{run, temp_dir, try_run, write_job};
+use feedloop_analysis::learn::quadrant::{learn_quadrant, reversal_curves, LearnOptions};
 use feedloop_model::job::Job;
-use feedloop_plugins::quadrant_learn::{learn_quadrant, reversal_curves, LearnOptions};
 
 /// The X-Y circle on the friction models with split feedforward and a compensator stage `comp`
 /// (plugin line + params) on both axes.

@@ -6,9 +6,9 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use serde_json::json;
 
+use feedloop_analysis::learn::quadrant::{learn_quadrant, LearnOptions};
 use feedloop_analysis::sim::run_records;
 use feedloop_model::job::Job;
-use feedloop_plugins::quadrant_learn::{learn_quadrant, LearnOptions};
 use feedloop_plugins::Builtins;
 
 /// Learning subcommands.

@@ -10,7 +10,6 @@ pub mod nl_pid_coupler;
 pub mod pi_velocity;
 pub mod position_p;
 pub mod quadrant;
-pub mod quadrant_learn;
 
 #[cfg(test)]
 pub(crate) mod test_util;
@@ -26,7 +25,6 @@ pub use nl_pid_coupler::{NlPidCoupler, NlPidCouplerParams};
 pub use pi_velocity::{PiVelocity, PiVelocityParams};
 pub use position_p::{PositionP, PositionPParams};
 pub use quadrant::{QuadrantCompensator, QuadrantParams, QuadrantTable};
-pub use quadrant_learn::{learn_quadrant, LearnError, LearnOptions, LearnReport};
 
 /// The registry of built-in plugins.
 #[derive(Debug, Default, Clone, Copy)]

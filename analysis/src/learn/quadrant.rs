@@ -7,7 +7,7 @@
 //! 2. In a region of that curve the maximum |e| is the "max point"; the start point is the last
 //!    sample before it, and the end point the first after it, where |e| falls to `threshold` of
 //!    the maximum (or changes sign); otherwise the region's bounds.
-//! 3. Two acceleration-planned models (see [`crate::quadrant`]) span start->max and max->end;
+//! 3. Two acceleration-planned models (see [`feedloop_plugins::quadrant`]) span start->max and max->end;
 //!    their rise/fall splits are chosen by bisection on the sign of the least-squares residual's
 //!    slope, with the amplitude at the measured maximum; the common amplitude is then the
 //!    least-squares fit of both models to the curve.
@@ -18,7 +18,7 @@
 //!
 //! [`learn_quadrant`] runs that loop. It does not know how to run a job: the caller passes a
 //! closure (the CLI's `feedloop learn quadrant` passes the in-process simulation), so the
-//! plugins crate stays independent of the plant.
+//! learning loop stays independent of how a job is run.
 
 use std::path::{Path, PathBuf};
 
@@ -27,9 +27,9 @@ use feedloop_model::job::Job;
 use feedloop_model::params::ConfigError;
 use feedloop_trace::log::AxisRecord;
 
-use crate::quadrant::{
+use feedloop_plugins::quadrant::{
     planned_rise, AxisPulses, Direction, Pulse, QuadrantCompensator, QuadrantTable,
-    ReversalDetector,
+    ReversalDetector, MAX_PULSES,
 };
 
 /// Records of one run, per axis (`records[axis][cycle]`, job axis order, load units).
@@ -525,25 +525,7 @@ pub fn learn_quadrant(
                 velocities = Some(commanded_velocities(&job, n)?);
             }
             let vel = velocities.as_ref().expect("just computed");
-            let mut spikes = Vec::new();
-            let mut curves = Vec::new();
-            for (ax, name) in &axes {
-                let rec = &records[*ax];
-                let cmd: Vec<f64> = rec.iter().map(|r| r.cmd).collect();
-                let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
-                let c = reversal_curves(&cmd, &load, &vel[*ax], job.period_s, options.window_s);
-                spikes.push(AxisSpike {
-                    axis: job.axes[*ax].name.clone(),
-                    spike: c.spike,
-                    reversals: c.events[0] + c.events[1],
-                    pulses: t
-                        .axes
-                        .get(name)
-                        .map_or(0, |p| p.to_positive.len() + p.to_negative.len()),
-                });
-                curves.push(c);
-            }
-            Ok((spikes, curves))
+            Ok(measure(&job, &axes, &records, vel, t, options))
         };
     let (mut spikes, mut curves) = evaluate(&table)?;
     let mut reports = vec![PassReport {
@@ -557,38 +539,12 @@ pub fn learn_quadrant(
         if spikes.iter().all(|a| a.spike <= options.accept) {
             break;
         }
-        // The pass' pulses per learned axis and direction.
-        let mut fitted: Vec<[Vec<Pulse>; 2]> = Vec::new();
-        for (i, c) in curves.iter().enumerate() {
-            let mut per_dir: [Vec<Pulse>; 2] = [Vec::new(), Vec::new()];
-            for dir in Direction::ALL {
-                let d = dir.index();
-                let (pulses, span) =
-                    fit_pass(&c.curves[d], c.period_s, pass as u32, spans[i][d], options);
-                spans[i][d] = span;
-                per_dir[d] = pulses;
-            }
-            fitted.push(per_dir);
-        }
+        let fitted = fit_axes(&curves, pass, &mut spans, options);
         // Step (6) with a guard: an axis whose spike grows gets its new pulses halved (twice),
         // then dropped, so a pass never leaves an axis worse than the pass before.
         let mut scale = vec![1.0; axes.len()];
         for attempt in 0..=MAX_BACKTRACKS {
-            let mut cand = table.clone();
-            for (i, (_, name)) in axes.iter().enumerate() {
-                if scale[i] == 0.0 {
-                    continue;
-                }
-                let entry = cand.axes.entry(name.clone()).or_default();
-                for dir in Direction::ALL {
-                    let list = entry.get_mut(dir);
-                    let room = crate::quadrant::MAX_PULSES.saturating_sub(list.len());
-                    list.extend(fitted[i][dir.index()].iter().take(room).map(|p| Pulse {
-                        amplitude: p.amplitude * scale[i],
-                        ..*p
-                    }));
-                }
-            }
+            let cand = candidate(&table, &axes, &fitted, &scale);
             let (s_new, c_new) = evaluate(&cand)?;
             let worse: Vec<usize> = (0..axes.len())
                 .filter(|&i| scale[i] > 0.0 && s_new[i].spike > spikes[i].spike)
@@ -618,6 +574,86 @@ pub fn learn_quadrant(
         passes: reports,
         table,
     })
+}
+
+/// The spike and mean reversal curves of every learned axis (`axes`: job axis index, table
+/// axis name) in `records`, as run with table `t`; `vel` is the commanded velocity per job axis.
+fn measure(
+    job: &Job,
+    axes: &[(usize, String)],
+    records: &RunRecords,
+    vel: &[Vec<f64>],
+    t: &QuadrantTable,
+    options: &LearnOptions,
+) -> (Vec<AxisSpike>, Vec<ReversalCurves>) {
+    let mut spikes = Vec::new();
+    let mut curves = Vec::new();
+    for (ax, name) in axes {
+        let rec = &records[*ax];
+        let cmd: Vec<f64> = rec.iter().map(|r| r.cmd).collect();
+        let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
+        let c = reversal_curves(&cmd, &load, &vel[*ax], job.period_s, options.window_s);
+        spikes.push(AxisSpike {
+            axis: job.axes[*ax].name.clone(),
+            spike: c.spike,
+            reversals: c.events[0] + c.events[1],
+            pulses: t
+                .axes
+                .get(name)
+                .map_or(0, |p| p.to_positive.len() + p.to_negative.len()),
+        });
+        curves.push(c);
+    }
+    (spikes, curves)
+}
+
+/// The pass' pulses per learned axis and direction, fitted to `curves`; updates `spans` (the
+/// first pass' pulse span per axis and direction).
+fn fit_axes(
+    curves: &[ReversalCurves],
+    pass: usize,
+    spans: &mut [[Option<(usize, usize)>; 2]],
+    options: &LearnOptions,
+) -> Vec<[Vec<Pulse>; 2]> {
+    let mut fitted: Vec<[Vec<Pulse>; 2]> = Vec::new();
+    for (i, c) in curves.iter().enumerate() {
+        let mut per_dir: [Vec<Pulse>; 2] = [Vec::new(), Vec::new()];
+        for dir in Direction::ALL {
+            let d = dir.index();
+            let (pulses, span) =
+                fit_pass(&c.curves[d], c.period_s, pass as u32, spans[i][d], options);
+            spans[i][d] = span;
+            per_dir[d] = pulses;
+        }
+        fitted.push(per_dir);
+    }
+    fitted
+}
+
+/// `table` with the `fitted` pulses of every learned axis added, their amplitudes times the
+/// axis' `scale` (an axis at scale 0 gets none), up to [`MAX_PULSES`] per direction.
+fn candidate(
+    table: &QuadrantTable,
+    axes: &[(usize, String)],
+    fitted: &[[Vec<Pulse>; 2]],
+    scale: &[f64],
+) -> QuadrantTable {
+    let mut cand = table.clone();
+    for (i, (_, name)) in axes.iter().enumerate() {
+        if scale[i] == 0.0 {
+            continue;
+        }
+        let entry = cand.axes.entry(name.clone()).or_default();
+        for dir in Direction::ALL {
+            let list = entry.get_mut(dir);
+            let room = MAX_PULSES.saturating_sub(list.len());
+            list.extend(fitted[i][dir.index()].iter().take(room).map(|p| Pulse {
+                amplitude: p.amplitude * scale[i],
+                ..*p
+            }));
+        }
+    }
+    cand
 }
 
 /// `job` with every quadrant_compensator stage reading `table`.
