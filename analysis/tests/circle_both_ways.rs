@@ -5,39 +5,16 @@
 
 mod controllers_util;
 
-use controllers_util::{job_from_text, run};
+use controllers_util::{ff_chain, job_from_text, run};
 
+/// The job; `{chain}` stands for the cascades of both axes.
 const JOB: &str = r#"
 period_s = 1.0e-4
 [axes.x]
 model = "{examples}/models/xy-x-friction.toml"
 [axes.y]
 model = "{examples}/models/xy-y-friction.toml"
-[[chain]]
-axis = "x"
-stage = "position"
-plugin = "position_p"
-[[chain]]
-axis = "x"
-stage = "feedforward"
-plugin = "inverse_feedforward"
-[[chain]]
-axis = "x"
-stage = "velocity"
-plugin = "pi_velocity"
-[[chain]]
-axis = "y"
-stage = "position"
-plugin = "position_p"
-[[chain]]
-axis = "y"
-stage = "feedforward"
-plugin = "inverse_feedforward"
-[[chain]]
-axis = "y"
-stage = "velocity"
-plugin = "pi_velocity"
-[trajectory]
+{chain}[trajectory]
 kind = "circle"
 axes = ["x", "y"]
 center_m = [0.0, 0.0]
@@ -51,7 +28,8 @@ ramp_s = 0.1
 
 #[test]
 fn a_circle_run_both_ways_shows_the_quadrant_glitches_of_both_directions_at_the_same_places() {
-    let job = job_from_text("circle-both-ways", JOB);
+    let chain = ff_chain("x", None) + &ff_chain("y", None);
+    let job = job_from_text("circle-both-ways", &JOB.replace("{chain}", &chain));
     let traj = feedloop_motion::build(&job.trajectory, &job.path, &job.axis_names(), job.period_s)
         .unwrap();
     let windows = traj.steady_windows_s();

@@ -22,14 +22,9 @@ torque_limit_nm = 1000.0
 fn move_error(ff: Option<&str>) -> f64 {
     let dir = controllers_util::temp_dir("ff-move");
     std::fs::write(dir.join("m.toml"), MODEL).unwrap();
-    let chain = match ff {
-        None => String::new(),
-        Some(p) => format!(
-            "[[chain]]\naxis = \"x\"\nstage = \"position\"\nplugin = \"position_p\"\n\
-             [[chain]]\naxis = \"x\"\nstage = \"feedforward\"\nplugin = \"inverse_feedforward\"\nparams = {{ {p} }}\n\
-             [[chain]]\naxis = \"x\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\n"
-        ),
-    };
+    let chain = ff
+        .map(|p| controllers_util::ff_chain("x", Some(p)))
+        .unwrap_or_default();
     let text = format!(
         "period_s = 1.0e-4\n[axes.x]\nmodel = \"m.toml\"\n{chain}\n[trajectory]\nkind = \"move\"\n\
          from_m = {{ x = 0.0 }}\nto_m = {{ x = 0.05 }}\nduration_s = 0.3\ndwell_before_s = 0.01\ndwell_after_s = 0.1\n"

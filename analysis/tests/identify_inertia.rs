@@ -1,7 +1,6 @@
 //! Load inertia estimation (seed 000) on the plant simulator.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use feedloop_analysis::identify::inertia::{
     job_with_jl, linear, records_deviation, run_axis, sim_match, simulated_deviation,
@@ -9,23 +8,12 @@ use feedloop_analysis::identify::inertia::{
 };
 use feedloop_model::job::Job;
 
-static NEXT: AtomicUsize = AtomicUsize::new(0);
+mod controllers_util;
 
-const MODEL: &str = r#"
-kind = "ballscrew"
-jm_kgm2 = 2.0e-3
-dm_nms_per_rad = 1.0e-3
-kl_nm_per_rad = 3000.0
-cl_nms_per_rad = 0.02
-jl_kgm2 = 3.0e-3
-dl_nms_per_rad = 2.0e-3
-lead_m = 0.01
-[controller]
-kp_per_s = 50.0
-kv_nms_per_rad = 5.0
-tv_s = 0.005
-torque_limit_nm = 80.0   # the +300 % workpiece needs ~60 N m on this move (30 N m saturates above ~+40 %)
-"#;
+use controllers_util::{ff_chain, temp_dir, xy_x_model};
+
+/// After the reference axis's `[controller]` keys.
+const MODEL_TAIL: &str = "torque_limit_nm = 80.0   # the +300 % workpiece needs ~60 N m on this move (30 N m saturates above ~+40 %)\n";
 
 const SENSOR: &str = r#"
 [sensor]
@@ -41,20 +29,7 @@ name = "identify-inertia"
 period_s = 1.0e-4
 [axes.x]
 model = "model.toml"
-[[chain]]
-axis = "x"
-stage = "position"
-plugin = "position_p"
-[[chain]]
-axis = "x"
-stage = "feedforward"
-plugin = "inverse_feedforward"
-params = { PARAMS }
-[[chain]]
-axis = "x"
-stage = "velocity"
-plugin = "pi_velocity"
-[trajectory]
+CHAIN[trajectory]
 kind = "move"
 from_m = { x = 0.0 }
 to_m = { x = 0.05 }
@@ -81,19 +56,15 @@ fn ff_params(structure: &str) -> &'static str {
 }
 
 fn job(structure: &str, sensor_seed: Option<u64>) -> Job {
-    let d = std::env::temp_dir().join(format!(
-        "feedloop-id-inertia-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    let mut model = MODEL.to_string();
+    let d = temp_dir("id-inertia");
+    let mut model = xy_x_model(MODEL_TAIL);
     if let Some(s) = sensor_seed {
         model.push_str(&SENSOR.replace("SEED", &s.to_string()));
     }
     std::fs::write(d.join("model.toml"), model).unwrap();
     let p: PathBuf = d.join("job.toml");
-    std::fs::write(&p, JOB.replace("PARAMS", ff_params(structure))).unwrap();
+    let chain = ff_chain("x", Some(ff_params(structure)));
+    std::fs::write(&p, JOB.replace("CHAIN", &chain)).unwrap();
     Job::load(&p).unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -101,6 +72,14 @@ fn job(structure: &str, sensor_seed: Option<u64>) -> Job {
 fn measured_at(job: &Job, true_jl: f64, probe: Probe) -> f64 {
     let rec = run_axis(&job_with_jl(job, 0, true_jl, 3.0e-3).unwrap(), 0).unwrap();
     records_deviation(&rec, 2.0 * std::f64::consts::PI / 0.01, probe).unwrap()
+}
+
+/// The bias (percent) of the literal structure that sim-match reports for the deviation `dev`.
+fn literal_bias(job: &Job, dev: f64, probe: Probe) -> f64 {
+    sim_match(job, 0, dev, probe)
+        .unwrap()
+        .literal_bias_percent
+        .unwrap()
 }
 
 fn measured(job: &Job, true_jl: f64) -> f64 {
@@ -197,10 +176,7 @@ fn the_brief_literal_structure_biases_the_continuous_time_model_by_about_minus_6
     // The Tustin lags leave ~0.01 um: no bias to speak of.
     let tustin = job("literal", None);
     let dev = measured(&tustin, 6.0e-3);
-    let b = sim_match(&tustin, 0, dev, PROBE)
-        .unwrap()
-        .literal_bias_percent
-        .unwrap();
+    let b = literal_bias(&tustin, dev, PROBE);
     println!("literal with Tustin lags: continuous-time model {b:+.3} %");
     assert!(b.abs() < 0.5, "{b}");
     // The motor-load deviation (the screw's twist) is set by the physics, not by the
@@ -210,10 +186,7 @@ fn the_brief_literal_structure_biases_the_continuous_time_model_by_about_minus_6
         ..PROBE
     };
     let dev = measured_at(&euler, 6.0e-3, twist);
-    let b = sim_match(&euler, 0, dev, twist)
-        .unwrap()
-        .literal_bias_percent
-        .unwrap();
+    let b = literal_bias(&euler, dev, twist);
     println!("brief's literal, motor-load deviation: continuous-time model {b:+.3} %");
     assert!(b.abs() < 0.5, "{b}");
     // The split structure reports no bias: it is its own continuous-time model.

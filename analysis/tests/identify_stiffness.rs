@@ -1,7 +1,6 @@
 //! Stiffness identification (seed 001) on simulated closed-loop data.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::path::Path;
 
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
@@ -12,32 +11,12 @@ use feedloop_model::job::Job;
 use feedloop_plugins::Builtins;
 use feedloop_trace::Trace;
 
-static NEXT: AtomicUsize = AtomicUsize::new(0);
+mod controllers_util;
 
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "feedloop-id-{tag}-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use controllers_util::{temp_dir, xy_x_model};
 
-const MODEL: &str = r#"
-kind = "ballscrew"
-jm_kgm2 = 2.0e-3
-dm_nms_per_rad = 1.0e-3
-kl_nm_per_rad = 3000.0
-cl_nms_per_rad = 0.02
-jl_kgm2 = 3.0e-3
-dl_nms_per_rad = 2.0e-3
-lead_m = 0.01
-[controller]
-kp_per_s = 50.0
-kv_nms_per_rad = 5.0
-tv_s = 0.005
-torque_limit_nm = 30.0
+/// After the reference axis's `[controller]` keys.
+const MODEL_TAIL: &str = r#"torque_limit_nm = 30.0
 [sensor]
 motor_counts_per_rev = 1048576
 velocity_estimate = "difference"
@@ -62,9 +41,14 @@ duration_s = 12.0
 seed = 7
 "#;
 
+/// The model: the reference X axis with a 20-bit encoder.
+fn model() -> String {
+    xy_x_model(MODEL_TAIL)
+}
+
 /// Simulates the excitation job on `model` and reads the trace back.
 fn excite(tag: &str, model: &str) -> Trace {
-    let dir = temp_dir(tag);
+    let dir = temp_dir(&format!("id-{tag}"));
     std::fs::write(dir.join("model.toml"), model).unwrap();
     std::fs::write(dir.join("job.toml"), JOB).unwrap();
     let job = Job::load(&dir.join("job.toml")).unwrap_or_else(|e| panic!("{e}"));
@@ -75,7 +59,7 @@ fn excite(tag: &str, model: &str) -> Trace {
 
 #[test]
 fn closed_loop_data_with_a_20_bit_encoder_gives_kl_3000_and_jl_3e_3_within_1_percent() {
-    let trace = excite("two-mass", MODEL);
+    let trace = excite("two-mass", &model());
     let r = identify_stiffness(&trace, "x", &StiffnessOptions::new(2.0e-3)).unwrap();
     let e_kl = r.kl_nm_per_rad / 3000.0 - 1.0;
     let e_jl = r.jl_kgm2 / 3.0e-3 - 1.0;
@@ -103,7 +87,7 @@ fn closed_loop_data_with_a_20_bit_encoder_gives_kl_3000_and_jl_3e_3_within_1_per
 #[test]
 fn with_a_third_mass_the_first_pair_is_picked_and_the_second_reported() {
     // 100 kg on 5e7 N/m behind the table: reflected 2.53e-4 kg m^2 on 126.7 N m/rad.
-    let model = MODEL.replace(
+    let model = model().replace(
         "[sensor]",
         "[effects.third_mass]\nmass_kg = 100.0\nstiffness_n_per_m = 1.0e9\ndamping_ns_per_m = 200.0\n[sensor]",
     );
@@ -154,7 +138,7 @@ fn three_mass_pairs() -> ([f64; 2], [f64; 2]) {
 
 #[test]
 fn the_closed_loop_command_to_table_frf_is_refused_with_the_reason() {
-    let trace = excite("refuse", MODEL);
+    let trace = excite("refuse", &model());
     let mut opts = StiffnessOptions::new(2.0e-3);
     opts.frf = FrfKind::CommandToTable;
     let e = identify_stiffness(&trace, "x", &opts).unwrap_err();
@@ -163,7 +147,7 @@ fn the_closed_loop_command_to_table_frf_is_refused_with_the_reason() {
 
 #[test]
 fn a_band_without_a_resonance_and_a_missing_column_are_clear_errors() {
-    let trace = excite("band", MODEL);
+    let trace = excite("band", &model());
     let mut opts = StiffnessOptions::new(2.0e-3);
     opts.f_min_hz = 5.0;
     opts.f_max_hz = Some(100.0);

@@ -1,13 +1,13 @@
 //! Ramp-test tuning (seed 001) on the reference X axis.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use feedloop_analysis::identify::tune::{
     evaluate, job_with_gains, margins, parse_grid, ramp_error, tune, Gains,
 };
 use feedloop_model::job::Job;
 
-static NEXT: AtomicUsize = AtomicUsize::new(0);
+mod controllers_util;
+
+use controllers_util::{job_from_text, temp_dir};
 
 const JOB: &str = r#"
 name = "tune-ramp"
@@ -23,19 +23,7 @@ dwell_after_s = 0.05
 "#;
 
 fn job() -> Job {
-    let d = std::env::temp_dir().join(format!(
-        "feedloop-id-tune-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    let ex = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
-    std::fs::write(
-        d.join("job.toml"),
-        JOB.replace("{examples}", &ex.display().to_string()),
-    )
-    .unwrap();
-    Job::load(&d.join("job.toml")).unwrap_or_else(|e| panic!("{e}"))
+    job_from_text("id-tune", JOB)
 }
 
 #[test]
@@ -127,12 +115,7 @@ fn the_delayed_loop_model_predicts_where_the_simulated_loop_with_a_one_cycle_del
     // Plant with [effects.delay] delay_cycles = 1: the simulated loop is the hold plus one
     // period, which the margin model with delay_s = T describes.
     let base = job();
-    let d = std::env::temp_dir().join(format!(
-        "feedloop-id-tune-delay-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
+    let d = temp_dir("id-tune-delay");
     let model = std::fs::read_to_string(&base.axes[0].model.path).unwrap();
     std::fs::write(
         d.join("model.toml"),

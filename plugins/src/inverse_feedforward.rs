@@ -673,14 +673,7 @@ mod tests {
             reference: [0.0, 10.0, 100.0, 1000.0, 0.0, 0.0],
             ..Default::default()
         };
-        c.step(
-            &CycleContext {
-                period_s: 1e-4,
-                cycle: 0,
-                t_s: 0.0,
-            },
-            &mut io,
-        );
+        c.step(&FIRST_CYCLE, &mut io);
         // thM' = v + JL jerk / KL = 10 + 3e-3 * 1000 / 3000 = 10.001
         assert!((io.vel_cmd - 10.001).abs() < 1e-12, "{}", io.vel_cmd);
         // tau = (JM + JL) a = 0.5; tau' = (JM + JL) jerk = 5 -> + 5e-5 * 5
@@ -691,16 +684,24 @@ mod tests {
         );
     }
 
-    #[test]
-    fn literal_at_constant_velocity_settles_to_velocity_plus_damping_terms() {
+    /// The first cycle at 10 kHz.
+    const FIRST_CYCLE: CycleContext = CycleContext {
+        period_s: 1e-4,
+        cycle: 0,
+        t_s: 0.0,
+    };
+
+    /// The literal structure on the test axis.
+    fn literal() -> InverseFeedforward {
         let t: toml::Table = "structure = \"literal\"".parse().unwrap();
         let p = InverseFeedforwardParams::from_table(&t, &axis(), Path::new("j")).unwrap();
-        let mut c = InverseFeedforward::new(p);
-        let ctx = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        InverseFeedforward::new(p)
+    }
+
+    #[test]
+    fn literal_at_constant_velocity_settles_to_velocity_plus_damping_terms() {
+        let mut c = literal();
+        let ctx = FIRST_CYCLE;
         let mut v = 0.0;
         for _ in 0..5000 {
             let mut io = AxisSignals {
@@ -716,14 +717,8 @@ mod tests {
 
     #[test]
     fn non_finite_reference_adds_nothing() {
-        let t: toml::Table = "structure = \"literal\"".parse().unwrap();
-        let p = InverseFeedforwardParams::from_table(&t, &axis(), Path::new("j")).unwrap();
-        let mut c = InverseFeedforward::new(p);
-        let ctx = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let mut c = literal();
+        let ctx = FIRST_CYCLE;
         let mut io = AxisSignals {
             reference: [0.0, f64::NAN, 0.0, 0.0, f64::INFINITY, 0.0],
             vel_cmd: 1.0,

@@ -319,25 +319,11 @@ impl Coupler for NlPidCoupler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use feedloop_model::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
+    use feedloop_model::model::{PlantParams, RigidParams};
 
     fn contexts() -> Vec<AxisContext> {
         let x = crate::test_util::rigid_axis(1e-4);
-        let c = AxisContext {
-            name: "c".into(),
-            plant: PlantParams::Rotary {
-                two_mass: TwoMassParams {
-                    jm_kgm2: 0.05,
-                    dm_nms_per_rad: 0.0,
-                    kl_nm_per_rad: 5e4,
-                    cl_nms_per_rad: 0.0,
-                    jl_kgm2: 0.1,
-                    dl_nms_per_rad: 0.0,
-                },
-            },
-            defaults: ControllerParams::default(),
-            period_s: 1e-4,
-        };
+        let c = crate::test_util::rotary_c_axis(5e4, 1e-4);
         vec![x, c]
     }
 

@@ -2,33 +2,16 @@
 
 use std::path::Path;
 
+#[allow(dead_code)]
+#[path = "../src/test_util.rs"]
+mod test_util;
+
 use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
-use feedloop_model::model::{ControllerParams, PlantParams, RigidParams, TwoMassParams};
+use feedloop_model::model::{ControllerParams, PlantParams, RigidParams};
 use feedloop_plugins::Builtins;
 
 fn ballscrew() -> AxisContext {
-    AxisContext {
-        name: "x".into(),
-        plant: PlantParams::BallScrew {
-            two_mass: TwoMassParams {
-                jm_kgm2: 2e-3,
-                dm_nms_per_rad: 1e-3,
-                kl_nm_per_rad: 3000.0,
-                cl_nms_per_rad: 0.02,
-                jl_kgm2: 3e-3,
-                dl_nms_per_rad: 2e-3,
-            },
-            lead_m: 0.01,
-            gear_ratio: 1.0,
-        },
-        defaults: ControllerParams {
-            kp_per_s: Some(50.0),
-            kv: Some(5.0),
-            tv_s: Some(0.005),
-            torque_limit: Some(30.0),
-        },
-        period_s: 1e-4,
-    }
+    test_util::ballscrew_axis_with(true, 3e-3, 5.0, 0.005, 30.0, 1e-4)
 }
 
 const VALUES: [f64; 7] = [0.0, 1.0, -3.5, 1e300, -1e300, f64::INFINITY, f64::NAN];
@@ -109,21 +92,7 @@ fn coupler_keeps_velocity_commands_finite_under_hostile_inputs() {
         defaults: ControllerParams::default(),
         period_s: 1e-4,
     };
-    let c = AxisContext {
-        name: "c".into(),
-        plant: PlantParams::Rotary {
-            two_mass: TwoMassParams {
-                jm_kgm2: 0.05,
-                dm_nms_per_rad: 0.0,
-                kl_nm_per_rad: 2e5,
-                cl_nms_per_rad: 0.0,
-                jl_kgm2: 0.1,
-                dl_nms_per_rad: 0.0,
-            },
-        },
-        defaults: ControllerParams::default(),
-        period_s: 1e-4,
-    };
+    let c = test_util::rotary_c_axis(2e5, 1e-4);
     let t: toml::Table = "wheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.005\ndisc_radius_m = 0.03"
         .parse()
         .unwrap();

@@ -3,34 +3,16 @@
 
 use std::path::Path;
 
+#[allow(dead_code)]
+#[path = "../src/test_util.rs"]
+mod test_util;
+
 use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
-use feedloop_model::model::{ControllerParams, PlantParams, TwoMassParams};
 use feedloop_plugins::Builtins;
 use proptest::prelude::*;
 
 fn axis(jl: f64, kv: f64, tv: f64, lim: f64) -> AxisContext {
-    AxisContext {
-        name: "x".into(),
-        plant: PlantParams::BallScrew {
-            two_mass: TwoMassParams {
-                jm_kgm2: 2e-3,
-                dm_nms_per_rad: 1e-3,
-                kl_nm_per_rad: 3000.0,
-                cl_nms_per_rad: 0.02,
-                jl_kgm2: jl,
-                dl_nms_per_rad: 2e-3,
-            },
-            lead_m: 0.01,
-            gear_ratio: 1.0,
-        },
-        defaults: ControllerParams {
-            kp_per_s: Some(50.0),
-            kv: Some(kv),
-            tv_s: Some(tv),
-            torque_limit: Some(lim),
-        },
-        period_s: 1e-4,
-    }
+    test_util::ballscrew_axis_with(true, jl, kv, tv, lim, 1e-4)
 }
 
 fn value() -> impl Strategy<Value = f64> {

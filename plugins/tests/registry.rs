@@ -2,33 +2,15 @@
 
 use std::path::Path;
 
+#[allow(dead_code)]
+#[path = "../src/test_util.rs"]
+mod test_util;
+
 use feedloop_control::controller::{AxisContext, PluginRegistry, Stage};
-use feedloop_model::model::{ControllerParams, PlantParams, TwoMassParams};
 use feedloop_plugins::Builtins;
 
 fn axis() -> AxisContext {
-    AxisContext {
-        name: "x".into(),
-        plant: PlantParams::BallScrew {
-            two_mass: TwoMassParams {
-                jm_kgm2: 2e-3,
-                dm_nms_per_rad: 0.0,
-                kl_nm_per_rad: 3000.0,
-                cl_nms_per_rad: 0.0,
-                jl_kgm2: 3e-3,
-                dl_nms_per_rad: 0.0,
-            },
-            lead_m: 0.01,
-            gear_ratio: 1.0,
-        },
-        defaults: ControllerParams {
-            kp_per_s: Some(50.0),
-            kv: Some(5.0),
-            tv_s: Some(0.005),
-            torque_limit: Some(30.0),
-        },
-        period_s: 1e-4,
-    }
+    test_util::ballscrew_axis(1e-4)
 }
 
 #[test]

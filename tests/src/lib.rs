@@ -230,3 +230,164 @@ pub fn status(instance: &str) -> serde_json::Value {
     assert!(o.status.success(), "{}", describe(&o));
     serde_json::from_slice(&o.stdout).expect("status prints JSON")
 }
+
+/// The circle an X-Y job of these tests runs (`[trajectory]` of kind `circle` on x and y).
+pub struct Circle {
+    pub center_m: [f64; 2],
+    pub radius_m: f64,
+    pub feed_m_per_s: f64,
+    pub turns: f64,
+    pub ramp_s: f64,
+}
+
+/// 100 turns of a 10 mm circle (about 190 s): longer than the tests that swap controllers.
+pub const LONG_CIRCLE: Circle = Circle {
+    center_m: [-0.01, 0.0],
+    radius_m: 0.01,
+    feed_m_per_s: 0.0333,
+    turns: 100.0,
+    ramp_s: 0.1,
+};
+
+/// Writes `dir/NAME.toml`: the [`LONG_CIRCLE`] at 2 kHz, stopped after 30 s.
+pub fn write_long_circle_job(dir: &Path, name: &str) -> PathBuf {
+    write_xy_circle_job(
+        &dir.join(format!("{name}.toml")),
+        &format!("name = \"{name}\"\nperiod_s = 0.0005\nduration_s = 30.0"),
+        "",
+        None,
+        &LONG_CIRCLE,
+    )
+}
+
+/// Writes `path`: a job on the X-Y table (`examples/models/xy-x.toml` on x; `y_model`, or
+/// `xy-y.toml`, on y) running `circle`. `top` holds the top-level keys (name, period, ...);
+/// `run` the lines after `[run]`'s `wait = "block"` (more `[run]` keys, other tables).
+pub fn write_xy_circle_job(
+    path: &Path,
+    top: &str,
+    run: &str,
+    y_model: Option<&str>,
+    circle: &Circle,
+) -> PathBuf {
+    let models = repo_file("examples/models");
+    let m = models.display();
+    let y = y_model
+        .map(str::to_string)
+        .unwrap_or_else(|| format!("{m}/xy-y.toml"));
+    let Circle {
+        center_m: [cx, cy],
+        radius_m,
+        feed_m_per_s,
+        turns,
+        ramp_s,
+    } = circle;
+    let text = format!(
+        r#"{top}
+[run]
+wait = "block"
+{run}
+[axes.x]
+model = "{m}/xy-x.toml"
+[axes.y]
+model = "{y}"
+[trajectory]
+kind = "circle"
+axes = ["x", "y"]
+center_m = [{cx:?}, {cy:?}]
+radius_m = {radius_m:?}
+feed_m_per_s = {feed_m_per_s:?}
+turns = {turns:?}
+ramp_s = {ramp_s:?}
+"#
+    );
+    std::fs::write(path, text).expect("writing a job file");
+    path.to_path_buf()
+}
+
+/// Starts `feedloop run JOB --mode realtime` into `dir/out` on the instance `PREFIX-<pid>`,
+/// waits for its scheduler and lets the loop settle for `settle`; returns the run, the
+/// instance and the out folder.
+pub fn start_realtime_run(
+    dir: &Path,
+    job: &Path,
+    prefix: &str,
+    settle: std::time::Duration,
+) -> (std::process::Child, String, PathBuf) {
+    let inst = format!("{prefix}-{}", std::process::id());
+    let out = dir.join("out");
+    let run = start_run(job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
+    std::thread::sleep(settle);
+    (run, inst, out)
+}
+
+/// `feedloop swap --instance INST --axis x --stage velocity ARGS..`.
+pub fn swap_x_velocity<S: AsRef<str>>(instance: &str, args: &[S]) -> Output {
+    let mut a = vec![
+        "swap",
+        "--instance",
+        instance,
+        "--axis",
+        "x",
+        "--stage",
+        "velocity",
+    ];
+    a.extend(args.iter().map(AsRef::as_ref));
+    feedloop(&a)
+}
+
+/// How a plant loop thread of [`spawn_plant_loop`] runs.
+pub struct PlantThread {
+    pub mode: feedloop_model::job::Mode,
+    pub period_s: f64,
+    pub cycles: u64,
+    pub watchdog_cycles: u64,
+    pub cycle_hook: Option<fn(u64)>,
+}
+
+/// Starts the real plant loop of `job` on a thread, as `feedloop plant` would (blocking wait,
+/// 10 s peer timeout, brake gain 5 and torque limit 30 on every axis, initial positions from
+/// the job's control cycle), logging to `log`.
+pub fn spawn_plant_loop(
+    job: &feedloop_model::job::Job,
+    instance: &str,
+    log: PathBuf,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    how: PlantThread,
+) -> std::thread::JoinHandle<feedloop_runtime::plant::PlantOutcome> {
+    use feedloop_model::job::WaitKind;
+    use std::time::Duration;
+    let job = job.clone();
+    let instance = instance.to_string();
+    std::thread::spawn(move || {
+        let cycle = feedloop_runtime::scheduler::cycle::ControlCycle::new(
+            &job,
+            &feedloop_plugins::Builtins,
+        )
+        .unwrap();
+        let mut p = feedloop_plant::Plant::new(&job).unwrap();
+        p.set_initial_positions(&cycle.initial_positions());
+        let ep = feedloop_runtime::shared::ipc::plant_endpoint(
+            &instance,
+            WaitKind::Block,
+            Duration::ZERO,
+        )
+        .unwrap();
+        let cfg = feedloop_runtime::plant::PlantLoopConfig {
+            instance,
+            mode: how.mode,
+            wait: WaitKind::Block,
+            spin: Duration::ZERO,
+            period_s: how.period_s,
+            cycles: how.cycles,
+            watchdog_cycles: how.watchdog_cycles,
+            peer_timeout_s: 10.0,
+            safety: job.safety.clone(),
+            brake_gain: vec![5.0; job.axes.len()],
+            torque_limit: vec![30.0; job.axes.len()],
+            cycle_hook: how.cycle_hook,
+        };
+        feedloop_runtime::plant::run_plant(&cfg, &mut p, &ep, &log, &stop).unwrap()
+    })
+}

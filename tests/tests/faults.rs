@@ -6,45 +6,28 @@ use std::process::Command;
 use std::time::Duration;
 
 use feedloop_tests::{
-    describe, feedloop_bin, process_lock, read_json, repo_file, scratch, signal, start_run,
-    trace_rows, wait_for_process,
+    describe, feedloop_bin, process_lock, read_json, repo_file, scratch, signal,
+    start_realtime_run, start_run, swap_x_velocity, trace_rows, wait_for_process,
+    write_xy_circle_job, Circle,
 };
 
 const PERIOD: f64 = 0.0005;
 const WATCHDOG: u64 = 20;
 
 fn job(dir: &Path, name: &str, safety: &str, model_y: Option<&str>) -> PathBuf {
-    let models = repo_file("examples/models");
-    let y = model_y
-        .map(str::to_string)
-        .unwrap_or_else(|| format!("{}/xy-y.toml", models.display()));
-    let text = format!(
-        r#"name = "{name}"
-period_s = {PERIOD}
-[run]
-wait = "block"
-watchdog_cycles = {WATCHDOG}
-peer_timeout_s = 3.0
-[safety]
-{safety}
-[axes.x]
-model = "{m}/xy-x.toml"
-[axes.y]
-model = "{y}"
-[trajectory]
-kind = "circle"
-axes = ["x", "y"]
-center_m = [-0.004, 0.0]
-radius_m = 0.004
-feed_m_per_s = 0.02
-turns = 1.0
-ramp_s = 0.05
-"#,
-        m = models.display()
-    );
-    let p = dir.join(format!("{name}.toml"));
-    std::fs::write(&p, text).unwrap();
-    p
+    write_xy_circle_job(
+        &dir.join(format!("{name}.toml")),
+        &format!("name = \"{name}\"\nperiod_s = {PERIOD}"),
+        &format!("watchdog_cycles = {WATCHDOG}\npeer_timeout_s = 3.0\n[safety]\n{safety}"),
+        model_y,
+        &Circle {
+            center_m: [-0.004, 0.0],
+            radius_m: 0.004,
+            feed_m_per_s: 0.02,
+            turns: 1.0,
+            ramp_s: 0.05,
+        },
+    )
 }
 
 /// Rows must be one per cycle from 0 on, without gaps.
@@ -304,26 +287,18 @@ fn swap_in_faulty_plugin(
     let job = long_job(&dir, name);
     let p = dir.join("params.toml");
     std::fs::write(&p, params).unwrap();
-    let out = dir.join("out");
-    let inst = format!("{name}-{}", std::process::id());
-    let run = start_run(&job, &out, "realtime", &inst);
-    wait_for_process(&["scheduler", "--instance", &inst]);
-    std::thread::sleep(Duration::from_millis(300));
-    let o = feedloop_tests::feedloop(&[
-        "swap",
-        "--instance",
+    let (run, inst, out) = start_realtime_run(&dir, &job, name, Duration::from_millis(300));
+    let o = swap_x_velocity(
         &inst,
-        "--axis",
-        "x",
-        "--stage",
-        "velocity",
-        "--plugin",
-        "pi_velocity_c",
-        "--lib",
-        lib.to_str().unwrap(),
-        "--params",
-        p.to_str().unwrap(),
-    ]);
+        &[
+            "--plugin",
+            "pi_velocity_c",
+            "--lib",
+            lib.to_str().unwrap(),
+            "--params",
+            p.to_str().unwrap(),
+        ],
+    );
     (run, o, out)
 }
 

@@ -9,14 +9,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use feedloop_model::job::{Job, Mode, WaitKind};
-use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::plant::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::plant::PlantEnd;
 use feedloop_runtime::scheduler::control::ControlPlane;
 use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
-use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint};
-use feedloop_tests::{repo_file, scratch};
+use feedloop_runtime::shared::ipc::scheduler_endpoint;
+use feedloop_tests::{repo_file, scratch, spawn_plant_loop, PlantThread};
 
 struct Counting;
 
@@ -77,32 +76,19 @@ fn ten_thousand_cycles_of_both_loops_allocate_nothing_outside_iceoryx2_send() {
     let instance = format!("noalloc{}", std::process::id());
     let stop = Arc::new(AtomicBool::new(false));
 
-    let plant_job = job.clone();
-    let plant_dir = dir.clone();
-    let plant_inst = instance.clone();
-    let plant_stop = stop.clone();
-    let plant = std::thread::spawn(move || {
-        let job = plant_job;
-        let cycle = ControlCycle::new(&job, &Builtins).unwrap();
-        let mut p = Plant::new(&job).unwrap();
-        p.set_initial_positions(&cycle.initial_positions());
-        let ep = plant_endpoint(&plant_inst, WaitKind::Block, Duration::ZERO).unwrap();
-        let cfg = PlantLoopConfig {
-            instance: plant_inst,
+    let plant = spawn_plant_loop(
+        &job,
+        &instance,
+        dir.join("plant.log"),
+        stop.clone(),
+        PlantThread {
             mode: Mode::Lockstep,
-            wait: WaitKind::Block,
-            spin: Duration::ZERO,
             period_s: job.period_s,
             cycles: TOTAL,
             watchdog_cycles: 100,
-            peer_timeout_s: 10.0,
-            safety: job.safety.clone(),
-            brake_gain: vec![5.0; job.axes.len()],
-            torque_limit: vec![30.0; job.axes.len()],
             cycle_hook: Some(hook),
-        };
-        run_plant(&cfg, &mut p, &ep, &plant_dir.join("plant.log"), &plant_stop).unwrap()
-    });
+        },
+    );
 
     let mut cycle = ControlCycle::new(&job, &Builtins).unwrap();
     cycle.set_cycles(TOTAL);

@@ -7,7 +7,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use feedloop_tests::{
-    feedloop, process_lock, read_json, repo_file, scratch, signal, start_run, wait_for_process,
+    process_lock, read_json, scratch, signal, start_realtime_run, swap_x_velocity,
+    write_long_circle_job,
 };
 
 #[test]
@@ -16,44 +17,12 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
     let dir = scratch("plugin-lib");
     let good = feedloop_tests::build_example_plugin(&dir.join("t-good"), false);
     let wrong = feedloop_tests::build_example_plugin(&dir.join("t-wrong"), true);
-    let models = repo_file("examples/models");
-    let job = dir.join("lib.toml");
-    std::fs::write(
-        &job,
-        format!(
-            "name = \"lib\"\nperiod_s = 0.0005\nduration_s = 30.0\n[run]\nwait = \"block\"\n\
-             [axes.x]\nmodel = \"{m}/xy-x.toml\"\n[axes.y]\nmodel = \"{m}/xy-y.toml\"\n\
-             [trajectory]\nkind = \"circle\"\naxes = [\"x\", \"y\"]\ncenter_m = [-0.01, 0.0]\n\
-             radius_m = 0.01\nfeed_m_per_s = 0.0333\nturns = 100.0\nramp_s = 0.1\n",
-            m = models.display()
-        ),
-    )
-    .unwrap();
+    let job = write_long_circle_job(&dir, "lib");
     let params = dir.join("p.toml");
     std::fs::write(&params, "kv_nms_per_rad = 5.5\n").unwrap();
-    let inst = format!("lib-{}", std::process::id());
-    let out = dir.join("out");
-    let mut run = start_run(&job, &out, "realtime", &inst);
-    wait_for_process(&["scheduler", "--instance", &inst]);
-    std::thread::sleep(Duration::from_millis(300));
+    let (mut run, inst, out) = start_realtime_run(&dir, &job, "lib", Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let swap = |extra: &[String]| {
-        let mut a: Vec<String> = [
-            "swap",
-            "--instance",
-            &inst,
-            "--axis",
-            "x",
-            "--stage",
-            "velocity",
-        ]
-        .iter()
-        .map(|x| x.to_string())
-        .collect();
-        a.extend_from_slice(extra);
-        let refs: Vec<&str> = a.iter().map(String::as_str).collect();
-        feedloop(&refs)
-    };
+    let swap = |extra: &[String]| swap_x_velocity(&inst, extra);
     let lib_args = vec![
         "--plugin".to_string(),
         "pi_velocity_c".into(),

@@ -8,9 +8,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use feedloop_model::job::{Job, Mode, WaitKind};
-use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
-use feedloop_runtime::plant::{run_plant, PlantEnd, PlantLoopConfig};
+use feedloop_runtime::plant::PlantEnd;
 use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_runtime::scheduler::{run_scheduler, SchedulerConfig, SchedulerEnd};
 use feedloop_runtime::shared::clock::now_ns;
@@ -18,7 +17,7 @@ use feedloop_runtime::shared::ipc::{plant_endpoint, scheduler_endpoint, WaitOutc
 use feedloop_runtime::shared::wire::{
     instance_tag, ActuatorCommand, SensorSample, FLAG_END, FLAG_HELLO,
 };
-use feedloop_tests::{repo_file, scratch};
+use feedloop_tests::{repo_file, scratch, spawn_plant_loop, PlantThread};
 
 const CYCLES: u64 = 200;
 
@@ -48,31 +47,19 @@ fn the_plant_counts_bad_duplicate_late_and_missing_commands() {
     let stop = Arc::new(AtomicBool::new(false));
     let period_s = 5e-3;
 
-    let plant_job = job.clone();
-    let plant_inst = instance.clone();
-    let plant_stop = stop.clone();
-    let plant = std::thread::spawn(move || {
-        let job = plant_job;
-        let cycle = ControlCycle::new(&job, &Builtins).unwrap();
-        let mut p = Plant::new(&job).unwrap();
-        p.set_initial_positions(&cycle.initial_positions());
-        let ep = plant_endpoint(&plant_inst, WaitKind::Block, Duration::ZERO).unwrap();
-        let cfg = PlantLoopConfig {
-            instance: plant_inst,
+    let plant = spawn_plant_loop(
+        &job,
+        &instance,
+        dir.join("plant.log"),
+        stop.clone(),
+        PlantThread {
             mode: Mode::Realtime,
-            wait: WaitKind::Block,
-            spin: Duration::ZERO,
             period_s,
             cycles: CYCLES,
             watchdog_cycles: 50,
-            peer_timeout_s: 10.0,
-            safety: job.safety.clone(),
-            brake_gain: vec![5.0; job.axes.len()],
-            torque_limit: vec![30.0; job.axes.len()],
             cycle_hook: None,
-        };
-        run_plant(&cfg, &mut p, &ep, &dir.join("plant.log"), &plant_stop).unwrap()
-    });
+        },
+    );
 
     let ep = scheduler_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
     let mut hello = ActuatorCommand::empty(n as u32, tag);

@@ -5,7 +5,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use feedloop_tests::{
-    feedloop, process_lock, read_json, repo_file, scratch, start_run, wait_for_process,
+    feedloop, process_lock, read_json, scratch, start_realtime_run, swap_x_velocity,
+    write_long_circle_job,
 };
 
 const SWAPS: usize = 20;
@@ -14,58 +15,16 @@ const SWAPS: usize = 20;
 fn swapping_the_velocity_loop_while_running_is_bumpless_and_bad_requests_are_refused() {
     let _g = process_lock();
     let dir = scratch("swap");
-    let models = repo_file("examples/models");
-    let job = dir.join("swap.toml");
-    std::fs::write(
-        &job,
-        format!(
-            r#"name = "swap"
-period_s = 0.0005
-duration_s = 30.0
-[run]
-wait = "block"
-[axes.x]
-model = "{m}/xy-x.toml"
-[axes.y]
-model = "{m}/xy-y.toml"
-[trajectory]
-kind = "circle"
-axes = ["x", "y"]
-center_m = [-0.01, 0.0]
-radius_m = 0.01
-feed_m_per_s = 0.0333
-turns = 100.0
-ramp_s = 0.1
-"#,
-            m = models.display()
-        ),
-    )
-    .unwrap();
+    let job = write_long_circle_job(&dir, "swap");
     let p1 = dir.join("soft.toml");
     let p2 = dir.join("stiff.toml");
     std::fs::write(&p1, "kv_nms_per_rad = 4.0\ntv_s = 0.006\n").unwrap();
     std::fs::write(&p2, "kv_nms_per_rad = 6.0\ntv_s = 0.004\n").unwrap();
-    let inst = format!("swap-{}", std::process::id());
-    let out = dir.join("out");
-    let mut run = start_run(&job, &out, "realtime", &inst);
-    wait_for_process(&["scheduler", "--instance", &inst]);
-    std::thread::sleep(Duration::from_millis(300));
+    let (mut run, inst, out) = start_realtime_run(&dir, &job, "swap", Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
     for i in 0..SWAPS {
         let params = if i % 2 == 0 { s(&p1) } else { s(&p2) };
-        let o = feedloop(&[
-            "swap",
-            "--instance",
-            &inst,
-            "--axis",
-            "x",
-            "--stage",
-            "velocity",
-            "--plugin",
-            "pi_velocity",
-            "--params",
-            &params,
-        ]);
+        let o = swap_x_velocity(&inst, &["--plugin", "pi_velocity", "--params", &params]);
         assert!(
             o.status.success(),
             "swap {i}: {}",

@@ -17,7 +17,9 @@
 use std::time::Duration;
 
 use feedloop_runtime::scheduler::control::protocol::{Request, SwapRequest};
-use feedloop_tests::{process_lock, read_json, repo_file, scratch, signal, start_run};
+use feedloop_tests::{
+    process_lock, read_json, scratch, signal, start_realtime_run, write_xy_circle_job, Circle,
+};
 
 const SWAPS: usize = 100;
 
@@ -28,38 +30,21 @@ fn a_hundred_swaps_at_10_khz_are_bumpless_and_do_not_raise_the_miss_rate() {
     let lib = feedloop_tests::build_example_plugin(&dir.join("t-plugin"), false)
         .canonicalize()
         .unwrap();
-    let models = repo_file("examples/models");
-    let job = dir.join("storm.toml");
-    std::fs::write(
-        &job,
-        format!(
-            r#"name = "swap-storm"
-period_s = 1.0e-4
-[run]
-wait = "block"
-[axes.x]
-model = "{m}/xy-x.toml"
-[axes.y]
-model = "{m}/xy-y.toml"
-[trajectory]
-kind = "circle"
-axes = ["x", "y"]
-center_m = [0.0, 0.0]
-radius_m = 0.01
-feed_m_per_s = 0.0333333333333
-turns = 8.0
-ramp_s = 0.1
-"#,
-            m = models.display()
-        ),
-    )
-    .unwrap();
-    let inst = format!("storm-{}", std::process::id());
-    let out = dir.join("out");
-    let mut run = start_run(&job, &out, "realtime", &inst);
-    feedloop_tests::wait_for_process(&["scheduler", "--instance", &inst]);
+    let job = write_xy_circle_job(
+        &dir.join("storm.toml"),
+        "name = \"swap-storm\"\nperiod_s = 1.0e-4",
+        "",
+        None,
+        &Circle {
+            center_m: [0.0, 0.0],
+            radius_m: 0.01,
+            feed_m_per_s: 0.0333333333333,
+            turns: 8.0,
+            ramp_s: 0.1,
+        },
+    );
     // Let the loop settle, so that the run has a stretch without swaps before the first one.
-    std::thread::sleep(Duration::from_millis(800));
+    let (mut run, inst, out) = start_realtime_run(&dir, &job, "storm", Duration::from_millis(800));
 
     let soft = "kv_nms_per_rad = 4.0\ntv_s = 0.006\n";
     let stiff = "kv_nms_per_rad = 6.0\ntv_s = 0.004\n";

@@ -3,7 +3,9 @@
 
 use std::path::Path;
 
-use feedloop_tests::{describe, feedloop, process_lock, read_json, repo_file, scratch};
+use feedloop_tests::{
+    describe, feedloop, process_lock, read_json, repo_file, scratch, write_xy_circle_job, Circle,
+};
 
 fn run_ok(args: &[&str]) -> std::process::Output {
     let o = feedloop(args);
@@ -88,30 +90,19 @@ fn lockstep_run_and_simulation_of_xy_circle_give_identical_traces() {
 }
 
 fn write_short_job(dir: &Path, name: &str) -> std::path::PathBuf {
-    let models = repo_file("examples/models");
-    let job = format!(
-        r#"name = "{name}"
-period_s = 0.0005
-[run]
-wait = "block"
-[axes.x]
-model = "{m}/xy-x.toml"
-[axes.y]
-model = "{m}/xy-y.toml"
-[trajectory]
-kind = "circle"
-axes = ["x", "y"]
-center_m = [0.0, 0.0]
-radius_m = 0.002
-feed_m_per_s = 0.02
-turns = 1.0
-ramp_s = 0.05
-"#,
-        m = models.display()
-    );
-    let p = dir.join(format!("{name}.toml"));
-    std::fs::write(&p, job).unwrap();
-    p
+    write_xy_circle_job(
+        &dir.join(format!("{name}.toml")),
+        &format!("name = \"{name}\"\nperiod_s = 0.0005"),
+        "",
+        None,
+        &Circle {
+            center_m: [0.0, 0.0],
+            radius_m: 0.002,
+            feed_m_per_s: 0.02,
+            turns: 1.0,
+            ramp_s: 0.05,
+        },
+    )
 }
 
 #[test]

@@ -1,4 +1,5 @@
-//! Shared helpers of the controller experiments: run a job given as text, collect its records.
+//! Shared helpers of the analysis tests (the controller experiments and the identification
+//! tests): temp folders, model and job texts, run a job given as text, collect its records.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -26,6 +27,42 @@ pub fn temp_dir(tag: &str) -> PathBuf {
     ));
     std::fs::create_dir_all(&d).unwrap();
     d
+}
+
+/// The brief's ball-screw X axis as a model file text: the plant and controller of
+/// `examples/models/xy-x.toml` (JM 2e-3, JL 3e-3 kg m^2, KL 3000 N m/rad, 10 mm lead, Kp 50,
+/// Kv 5, Tv 5 ms) without the torque limit; `tail` follows the `[controller]` keys (the torque
+/// limit, more tables).
+pub fn xy_x_model(tail: &str) -> String {
+    format!(
+        r#"
+kind = "ballscrew"
+jm_kgm2 = 2.0e-3
+dm_nms_per_rad = 1.0e-3
+kl_nm_per_rad = 3000.0
+cl_nms_per_rad = 0.02
+jl_kgm2 = 3.0e-3
+dl_nms_per_rad = 2.0e-3
+lead_m = 0.01
+[controller]
+kp_per_s = 50.0
+kv_nms_per_rad = 5.0
+tv_s = 0.005
+{tail}"#
+    )
+}
+
+/// The `[[chain]]` entries of a position/feedforward/velocity cascade on `axis`: `position_p`,
+/// `inverse_feedforward` (with `ff_params` as its params when given) and `pi_velocity`.
+pub fn ff_chain(axis: &str, ff_params: Option<&str>) -> String {
+    let params = ff_params
+        .map(|p| format!("params = {{ {p} }}\n"))
+        .unwrap_or_default();
+    format!(
+        "[[chain]]\naxis = \"{axis}\"\nstage = \"position\"\nplugin = \"position_p\"\n\
+         [[chain]]\naxis = \"{axis}\"\nstage = \"feedforward\"\nplugin = \"inverse_feedforward\"\n{params}\
+         [[chain]]\naxis = \"{axis}\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\n"
+    )
 }
 
 /// Writes `text` as a job file in a fresh temp folder (with `{examples}` replaced by the
