@@ -7,7 +7,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use feedloop_tests::{
-    process_lock, read_json, scratch, signal, start_realtime_run, swap_x_velocity,
+    process_lock, read_json, repo_file, scratch, signal, start_realtime_run, swap_x_velocity,
     write_long_circle_job,
 };
 
