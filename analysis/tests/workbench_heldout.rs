@@ -4,7 +4,57 @@
 //! ignored `heldout_baseline_report` runs `diagnose` on one trace per hidden-effect kind at two
 //! levels and two noise levels and prints what it names first.
 //!
-//! BASELINE (TABLE_PLACEHOLDER)
+//! Baseline, 2026-11-24 (release build, `cargo test --release -p feedloop-analysis --test
+//! workbench_heldout -- --ignored --nocapture`; velocity noise low 0.002 / high 0.05 rad/s;
+//! `match`: the first significant candidate's class is the hidden effect's (for `none` and for
+//! the pulses, which the torque column carries: nothing significant); `partial`: another class
+//! whose effects include the hidden one; 26 of 36 match):
+//!
+//! | kind | level | noise | first significant: class / ids (reduction) | match | other significant | peak u N m | gen+diag |
+//! |---|---|---|---|---|---|---|---|
+//! | saturation, clamped record | 7.5 N m | low | - | NO | - | 30.0 | 0.0+0.6 s |
+//! | saturation, clamped record | 7.5 N m | high | - | NO | - | 30.0 | 0.0+0.6 s |
+//! | saturation, clamped record | 5 N m | low | - | NO | - | 30.0 | 0.0+0.5 s |
+//! | saturation, clamped record | 5 N m | high | - | NO | - | 30.0 | 0.0+0.6 s |
+//! | saturation, unclamped record | 7.5 N m | low | saturation / torque_saturation (100 %) | yes | - | 30.0 | 0.0+0.6 s |
+//! | saturation, unclamped record | 7.5 N m | high | saturation / torque_saturation (100 %) | yes | - | 30.0 | 0.0+0.5 s |
+//! | saturation, unclamped record | 5 N m | low | saturation / torque_saturation (100 %) | yes | backlash (86 %) | 30.0 | 0.0+0.5 s |
+//! | saturation, unclamped record | 5 N m | high | saturation / torque_saturation (100 %) | yes | backlash (86 %) | 30.0 | 0.0+0.5 s |
+//! | none (right model) | seed 11 | low | - | yes | - | 8.7 | 0.0+0.6 s |
+//! | none (right model) | seed 11 | high | - | yes | - | 9.0 | 0.0+0.5 s |
+//! | none (right model) | seed 12 | low | - | yes | - | 8.7 | 0.0+0.5 s |
+//! | none (right model) | seed 12 | high | - | yes | - | 9.1 | 0.0+0.5 s |
+//! | third mass | 80 kg @ 120 Hz, smooth ramps | low | inertia / jl_kgm2+jm_kgm2 (98 %) | NO | - | 9.0 | 0.0+0.6 s |
+//! | third mass | 80 kg @ 120 Hz, smooth ramps | high | inertia / jl_kgm2+jm_kgm2 (97 %) | NO | - | 9.4 | 0.0+0.6 s |
+//! | third mass | 400 kg @ 70 Hz, accel. steps | low | mode / third_mass+jl_kgm2+jm_kgm2 (98 %) | yes | - | 12.0 | 0.0+0.5 s |
+//! | third mass | 400 kg @ 70 Hz, accel. steps | high | mode / third_mass+jl_kgm2+jm_kgm2 (98 %) | yes | - | 12.4 | 0.0+0.5 s |
+//! | constant force | -100 N | low | friction / coulomb_friction+constant_force (100 %) | partial | - | 8.8 | 0.0+0.6 s |
+//! | constant force | -100 N | high | friction / coulomb_friction+constant_force (100 %) | partial | - | 9.1 | 0.0+0.6 s |
+//! | constant force | -500 N | low | friction / coulomb_friction+constant_force (100 %) | partial | - | 9.5 | 0.0+0.5 s |
+//! | constant force | -500 N | high | friction / coulomb_friction+constant_force (100 %) | partial | - | 9.8 | 0.0+0.6 s |
+//! | delay + coulomb | 1 cyc + Fc 30 N | low | friction / coulomb_friction+constant_force (68 %) | yes | current_lag (20 %) | 8.7 | 0.0+0.6 s |
+//! | delay + coulomb | 1 cyc + Fc 30 N | high | friction / coulomb_friction+constant_force (68 %) | yes | current_lag (21 %) | 9.1 | 0.0+0.6 s |
+//! | delay + coulomb | 1 cyc + Fc 100 N | low | friction / coulomb_friction+constant_force (83 %) | yes | - | 8.8 | 0.0+0.7 s |
+//! | delay + coulomb | 1 cyc + Fc 100 N | high | friction / coulomb_friction+constant_force (84 %) | yes | - | 9.3 | 0.0+0.6 s |
+//! | pulses after controller | 0.5 N m | low | - | yes | - | 8.8 | 0.0+0.6 s |
+//! | pulses after controller | 0.5 N m | high | - | yes | - | 9.1 | 0.0+0.6 s |
+//! | pulses after controller | 2 N m | low | - | yes | - | 10.3 | 0.0+0.6 s |
+//! | pulses after controller | 2 N m | high | - | yes | - | 10.6 | 0.0+0.6 s |
+//! | coulomb (tanh) | Fc 30 N | low | friction / stribeck_friction (88 %) | yes | dm_nms_per_rad (5 %), dl_nms_per_rad (5 %) | 8.7 | 0.0+0.6 s |
+//! | coulomb (tanh) | Fc 30 N | high | friction / stribeck_friction (88 %) | yes | dm_nms_per_rad (5 %), dl_nms_per_rad (5 %) | 9.1 | 0.0+0.6 s |
+//! | coulomb (tanh) | Fc 100 N | low | friction / stribeck_friction (88 %) | yes | dm_nms_per_rad (5 %), dl_nms_per_rad (5 %) | 8.8 | 0.0+0.6 s |
+//! | coulomb (tanh) | Fc 100 N | high | friction / stribeck_friction (89 %) | yes | dm_nms_per_rad (5 %), dl_nms_per_rad (5 %) | 9.2 | 0.0+0.6 s |
+//! | viscous | 300 N s/m | low | damping / dl_nms_per_rad+viscous_friction+dm_nms_per_rad (98 %) | yes | - | 8.7 | 0.0+0.6 s |
+//! | viscous | 300 N s/m | high | damping / dl_nms_per_rad+viscous_friction+dm_nms_per_rad (99 %) | yes | - | 9.1 | 0.0+0.5 s |
+//! | viscous | 1500 N s/m | low | damping / dl_nms_per_rad+viscous_friction+dm_nms_per_rad (100 %) | yes | - | 8.8 | 0.0+0.6 s |
+//! | viscous | 1500 N s/m | high | damping / dl_nms_per_rad+viscous_friction+dm_nms_per_rad (100 %) | yes | - | 9.2 | 0.0+0.6 s |
+//!
+//! Fitted values behind the table (printed by the test): saturation unclamped 7.5 N m -> limit
+//! 7.52 / 7.60 N m, but 5 N m -> 0.034 / 0.137 N m (the loop winds up to its own 30 N m);
+//! third mass 400 kg @ 70 Hz -> 360 / 367 kg @ 70.6 Hz; 80 kg @ 120 Hz smooth -> JL +6.8 % (the
+//! mass's 80 kg r^2 exactly); constant force -> offset 100 / 500 N with fc ~ 1e-3 N;
+//! delay + Coulomb 30 / 100 N -> fc 34.0 / 104.1 N, the delay itself never named (a current lag
+//! at 30 N); tanh Coulomb -> Stribeck with fc within 0.1 %, fs about 9 % above.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -324,7 +374,9 @@ struct Case {
     hidden: Hidden,
     /// Constant-acceleration ramps (acceleration steps) instead of smooth ones.
     steps: bool,
-    /// Classes or effect ids that name the hidden effect; empty: nothing should be significant.
+    /// Classes that name the hidden effect; empty: nothing should be significant. A first
+    /// candidate of another class that lists the hidden effect's id among the ones it adds or
+    /// cannot be told from counts as "partial".
     expect: &'static [&'static str],
 }
 
@@ -366,7 +418,7 @@ fn cases() -> Vec<Case> {
             expect,
         })
     };
-    for (lv, l) in [("10 N m", 10.0), ("6 N m", 6.0)] {
+    for (lv, l) in [("7.5 N m", 7.5), ("5 N m", 5.0)] {
         add(
             "saturation, clamped record",
             lv,
@@ -377,7 +429,7 @@ fn cases() -> Vec<Case> {
             &["saturation"][..],
         );
     }
-    for (lv, l) in [("10 N m", 10.0), ("6 N m", 6.0)] {
+    for (lv, l) in [("7.5 N m", 7.5), ("5 N m", 5.0)] {
         add(
             "saturation, unclamped record",
             lv,
@@ -413,7 +465,7 @@ fn cases() -> Vec<Case> {
                 constant_force_n: f,
                 ..Hidden::default()
             },
-            &["offset", "constant_force"][..],
+            &["offset"][..],
         );
     }
     for (lv, fc) in [("1 cyc + Fc 30 N", 30.0), ("1 cyc + Fc 100 N", 100.0)] {
@@ -491,15 +543,35 @@ fn heldout_baseline_report() {
             let dg = diagnose(&m, &d, &DiagOptions::default());
             let tdiag = t1.elapsed().as_secs_f64();
             let first = dg.candidates.iter().find(|k| k.significant);
-            let (named, ok) = match first {
-                None => ("-".to_string(), c.expect.is_empty()),
+            let (named, verdict) = match first {
+                None => (
+                    "-".to_string(),
+                    if c.expect.is_empty() { "yes" } else { "NO" },
+                ),
                 Some(k) => {
                     let mut ids = vec![k.effect.clone()];
                     ids.extend(k.same_as.iter().cloned());
-                    let ok = c
-                        .expect
+                    for e in &k.add {
+                        if !ids.contains(&e.id) {
+                            ids.push(e.id.clone());
+                        }
+                    }
+                    let ok = c.expect.contains(&k.class.as_str());
+                    let partial = c.expect.iter().any(|e| {
+                        let want = match *e {
+                            "offset" => "constant_force",
+                            "mode" => "third_mass",
+                            "saturation" => "torque_saturation",
+                            other => other,
+                        };
+                        ids.iter().any(|i| i == want)
+                    });
+                    let params: Vec<String> = k
+                        .params
                         .iter()
-                        .any(|e| *e == k.class || ids.iter().any(|i| i == e));
+                        .map(|(p, v)| format!("{p}={v:.3e}"))
+                        .collect();
+                    println!("    first: {} {}", k.effect, params.join(" "));
                     (
                         format!(
                             "{} / {} ({:.0} %)",
@@ -507,9 +579,29 @@ fn heldout_baseline_report() {
                             ids.join("+"),
                             k.error_reduction_pct
                         ),
-                        ok,
+                        if ok {
+                            "yes"
+                        } else if partial {
+                            "partial"
+                        } else {
+                            "NO"
+                        },
                     )
                 }
+            };
+            let ok = verdict == "yes";
+            let others: Vec<String> = dg
+                .candidates
+                .iter()
+                .filter(|k| k.significant)
+                .skip(1)
+                .filter(|k| first.is_none_or(|f| !f.same_as.contains(&k.effect)))
+                .map(|k| format!("{} ({:.0} %)", k.effect, k.error_reduction_pct))
+                .collect();
+            let others = if others.is_empty() {
+                "-".to_string()
+            } else {
+                others.join(", ")
             };
             let peak = run.controller.iter().fold(0.0f64, |a, x| a.max(x.abs()));
             total += 1;
@@ -517,15 +609,8 @@ fn heldout_baseline_report() {
                 hits += 1;
             }
             let row = format!(
-                "| {} | {} | {} | {} | {} | {:.1} | {:.1}+{:.1} s |",
-                c.kind,
-                c.level,
-                nl,
-                named,
-                if ok { "yes" } else { "NO" },
-                peak,
-                tgen,
-                tdiag
+                "| {} | {} | {} | {} | {} | {} | {:.1} | {:.1}+{:.1} s |",
+                c.kind, c.level, nl, named, verdict, others, peak, tgen, tdiag
             );
             println!("{row}");
             println!("    verdict: {}", dg.verdict);
@@ -533,8 +618,8 @@ fn heldout_baseline_report() {
         }
     }
     println!();
-    println!("| kind | level | noise | first significant: class / id (reduction) | match | peak u N m | gen+diag |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| kind | level | noise | first significant: class / ids (reduction) | match | other significant | peak u N m | gen+diag |");
+    println!("|---|---|---|---|---|---|---|---|");
     for r in &rows {
         println!("{r}");
     }
