@@ -128,6 +128,8 @@ impl Trajectory for Circle {
 }
 
 /// `kind = "circle"`.
+/// Kept as one function (about 105 lines): it reads every key of a circle in one place, so the
+/// accepted keys and their checks stand together.
 pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
     let plane = match f.opt_str_array("axes")? {
         Some(names) => {

@@ -212,6 +212,8 @@ enum Segment {
 }
 
 /// `kind = "sequence"`.
+/// Kept as one function (about 115 lines): it reads every key of a sequence and of its segments
+/// in one place, so the accepted keys and their checks stand together.
 pub(crate) fn sequence(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
     let zero = vec![0.0; ctx.axes.len()];
     let start = per_axis_or(&mut f, "start_m", "start_rad", ctx, Range::Finite, &zero)?;

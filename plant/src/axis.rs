@@ -246,6 +246,8 @@ impl AxisPlant {
 
     /// As [`AxisPlant::new`] for axis number `axis_index` of a plant: the index is mixed into
     /// the sensor noise seed so that axes sharing a model file get independent noise.
+    /// Kept as one function (about 150 lines): every parameter of the model file and of its
+    /// effects is converted to the integrator's units and state in one place.
     pub fn new_indexed(
         model: &ModelFile,
         period_s: f64,

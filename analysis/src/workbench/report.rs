@@ -59,6 +59,8 @@ fn esc(s: &str) -> String {
 }
 
 /// Draws an SVG plot; `shade` are x intervals to shade; `logy` plots log10 of y.
+/// Kept as one function (about 160 lines): one SVG from frame to legend (axes, ticks, shading,
+/// lines, labels), each part a few lines that share the same scales.
 pub fn plot(
     title: &str,
     xlabel: &str,
@@ -306,6 +308,8 @@ pub fn spectrum(x: &[f64], dt: f64) -> (Vec<f64>, Vec<f64>) {
 
 /// Writes the HTML report of a comparison (and, when given, a diagnosis table and an error
 /// history) as a string.
+/// Kept as one function (about 220 lines): the report page from top to bottom, each section a
+/// figure and its plot in the order the reader meets them.
 pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> String {
     let mut h = String::new();
     let _ = write!(

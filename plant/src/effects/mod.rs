@@ -176,6 +176,8 @@ pub(crate) struct EffectSet {
 }
 
 /// Parses and validates the `[effects]` table of a model file.
+/// Kept as one function (about 110 lines): the one dispatch over `EffectId`, with the checks
+/// that span effects (one friction law per body and side, unknown ids, repeats).
 pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
     let (motor_per_load, lead_m) = match model.plant {
         PlantParams::BallScrew { lead_m, .. } => (model.plant.motor_per_load(), Some(lead_m)),

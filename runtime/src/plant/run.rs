@@ -160,6 +160,9 @@ pub enum PlantLoopError {
 const STALL_NS: u64 = 1_000_000;
 
 /// Runs the plant side until all cycles ran, the scheduler is lost, or `stop` is set.
+/// One function on purpose (about 250 lines): the steps of a period (wait for the deadline,
+/// sense, publish, wait for the command and check it, apply it, step, record) read top to bottom
+/// in the order they run, and the cycle's state stays in locals of the hot loop.
 pub fn run_plant<P: PlantDevice>(
     cfg: &PlantLoopConfig,
     plant: &mut P,

@@ -464,6 +464,8 @@ impl ControlPlane {
     }
 
     /// After cycle `seq` produced `cmd`: probation checks, rollbacks, answers, new requests.
+    /// Kept as one function (about 125 lines): a swap's whole life after the cycle that applied
+    /// it (probation checks, commit or rollback, the one answer) reads in the order it happens.
     pub fn after_cycle(&mut self, cycle: &mut ControlCycle, cmd: &ActuatorCommand, seq: u64) {
         let n = self.history.len().min(MAX_AXES);
         let prev_pos = (self.hist_pos + HISTORY - 1) % HISTORY;

@@ -86,6 +86,9 @@ pub enum SchedulerError {
 }
 
 /// Runs the scheduler side until the plant's last cycle is answered, the plant is lost, or `stop`.
+/// One function on purpose (about 200 lines): the steps of a cycle (wait for the sample, run the
+/// prepared cycle, publish, record, prepare the next references, serve the control service)
+/// read top to bottom in the order they run, and the cycle's state stays in locals.
 pub fn run_scheduler(
     cfg: &SchedulerConfig,
     cycle: &mut ControlCycle,
