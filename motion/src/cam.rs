@@ -269,6 +269,23 @@ impl XcGeometry {
         (p[0] - w[0]).hypot(p[1] - w[1]) - self.wheel_radius_m
     }
 
+    /// The geometry of `profile` ground with a wheel of radius `wheel_radius_m`, checked
+    /// ([`XcGeometry::check`]); what is wrong is an error on key `profile` of the table `f` reads.
+    pub fn checked(
+        profile: CamProfile,
+        wheel_radius_m: f64,
+        f: &Fields<'_>,
+    ) -> Result<Self, ConfigError> {
+        let geometry = XcGeometry {
+            profile,
+            wheel_radius_m,
+        };
+        geometry
+            .check()
+            .map_err(|r| f.error("profile", r.to_string()))?;
+        Ok(geometry)
+    }
+
     /// Checks the profile can be ground with this wheel: `r > 0` everywhere and, where the
     /// profile is concave, its radius of curvature exceeds `R`. Returns what is wrong.
     pub fn check(&self) -> Result<(), GeometryError> {
@@ -529,13 +546,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
             ),
         ));
     }
-    let geometry = XcGeometry {
-        profile,
-        wheel_radius_m: wheel,
-    };
-    geometry
-        .check()
-        .map_err(|r| f.error("profile", r.to_string()))?;
+    let geometry = XcGeometry::checked(profile, wheel, &f)?;
     f.finish()?;
 
     let (x0, c0) = geometry.axes_at(phi0);

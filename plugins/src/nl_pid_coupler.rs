@@ -144,13 +144,7 @@ impl NlPidCouplerParams {
             kd_width_m: f.f64_or("kd_width_m", width, d.kd_width_m)?,
         };
         let max = f.f64_or("max_correction_m_per_s", Range::Within(0.0, 10.0), 0.1)?;
-        let geometry = XcGeometry {
-            profile,
-            wheel_radius_m: wheel,
-        };
-        geometry
-            .check()
-            .map_err(|r| f.error("profile", r.to_string()))?;
+        let geometry = XcGeometry::checked(profile, wheel, &f)?;
         f.finish()?;
         Ok(Self {
             geometry,

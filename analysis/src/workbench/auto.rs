@@ -147,20 +147,8 @@ impl AutoResult {
             "step",
             "NRMSE %",
             &[
-                super::report::Series {
-                    name: "equation error",
-                    color: "#1f77b4",
-                    x: &x,
-                    y: &eq,
-                    dots: false,
-                },
-                super::report::Series {
-                    name: "windowed simulation",
-                    color: "#d62728",
-                    x: &x,
-                    y: &ws,
-                    dots: false,
-                },
+                super::report::Series::line("equation error", "#1f77b4", &x, &eq),
+                super::report::Series::line("windowed simulation", "#d62728", &x, &ws),
             ],
             &[],
             false,

@@ -286,18 +286,7 @@ impl Effect {
             "third_mass" => {
                 let w = 2.0 * PI * self.hyper[0];
                 let m = self.coef[0].max(0.0);
-                let (k1, k2, k3, f) = match kind {
-                    AxisKind::Rotary => (
-                        "inertia_kgm2",
-                        "stiffness_nm_per_rad",
-                        "damping_nms_per_rad",
-                        1.0,
-                    ),
-                    AxisKind::BallScrew => {
-                        ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r)
-                    }
-                    AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
-                };
+                let (k1, k2, k3, f) = third_mass_keys(kind, r);
                 put(&mut t, k1, m * f);
                 put(&mut t, k2, m * f * w * w);
                 put(&mut t, k3, 2.0 * self.hyper[1] * w * m * f);
@@ -413,18 +402,7 @@ impl Effect {
                 e.coef = vec![-amp * ph.cos(), -amp * ph.sin()];
             }
             "third_mass" => {
-                let (k1, k2, k3, f) = match kind {
-                    AxisKind::Rotary => (
-                        "inertia_kgm2",
-                        "stiffness_nm_per_rad",
-                        "damping_nms_per_rad",
-                        1.0,
-                    ),
-                    AxisKind::BallScrew => {
-                        ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r)
-                    }
-                    AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
-                };
+                let (k1, k2, k3, f) = third_mass_keys(kind, r);
                 let m = need(k1)?;
                 let k = need(k2)?;
                 let c = num(k3)?.unwrap_or(0.0);
@@ -715,8 +693,18 @@ impl WbModel {
     /// sensor model (the simulation is compared with the measurement, noise and all).
     pub fn sim_file(&self) -> ModelFile {
         let mut f = self.file.clone();
+        self.base_into(&mut f.plant);
+        f.effects = self.effects_table();
+        f.sensor = toml::Table::new();
+        f
+    }
+
+    /// Writes the current base values (`base`, model-file keys) into `plant`; keys the model
+    /// does not carry leave their parameter as it is. The one place the workbench's base
+    /// parameters go back into the typed model.
+    pub fn base_into(&self, plant: &mut PlantParams) {
         let get = |k: &str| self.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
-        match &mut f.plant {
+        match plant {
             PlantParams::Rigid(p) => {
                 p.mass_kg = get("mass_kg").unwrap_or(p.mass_kg);
                 p.viscous_ns_per_m = get("viscous_ns_per_m").unwrap_or(p.viscous_ns_per_m);
@@ -728,9 +716,6 @@ impl WbModel {
                 t.dl_nms_per_rad = get("dl_nms_per_rad").unwrap_or(t.dl_nms_per_rad);
             }
         }
-        f.effects = self.effects_table();
-        f.sensor = toml::Table::new();
-        f
     }
 
     /// Writes the model with the current base values and effects to `path`.
@@ -750,5 +735,19 @@ impl WbModel {
             toml::to_string_pretty(&t).unwrap_or_default()
         );
         std::fs::write(path, text).map_err(|e| WorkbenchError::io(path, e))
+    }
+}
+/// Keys of a `third_mass` table on an axis of `kind` (inertia or mass, stiffness, damping) and
+/// the factor from them to motor units (`r^2` on a ball screw, `r` rad per m).
+fn third_mass_keys(kind: AxisKind, r: f64) -> (&'static str, &'static str, &'static str, f64) {
+    match kind {
+        AxisKind::Rotary => (
+            "inertia_kgm2",
+            "stiffness_nm_per_rad",
+            "damping_nms_per_rad",
+            1.0,
+        ),
+        AxisKind::BallScrew => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r),
+        AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
     }
 }

@@ -77,15 +77,19 @@ impl FitResult {
     }
 }
 
-/// Checks effect ids given with `--add`.
-pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
-    let mut out = Vec::new();
-    for s in list
-        .iter()
+/// The entries of flag values given as comma-separated lists (`--add a,b --add c`), trimmed,
+/// empty ones dropped.
+fn comma_list(list: &[String]) -> impl Iterator<Item = &str> {
+    list.iter()
         .flat_map(|s| s.split(','))
         .map(str::trim)
         .filter(|s| !s.is_empty())
-    {
+}
+
+/// Checks effect ids given with `--add`.
+pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
+    let mut out = Vec::new();
+    for s in comma_list(list) {
         if EffectId::parse(s).is_none() {
             return Err(WorkbenchError::BadArgument {
                 arg: format!("--add {s}"),
@@ -180,12 +184,7 @@ fn free_keys(
             .collect()),
         Some(list) => {
             let mut out = Vec::new();
-            for s in list
-                .iter()
-                .flat_map(|s| s.split(','))
-                .map(str::trim)
-                .filter(|s| !s.is_empty())
-            {
+            for s in comma_list(list) {
                 if !keys.contains(&s) {
                     return Err(WorkbenchError::BadArgument {
                         arg: format!("--free {s}"),
@@ -332,18 +331,7 @@ pub fn fit_with(
 }
 
 fn update_plant(m: &mut WbModel) {
-    use feedloop_model::model::PlantParams;
-    let get = |k: &str| m.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
-    match &mut m.file.plant {
-        PlantParams::Rigid(p) => {
-            p.mass_kg = get("mass_kg").unwrap_or(p.mass_kg);
-            p.viscous_ns_per_m = get("viscous_ns_per_m").unwrap_or(p.viscous_ns_per_m);
-        }
-        PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-            t.jm_kgm2 = get("jm_kgm2").unwrap_or(t.jm_kgm2);
-            t.jl_kgm2 = get("jl_kgm2").unwrap_or(t.jl_kgm2);
-            t.dm_nms_per_rad = get("dm_nms_per_rad").unwrap_or(t.dm_nms_per_rad);
-            t.dl_nms_per_rad = get("dl_nms_per_rad").unwrap_or(t.dl_nms_per_rad);
-        }
-    }
+    let mut plant = m.file.plant;
+    m.base_into(&mut plant);
+    m.file.plant = plant;
 }

@@ -32,6 +32,27 @@ pub struct Series<'a> {
     pub dots: bool,
 }
 
+impl<'a> Series<'a> {
+    /// `y` over `x` drawn as a line.
+    pub fn line(name: &'a str, color: &'a str, x: &'a [f64], y: &'a [f64]) -> Self {
+        Self {
+            name,
+            color,
+            x,
+            y,
+            dots: false,
+        }
+    }
+
+    /// `y` over `x` drawn as dots.
+    pub fn dots(name: &'a str, color: &'a str, x: &'a [f64], y: &'a [f64]) -> Self {
+        Self {
+            dots: true,
+            ..Self::line(name, color, x, y)
+        }
+    }
+}
+
 fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return vec![lo];
@@ -376,20 +397,8 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
             "time (s)",
             ylabel,
             &[
-                Series {
-                    name: "measured",
-                    color: "#1f77b4",
-                    x: &tx,
-                    y: &my,
-                    dots: false,
-                },
-                Series {
-                    name: "model",
-                    color: "#d62728",
-                    x: &tx2,
-                    y: &sy,
-                    dots: false,
-                },
+                Series::line("measured", "#1f77b4", &tx, &my),
+                Series::line("model", "#d62728", &tx2, &sy),
             ],
             &[],
             false,
@@ -406,13 +415,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         "Residual over time (worst 10 segments shaded)",
         "time (s)",
         "residual",
-        &[Series {
-            name: "residual",
-            color: "#333",
-            x: &tx,
-            y: &ry,
-            dots: false,
-        }],
+        &[Series::line("residual", "#333", &tx, &ry)],
         &shade,
         false,
     ));
@@ -422,13 +425,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         "Residual against motor velocity",
         "motor velocity (motor units/s)",
         "residual",
-        &[Series {
-            name: "residual",
-            color: "#2ca02c",
-            x: &v,
-            y: &rs,
-            dots: true,
-        }],
+        &[Series::dots("residual", "#2ca02c", &v, &rs)],
         &[],
         false,
     ));
@@ -437,13 +434,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         "Residual against load position",
         "load position (m or rad)",
         "residual",
-        &[Series {
-            name: "residual",
-            color: "#9467bd",
-            x: &p,
-            y: &rs,
-            dots: true,
-        }],
+        &[Series::dots("residual", "#9467bd", &p, &rs)],
         &[],
         false,
     ));
@@ -461,13 +452,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         "Residual against motor angle (mod one revolution; position for a linear motor)",
         "motor angle (rad) / position (m)",
         "residual",
-        &[Series {
-            name: "residual",
-            color: "#8c564b",
-            x: &ang,
-            y: &rs,
-            dots: true,
-        }],
+        &[Series::dots("residual", "#8c564b", &ang, &rs)],
         &[],
         false,
     ));
@@ -477,13 +462,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         "Residual spectrum (Welch, Hann)",
         "frequency (Hz)",
         "amplitude (log10)",
-        &[Series {
-            name: "residual",
-            color: "#ff7f0e",
-            x: &f,
-            y: &amp,
-            dots: false,
-        }],
+        &[Series::line("residual", "#ff7f0e", &f, &amp)],
         &[],
         true,
     ));
@@ -505,20 +484,8 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
             "time (s)",
             &name,
             &[
-                Series {
-                    name: "measured",
-                    color: "#1f77b4",
-                    x: &tx,
-                    y: &my,
-                    dots: false,
-                },
-                Series {
-                    name: "simulated",
-                    color: "#d62728",
-                    x: &tx2,
-                    y: &sy,
-                    dots: false,
-                },
+                Series::line("measured", "#1f77b4", &tx, &my),
+                Series::line("simulated", "#d62728", &tx2, &sy),
             ],
             &[],
             false,

@@ -106,8 +106,7 @@ pub(crate) fn parse(
     table: &toml::Table,
     ctx: &Ctx,
 ) -> Result<(Side, DryFriction), ConfigError> {
-    let side = read_side(f)?;
-    let u = ctx.units(side);
+    let (side, u) = read_side(f, ctx)?;
     let key = format!("fc_{}", u.torque);
     let key_neg = format!("fc_neg_{}", u.torque);
     check_keys(f, table, &["side", &key, &key_neg])?;

@@ -134,17 +134,19 @@ pub(crate) fn table_error(f: &Fields<'_>, reason: impl Into<String>) -> ConfigEr
     e
 }
 
-/// Reads the optional `side` key (default motor).
-pub(crate) fn read_side(f: &mut Fields<'_>) -> Result<Side, ConfigError> {
-    match f.opt_str("side")? {
-        None => Ok(Side::Motor),
+/// Reads the optional `side` key (default motor) and returns it with the units of the body it
+/// names (the units of the table's other keys).
+pub(crate) fn read_side(f: &mut Fields<'_>, ctx: &Ctx) -> Result<(Side, Units), ConfigError> {
+    let side = match f.opt_str("side")? {
+        None => Side::Motor,
         Some(s) => Side::parse(s).ok_or_else(|| {
             f.error(
                 "side",
                 format!("unknown side `{s}` (expected \"motor\" or \"load\")"),
             )
-        }),
-    }
+        })?,
+    };
+    Ok((side, ctx.units(side)))
 }
 
 /// Largest number of cogging harmonics per axis.

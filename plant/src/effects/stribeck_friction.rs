@@ -43,8 +43,7 @@ pub(crate) fn parse(
     table: &toml::Table,
     ctx: &Ctx,
 ) -> Result<(Side, DryFriction), ConfigError> {
-    let side = read_side(f)?;
-    let u = ctx.units(side);
+    let (side, u) = read_side(f, ctx)?;
     let k_fc = format!("fc_{}", u.torque);
     let k_fs = format!("fs_{}", u.torque);
     let k_fc_neg = format!("fc_neg_{}", u.torque);

@@ -54,8 +54,7 @@ pub(crate) fn parse(
     table: &toml::Table,
     ctx: &Ctx,
 ) -> Result<(Side, Viscous), ConfigError> {
-    let side = read_side(f)?;
-    let u = ctx.units(side);
+    let (side, u) = read_side(f, ctx)?;
     let key = format!("c_{}", u.visc);
     let key_neg = format!("c_neg_{}", u.visc);
     check_keys(f, table, &["side", &key, &key_neg])?;
