@@ -272,7 +272,7 @@ mod tests {
     }
 
     /// Measures (does not assert) write and read speed: `cargo test --release -p
-    /// feedloop-runtime trace_throughput -- --ignored --nocapture`.
+    /// feedloop-trace trace_throughput -- --ignored --nocapture`.
     #[test]
     #[ignore]
     fn trace_throughput_is_measured_for_a_million_rows_of_eleven_columns() {
