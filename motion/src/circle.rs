@@ -253,9 +253,14 @@ ramp_s = 0.1
 dwell_after_s = 0.05
 "#;
 
+    /// The shipped example built for its two axes.
+    fn example() -> Box<dyn Trajectory> {
+        built(EXAMPLE, &["x", "y"])
+    }
+
     #[test]
     fn the_example_circle_takes_about_four_seconds() {
-        let tr = built(EXAMPLE, &["x", "y"]);
+        let tr = example();
         let arc = 2.0 * PI * 0.01 * 2.0;
         let expect = arc / 0.0333333333333 + 0.1 + 0.05;
         assert!((tr.duration_s() - expect).abs() < 1e-9);
@@ -267,7 +272,7 @@ dwell_after_s = 0.05
 
     #[test]
     fn the_radius_is_exact_and_the_speed_equals_the_feed_in_the_steady_part() {
-        let tr = built(EXAMPLE, &["x", "y"]);
+        let tr = example();
         let c = tr.contour().unwrap();
         let w = tr.steady_windows_s();
         assert_eq!(w.len(), 1);
@@ -293,7 +298,7 @@ dwell_after_s = 0.05
 
     #[test]
     fn circle_derivatives_match_central_differences() {
-        let tr = built(EXAMPLE, &["x", "y"]);
+        let tr = example();
         let worst = check_derivatives(tr.as_ref(), 400, 1e-5, &[]);
         assert!(worst < 1e-5, "{worst}");
     }
@@ -411,7 +416,7 @@ dwell_after_s = 0.05
 
     #[test]
     fn the_path_error_equals_minus_the_radial_error_for_a_ccw_circle() {
-        let tr = built(EXAMPLE, &["x", "y"]);
+        let tr = example();
         let c = tr.contour().unwrap();
         // The distance to the commanded path, as part programs measure it, on a curved path.
         let index = crate::path_index::PathIndex::build(tr.as_ref(), c.axes);

@@ -570,6 +570,18 @@ mod tests {
     use feedloop_trace::Trace;
     use std::path::Path;
 
+    const RANDOM: &str = r#"
+kind = "random_segments"
+velocity_m_per_s = { x = 0.02 }
+max_travel_m = { x = 0.01 }
+min_segment_s = 0.01
+max_segment_s = 0.05
+transition_s = 0.004
+duration_s = 3.0
+seed = 7
+return_s = 0.3
+"#;
+
     #[test]
     fn every_prbs_order_has_its_maximum_period_and_balance() {
         for order in 2..=20u32 {
@@ -589,18 +601,6 @@ mod tests {
         }
         assert!(prbs_sequence(21).is_empty());
     }
-
-    const RANDOM: &str = r#"
-kind = "random_segments"
-velocity_m_per_s = { x = 0.02 }
-max_travel_m = { x = 0.01 }
-min_segment_s = 0.01
-max_segment_s = 0.05
-transition_s = 0.004
-duration_s = 3.0
-seed = 7
-return_s = 0.3
-"#;
 
     #[test]
     fn random_segments_are_reproducible_bounded_and_smooth() {

@@ -427,7 +427,9 @@ mod tests {
         );
     }
 
-    const REVERSAL: &str = r#"
+    #[test]
+    fn a_sequence_chains_its_segments_continuously_and_repeats() {
+        const REVERSAL: &str = r#"
 kind = "sequence"
 start_m = { x = 0.0 }
 repeat = 2
@@ -451,9 +453,6 @@ velocity_m_per_s = { x = -0.02 }
 accel_s = 0.05
 constant_s = 0.1
 "#;
-
-    #[test]
-    fn a_sequence_chains_its_segments_continuously_and_repeats() {
         let tr = built(REVERSAL, &["x", "y"]);
         // C5 move 0.2 + dwell 0.05 + S-curve + ramp 0.2, twice.
         let d = tr.duration_s();
