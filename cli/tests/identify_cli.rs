@@ -22,14 +22,27 @@ fn scratch(name: &str) -> PathBuf {
     d
 }
 
-fn run(args: &[&str]) -> Output {
-    Command::new(bin()).args(args).output().unwrap()
+/// A command line: the words of `line`, then `option path` for each of `paths`.
+fn cli(line: &str, paths: &[(&str, &Path)]) -> Vec<String> {
+    let mut a: Vec<String> = line.split_whitespace().map(String::from).collect();
+    for (option, path) in paths {
+        a.push(option.to_string());
+        a.push(path.display().to_string());
+    }
+    a
 }
 
-fn describe(args: &[&str], o: &Output) -> String {
+fn run<S: AsRef<str>>(args: &[S]) -> Output {
+    Command::new(bin())
+        .args(args.iter().map(AsRef::as_ref))
+        .output()
+        .unwrap()
+}
+
+fn describe<S: AsRef<str>>(args: &[S], o: &Output) -> String {
     format!(
         "feedloop {}\nexit {:?}\nstdout: {}\nstderr: {}",
-        args.join(" "),
+        args.iter().map(AsRef::as_ref).collect::<Vec<_>>().join(" "),
         o.status.code(),
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
@@ -37,8 +50,8 @@ fn describe(args: &[&str], o: &Output) -> String {
 }
 
 /// Runs with `--json`; the command must succeed and its whole stdout must be one JSON value.
-fn json(args: &[&str]) -> serde_json::Value {
-    let mut a = args.to_vec();
+fn json<S: AsRef<str>>(args: &[S]) -> serde_json::Value {
+    let mut a: Vec<&str> = args.iter().map(AsRef::as_ref).collect();
     a.push("--json");
     let o = run(&a);
     assert!(o.status.success(), "{}", describe(&a, &o));
@@ -48,7 +61,7 @@ fn json(args: &[&str]) -> serde_json::Value {
 }
 
 /// The command must fail with a message (no panic, nothing on stdout); returns stderr.
-fn refused(args: &[&str]) -> String {
+fn refused<S: AsRef<str>>(args: &[S]) -> String {
     let o = run(args);
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(!o.status.success(), "accepted: {}", describe(args, &o));
@@ -114,15 +127,10 @@ fn excite_writes_a_playable_command_for_each_kind() {
         ("multisine", "periods=1"),
     ] {
         let out = d.join(format!("{kind}.csv"));
-        let v = json(&[
-            "excite",
-            "--kind",
-            kind,
-            "--set",
-            set,
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let v = json(&cli(
+            &format!("excite --kind {kind} --set {set}"),
+            &[("--out", &out)],
+        ));
         println!("{kind}: {v}");
         assert_eq!(v["kind"], kind);
         assert_eq!(v["out"], out.display().to_string());
@@ -146,23 +154,15 @@ fn excite_writes_a_playable_command_for_each_kind() {
         ("random-segments", "c", "velocity_rad_per_s=0.5"),
     ] {
         let out = d.join(format!("{kind}-{axis}-other-unit.csv"));
-        let v = json(&[
-            "excite",
-            "--kind",
-            kind,
-            "--axis",
-            axis,
-            "--set",
-            set,
-            "--set",
-            if kind == "random-segments" {
-                "max_travel_rad=1.0"
-            } else {
-                "periods=1"
-            },
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let extra = if kind == "random-segments" {
+            "max_travel_rad=1.0"
+        } else {
+            "periods=1"
+        };
+        let v = json(&cli(
+            &format!("excite --kind {kind} --axis {axis} --set {set} --set {extra}"),
+            &[("--out", &out)],
+        ));
         let text = std::fs::read_to_string(&out).unwrap();
         let peak = text
             .lines()
@@ -184,13 +184,7 @@ fn excite_writes_a_playable_command_for_each_kind() {
             "{peak} vs {want}"
         );
     }
-    let e = refused(&[
-        "excite",
-        "--kind",
-        "sweep",
-        "--out",
-        d.join("x.csv").to_str().unwrap(),
-    ]);
+    let e = refused(&cli("excite --kind sweep", &[("--out", &d.join("x.csv"))]));
     assert!(e.contains("sweep") && e.contains("random-segments"), "{e}");
 }
 
@@ -202,17 +196,10 @@ fn identify_stiffness_on_the_shipped_excitation_finds_kl_and_jl_and_draws_the_bo
         &d.join("run"),
     );
     let svg = d.join("bode.svg");
-    let t = trace.to_str().unwrap();
-    let v = json(&[
-        "identify",
-        "stiffness",
-        "--trace",
-        t,
-        "--jm-kgm2",
-        "2e-3",
-        "--svg",
-        svg.to_str().unwrap(),
-    ]);
+    let v = json(&cli(
+        "identify stiffness --jm-kgm2 2e-3",
+        &[("--trace", &trace), ("--svg", &svg)],
+    ));
     println!("{v}");
     // Truth: wa = sqrt(KL / JL) = 159.15 Hz, wr = sqrt(KL (JM + JL) / (JM JL)) = 251.64 Hz.
     let wa = (3000.0f64 / 3e-3).sqrt() / (2.0 * std::f64::consts::PI);
@@ -234,28 +221,16 @@ fn identify_stiffness_on_the_shipped_excitation_finds_kl_and_jl_and_draws_the_bo
     assert!(plot.contains("anti-resonance") && plot.contains("</svg>"));
 
     // A band without a resonance (below the anti-resonance) names the band.
-    let e = refused(&[
-        "identify",
-        "stiffness",
-        "--trace",
-        t,
-        "--jm-kgm2",
-        "2e-3",
-        "--f-max-hz",
-        "100",
-    ]);
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 2e-3 --f-max-hz 100",
+        &[("--trace", &trace)],
+    ));
     assert!(e.contains("between 5.0 and 100.0 Hz"), "{e}");
     // The closed-loop command -> table FRF is refused with the reason.
-    let e = refused(&[
-        "identify",
-        "stiffness",
-        "--trace",
-        t,
-        "--jm-kgm2",
-        "2e-3",
-        "--frf",
-        "command-table",
-    ]);
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 2e-3 --frf command-table",
+        &[("--trace", &trace)],
+    ));
     assert!(e.contains("negative"), "{e}");
 }
 
@@ -267,22 +242,15 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     let job = repo("examples/jobs/identify-inertia-move.toml");
     let applied = d.join("applied.toml");
     let svg = d.join("deviation.svg");
-    let v = json(&[
-        "identify",
-        "inertia",
-        "--method",
-        "sim-match",
-        "--trace",
-        measured.to_str().unwrap(),
-        "--model",
-        job.to_str().unwrap(),
-        "--at",
-        "0.01",
-        "--apply",
-        applied.to_str().unwrap(),
-        "--svg",
-        svg.to_str().unwrap(),
-    ]);
+    let v = json(&cli(
+        "identify inertia --method sim-match --at 0.01",
+        &[
+            ("--trace", &measured),
+            ("--model", &job),
+            ("--apply", &applied),
+            ("--svg", &svg),
+        ],
+    ));
     println!("sim-match: {v}");
     let plot = std::fs::read_to_string(&svg).unwrap();
     assert!(plot.contains("</svg>") && plot.contains("--at 0.01"));
@@ -312,18 +280,10 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     assert!(text.starts_with('#') && text.contains("a3..a5"), "{text}");
 
     // The motor-load deviation (screw twist) gives the same inertia.
-    let v2 = json(&[
-        "identify",
-        "inertia",
-        "--trace",
-        measured.to_str().unwrap(),
-        "--model",
-        job.to_str().unwrap(),
-        "--at",
-        "0.01",
-        "--deviation",
-        "motor-load",
-    ]);
+    let v2 = json(&cli(
+        "identify inertia --at 0.01 --deviation motor-load",
+        &[("--trace", &measured), ("--model", &job)],
+    ));
     println!("sim-match, motor-load: {v2}");
     assert!((num(&v2, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v2}");
 
@@ -331,28 +291,16 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     let svg = d.join("linear.svg");
     let no_load = machine_trace(&d, "w0", 3.0e-3, "structure = \"split\"");
     let loaded = machine_trace(&d, "w20", 3.6e-3, "structure = \"split\"");
-    let v3 = json(&[
-        "identify",
-        "inertia",
-        "--method",
-        "linear",
-        "--no-load",
-        no_load.to_str().unwrap(),
-        "--loaded",
-        loaded.to_str().unwrap(),
-        "--loaded-jl-kgm2",
-        "3.6e-3",
-        "--no-load-jl-kgm2",
-        "3.0e-3",
-        "--model",
-        job.to_str().unwrap(),
-        "--trace",
-        measured.to_str().unwrap(),
-        "--at",
-        "0.01",
-        "--svg",
-        svg.to_str().unwrap(),
-    ]);
+    let v3 = json(&cli(
+        "identify inertia --method linear --loaded-jl-kgm2 3.6e-3 --no-load-jl-kgm2 3.0e-3 --at 0.01",
+        &[
+            ("--no-load", &no_load),
+            ("--loaded", &loaded),
+            ("--model", &job),
+            ("--trace", &measured),
+            ("--svg", &svg),
+        ],
+    ));
     println!("linear: {v3}");
     let plot = std::fs::read_to_string(&svg).unwrap();
     assert_eq!(plot.matches("<polyline").count(), 3, "three traces");
@@ -360,16 +308,10 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
     assert!((num(&v3, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v3}");
 
     // Bad input: a position outside the move names the travel.
-    let e = refused(&[
-        "identify",
-        "inertia",
-        "--trace",
-        measured.to_str().unwrap(),
-        "--model",
-        job.to_str().unwrap(),
-        "--at",
-        "0.2",
-    ]);
+    let e = refused(&cli(
+        "identify inertia --at 0.2",
+        &[("--trace", &measured), ("--model", &job)],
+    ));
     assert!(e.contains("outside the move"), "{e}");
 }
 
@@ -394,16 +336,10 @@ fn the_brief_literal_structure_reports_its_bias_through_the_command_line() {
         );
     let j = d.join("model-job.toml");
     std::fs::write(&j, job).unwrap();
-    let v = json(&[
-        "identify",
-        "inertia",
-        "--trace",
-        measured.to_str().unwrap(),
-        "--model",
-        j.to_str().unwrap(),
-        "--at",
-        "0.03",
-    ]);
+    let v = json(&cli(
+        "identify inertia --at 0.03",
+        &[("--trace", &measured), ("--model", &j)],
+    ));
     println!("{v}");
     assert!((num(&v, "jl_kgm2") / 3e-3 - 1.0).abs() < 0.005, "{v}");
     // The brief: ~0.6 um residual against ~8..10 um per +100 % of JL: -7.5 .. -6 %.
@@ -420,44 +356,25 @@ fn the_brief_literal_structure_reports_its_bias_through_the_command_line() {
 fn a_trace_without_the_needed_columns_is_refused_naming_the_column() {
     let d = scratch("columns");
     let cmd = d.join("cmd.csv");
-    json(&[
-        "excite",
-        "--kind",
-        "prbs",
-        "--set",
-        "periods=1",
-        "--out",
-        cmd.to_str().unwrap(),
-    ]);
+    json(&cli(
+        "excite --kind prbs --set periods=1",
+        &[("--out", &cmd)],
+    ));
     let job = repo("examples/jobs/identify-inertia-move.toml");
-    let e = refused(&[
-        "identify",
-        "inertia",
-        "--trace",
-        cmd.to_str().unwrap(),
-        "--model",
-        job.to_str().unwrap(),
-        "--at",
-        "0.01",
-    ]);
+    let e = refused(&cli(
+        "identify inertia --at 0.01",
+        &[("--trace", &cmd), ("--model", &job)],
+    ));
     assert!(e.contains("x.load"), "{e}");
-    let e = refused(&[
-        "identify",
-        "stiffness",
-        "--trace",
-        cmd.to_str().unwrap(),
-        "--jm-kgm2",
-        "2e-3",
-    ]);
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 2e-3",
+        &[("--trace", &cmd)],
+    ));
     assert!(e.contains("x.torque") || e.contains("x.motor_vel"), "{e}");
-    let e = refused(&[
-        "identify",
-        "stiffness",
-        "--trace",
-        d.join("missing.csv").to_str().unwrap(),
-        "--jm-kgm2",
-        "2e-3",
-    ]);
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 2e-3",
+        &[("--trace", &d.join("missing.csv"))],
+    ));
     assert!(e.contains("missing.csv"), "{e}");
 }
 
@@ -469,17 +386,10 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
     let job = repo("examples/jobs/tune-ramp.toml");
     let grid = "kp_per_s=20:120:3,kv_nms_per_rad=2:10:3,tv_s=0.005:0.005:1";
     let t0 = std::time::Instant::now();
-    let v = json(&[
-        "tune",
-        "--job",
-        job.to_str().unwrap(),
-        "--grid",
-        grid,
-        "--svg",
-        svg.to_str().unwrap(),
-        "--apply",
-        tuned.to_str().unwrap(),
-    ]);
+    let v = json(&cli(
+        &format!("tune --grid {grid}"),
+        &[("--job", &job), ("--svg", &svg), ("--apply", &tuned)],
+    ));
     println!("{v} ({:.2} s)", t0.elapsed().as_secs_f64());
     for k in ["kp_per_s", "kv_nms_per_rad", "tv_s"] {
         assert!(v["best"][k].is_number(), "{v}");
@@ -527,15 +437,10 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
         let e = refused(&["tune", "--job", job.to_str().unwrap(), "--grid", g]);
         assert!(e.contains("grid"), "`{g}`: {e}");
     }
-    let e = refused(&[
-        "tune",
-        "--job",
-        job.to_str().unwrap(),
-        "--grid",
-        grid,
-        "--axis",
-        "z",
-    ]);
+    let e = refused(&cli(
+        &format!("tune --grid {grid} --axis z"),
+        &[("--job", &job)],
+    ));
     assert!(e.contains("`z`"), "{e}");
 }
 
@@ -544,15 +449,10 @@ fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
     let d = scratch("tune-xy");
     let svg = d.join("heat.svg");
     let job = repo("examples/jobs/tune-ramp-xy.toml");
-    let v = json(&[
-        "tune",
-        "--job",
-        job.to_str().unwrap(),
-        "--grid",
-        "kp_per_s=20:120:3,kv_nms_per_rad=2:10:2",
-        "--svg",
-        svg.to_str().unwrap(),
-    ]);
+    let v = json(&cli(
+        "tune --grid kp_per_s=20:120:3,kv_nms_per_rad=2:10:2",
+        &[("--job", &job), ("--svg", &svg)],
+    ));
     println!("{v}");
     assert_eq!(v["axes"], serde_json::json!(["x", "y"]));
     assert_eq!(num(&v, "evaluated"), 12.0);
@@ -565,15 +465,10 @@ fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
     let r = num(&v["e_default"], "y") / num(&v["e_default"], "x");
     assert!((r - 0.5).abs() < 0.05, "{v}");
     // --axis picks one.
-    let v = json(&[
-        "tune",
-        "--job",
-        job.to_str().unwrap(),
-        "--grid",
-        "kp_per_s=20:120:3",
-        "--axis",
-        "y",
-    ]);
+    let v = json(&cli(
+        "tune --grid kp_per_s=20:120:3 --axis y",
+        &[("--job", &job)],
+    ));
     assert_eq!(v["axis"], "y");
     assert_eq!(num(&v, "evaluated"), 3.0);
 }

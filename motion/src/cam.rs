@@ -717,7 +717,7 @@ dwell_after_s = 0.1
 
     #[test]
     fn cam_commands_have_analytic_derivatives_and_a_zero_error_when_tracked() {
-        let tr = build_str(CAM, &["x", "c"]).unwrap();
+        let tr = built(CAM, &["x", "c"]);
         let expect = 0.3 + 4.0 * PI / 6.0 + 0.2 + 0.1;
         assert!((tr.duration_s() - expect).abs() < 1e-9);
         let start = at(tr.as_ref(), 0.0);
@@ -742,28 +742,10 @@ dwell_after_s = 0.1
 
     #[test]
     fn a_profile_the_wheel_cannot_grind_is_refused() {
-        let e = build_str(
-            "kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"table\"\nradius_table_m = [0.03, 0.03, 0.03, 0.01, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03]\nspeed_rad_per_s = 1",
-            &["x", "c"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.profile");
+        let e = refused_at("kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"table\"\nradius_table_m = [0.03, 0.03, 0.03, 0.01, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03, 0.03]\nspeed_rad_per_s = 1", &["x", "c"], "trajectory.profile");
         assert!(e.reason.contains("concave"), "{e}");
-        let e = build_str(
-            "kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.05\ndisc_radius_m = 0.03\nspeed_rad_per_s = 1",
-            &["x", "c"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.eccentricity_m");
-        let e = build_str(
-            "kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.005\ndisc_radius_m = 0.03\nspeed_rad_per_s = 1\nx_start_m = 0.3",
-            &["x", "c"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.approach_s");
+        refused_at("kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.05\ndisc_radius_m = 0.03\nspeed_rad_per_s = 1", &["x", "c"], "trajectory.eccentricity_m");
+        refused_at("kind = \"xc_cam\"\nwheel_radius_m = 0.2\nprofile = \"eccentric\"\neccentricity_m = 0.005\ndisc_radius_m = 0.03\nspeed_rad_per_s = 1\nx_start_m = 0.3", &["x", "c"], "trajectory.approach_s");
     }
 
     #[test]

@@ -255,9 +255,14 @@ ramp_s = 0.1
 dwell_after_s = 0.05
 "#;
 
+    /// The shipped example built for its two axes.
+    fn example() -> Box<dyn Trajectory> {
+        built(EXAMPLE, &["x", "y"])
+    }
+
     #[test]
     fn the_example_circle_takes_about_four_seconds() {
-        let tr = build_str(EXAMPLE, &["x", "y"]).unwrap();
+        let tr = example();
         let arc = 2.0 * PI * 0.01 * 2.0;
         let expect = arc / 0.0333333333333 + 0.1 + 0.05;
         assert!((tr.duration_s() - expect).abs() < 1e-9);
@@ -269,7 +274,7 @@ dwell_after_s = 0.05
 
     #[test]
     fn the_radius_is_exact_and_the_speed_equals_the_feed_in_the_steady_part() {
-        let tr = build_str(EXAMPLE, &["x", "y"]).unwrap();
+        let tr = example();
         let c = tr.contour().unwrap();
         let w = tr.steady_windows_s();
         assert_eq!(w.len(), 1);
@@ -295,25 +300,22 @@ dwell_after_s = 0.05
 
     #[test]
     fn circle_derivatives_match_central_differences() {
-        let tr = build_str(EXAMPLE, &["x", "y"]).unwrap();
+        let tr = example();
         let worst = check_derivatives(tr.as_ref(), 400, 1e-5, &[]);
         assert!(worst < 1e-5, "{worst}");
     }
 
     #[test]
     fn a_clockwise_circle_ends_where_it_started_after_whole_turns() {
-        let tr = build_str(
+        let tr = refused(
             "kind = \"circle\"\ncenter_m = [0.1, 0.2]\nradius_m = 0.005\nfeed_m_per_s = 0.02\nturns = 1.25\ndirection = \"cw\"\nstart_angle_rad = 1.0\nramp_s = 0.05",
             &["y", "x", "z"],
-        )
-        .err()
-        .unwrap();
+        );
         assert_eq!(tr.key, "trajectory.axes", "three axes need `axes`");
-        let tr = build_str(
+        let tr = built(
             "kind = \"circle\"\naxes = [\"x\", \"y\"]\ncenter_m = [0.1, 0.2]\nradius_m = 0.005\nfeed_m_per_s = 0.02\nturns = 1.25\ndirection = \"cw\"\nstart_angle_rad = 1.0\nramp_s = 0.05",
             &["z", "x", "y"],
-        )
-        .unwrap();
+        );
         let start = at(tr.as_ref(), 0.0);
         assert!((start[1][0] - (0.1 + 0.005 * 1f64.cos())).abs() < 1e-15);
         let end = at(tr.as_ref(), tr.duration_s() + 1.0);
@@ -332,7 +334,7 @@ dwell_after_s = 0.05
     fn a_circle_run_both_ways_turns_back_to_its_start_at_the_same_feed() {
         // The reversal study of a ballbar test: 1.5 turns ccw, 0.2 s at rest, 1.5 turns cw.
         let text = "kind = \"circle\"\ncenter_m = [-0.01, 0.0]\nradius_m = 0.01\nfeed_m_per_s = 0.03\nturns = 1.5\ndirection = \"ccw_cw\"\ndwell_between_s = 0.2\nramp_s = 0.1\n";
-        let tr = build_str(text, &["x", "y"]).unwrap();
+        let tr = built(text, &["x", "y"]);
         let one_way = 2.0 * PI * 0.01 * 1.5 / 0.03 + 0.1;
         assert!((tr.duration_s() - (2.0 * one_way + 0.2)).abs() < 1e-9);
         let w = tr.steady_windows_s();
@@ -377,25 +379,24 @@ dwell_after_s = 0.05
         assert!(worst < 1e-4, "derivatives vs central differences: {worst}");
         check_final_hold(tr.as_ref());
         // the rest between the ways only exists for a circle run both ways
-        let e = build_str(&text.replace("ccw_cw", "ccw"), &["x", "y"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.dwell_between_s", "{e}");
+        refused_at(
+            &text.replace("ccw_cw", "ccw"),
+            &["x", "y"],
+            "trajectory.dwell_between_s",
+        );
         // cw first: the first pass turns clockwise
-        let tr = build_str(&text.replace("ccw_cw", "cw_ccw"), &["x", "y"]).unwrap();
+        let tr = built(&text.replace("ccw_cw", "cw_ccw"), &["x", "y"]);
         let s = at(tr.as_ref(), 0.5 * (w[0][0] + w[0][1]));
         assert!((s[0][0] + 0.01) * s[1][1] - s[1][0] * s[0][1] < 0.0);
     }
 
     #[test]
     fn ramps_longer_than_the_arc_are_refused() {
-        let e = build_str(
+        refused_at(
             "kind = \"circle\"\ncenter_m = [0, 0]\nradius_m = 0.001\nfeed_m_per_s = 0.1\nturns = 1\nramp_s = 0.5",
             &["x", "y"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.ramp_s");
+            "trajectory.ramp_s",
+        );
     }
 
     #[test]
@@ -411,14 +412,13 @@ dwell_after_s = 0.05
                 text.push_str("radius_m = 0.01\n");
             }
             text.push_str(extra);
-            let e = build_str(&text, &["x", "y"]).err().unwrap();
-            assert_eq!(e.key, key, "{e}");
+            refused_at(&text, &["x", "y"], key);
         }
     }
 
     #[test]
     fn the_path_error_equals_minus_the_radial_error_for_a_ccw_circle() {
-        let tr = build_str(EXAMPLE, &["x", "y"]).unwrap();
+        let tr = example();
         let c = tr.contour().unwrap();
         // The distance to the commanded path, as part programs measure it, on a curved path.
         let index = crate::path_index::PathIndex::build(tr.as_ref(), c.axes);

@@ -570,6 +570,18 @@ mod tests {
     use feedloop_trace::Trace;
     use std::path::Path;
 
+    const RANDOM: &str = r#"
+kind = "random_segments"
+velocity_m_per_s = { x = 0.02 }
+max_travel_m = { x = 0.01 }
+min_segment_s = 0.01
+max_segment_s = 0.05
+transition_s = 0.004
+duration_s = 3.0
+seed = 7
+return_s = 0.3
+"#;
+
     #[test]
     fn every_prbs_order_has_its_maximum_period_and_balance() {
         for order in 2..=20u32 {
@@ -590,23 +602,11 @@ mod tests {
         assert!(prbs_sequence(21).is_empty());
     }
 
-    const RANDOM: &str = r#"
-kind = "random_segments"
-velocity_m_per_s = { x = 0.02 }
-max_travel_m = { x = 0.01 }
-min_segment_s = 0.01
-max_segment_s = 0.05
-transition_s = 0.004
-duration_s = 3.0
-seed = 7
-return_s = 0.3
-"#;
-
     #[test]
     fn random_segments_are_reproducible_bounded_and_smooth() {
-        let a = build_str(RANDOM, &["x", "y"]).unwrap();
-        let b = build_str(RANDOM, &["x", "y"]).unwrap();
-        let other = build_str(&RANDOM.replace("seed = 7", "seed = 8"), &["x", "y"]).unwrap();
+        let a = built(RANDOM, &["x", "y"]);
+        let b = built(RANDOM, &["x", "y"]);
+        let other = built(&RANDOM.replace("seed = 7", "seed = 8"), &["x", "y"]);
         let mut differs = false;
         let mut vmax: f64 = 0.0;
         let mut xmax: f64 = 0.0;
@@ -647,11 +647,7 @@ return_s = 0.3
 
     #[test]
     fn the_random_segments_velocity_spectrum_is_flat_below_its_corner() {
-        let tr = build_str(
-            "kind = \"random_segments\"\nvelocity_m_per_s = 0.02\nmin_segment_s = 0.002\nmax_segment_s = 0.006\ntransition_s = 0.0005\nduration_s = 20\nmax_travel_m = 0.05",
-            &["x"],
-        )
-        .unwrap();
+        let tr = built("kind = \"random_segments\"\nvelocity_m_per_s = 0.02\nmin_segment_s = 0.002\nmax_segment_s = 0.006\ntransition_s = 0.0005\nduration_s = 20\nmax_travel_m = 0.05", &["x"]);
         // Band power of the velocity in [5, 15] Hz vs [25, 45] Hz (corner ~1/(2*0.004) = 125 Hz),
         // by direct DFT at 1 kHz over the 20 s.
         let h = 1e-3;
@@ -681,11 +677,7 @@ return_s = 0.3
 
     #[test]
     fn a_velocity_prbs_switches_between_plus_and_minus_the_amplitude() {
-        let tr = build_str(
-            "kind = \"prbs\"\namplitude_m_per_s = { x = 0.01, y = 0.02 }\norder = 5\nbit_s = 0.01\ntransition_s = 0.002",
-            &["x", "y"],
-        )
-        .unwrap();
+        let tr = built("kind = \"prbs\"\namplitude_m_per_s = { x = 0.01, y = 0.02 }\norder = 5\nbit_s = 0.01\ntransition_s = 0.002", &["x", "y"]);
         assert!((tr.duration_s() - (31.0 * 0.01 + 0.002)).abs() < 1e-9);
         let seq = prbs_sequence(5);
         for (i, bit) in seq.iter().enumerate() {
@@ -701,11 +693,10 @@ return_s = 0.3
 
     #[test]
     fn a_position_prbs_holds_plus_or_minus_the_amplitude_and_returns() {
-        let tr = build_str(
+        let tr = built(
             "kind = \"prbs\"\namplitude_m = 1e-4\norder = 4\nbit_s = 0.02\nstart_m = 0.1",
             &["x"],
-        )
-        .unwrap();
+        );
         let seq = prbs_sequence(4);
         for (i, bit) in seq.iter().enumerate() {
             let s = at(tr.as_ref(), i as f64 * 0.02 + 0.015)[0];
@@ -716,20 +707,16 @@ return_s = 0.3
 
     #[test]
     fn prbs_amplitudes_of_both_kinds_are_refused() {
-        let e = build_str(
+        refused_at(
             "kind = \"prbs\"\namplitude_m = 1e-4\namplitude_m_per_s = 0.01\nbit_s = 0.01",
             &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.amplitude_m");
-        let e = build_str(
+            "trajectory.amplitude_m",
+        );
+        refused_at(
             "kind = \"prbs\"\namplitude_m = 1e-4\nbit_s = 0.01\norder = 40",
             &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.order");
+            "trajectory.order",
+        );
     }
 
     const MULTI: &str = r#"
@@ -744,7 +731,7 @@ fade_s = 0.1
 
     #[test]
     fn a_velocity_multisine_has_its_peak_its_lines_and_whole_periods() {
-        let tr = build_str(MULTI, &["x"]).unwrap();
+        let tr = built(MULTI, &["x"]);
         assert!((tr.duration_s() - (1.5 + 0.2)).abs() < 1e-12);
         let w = tr.steady_windows_s();
         assert_eq!(w, vec![[0.1, 1.6]]);
@@ -784,18 +771,12 @@ fade_s = 0.1
 
     #[test]
     fn a_multisine_above_the_usable_band_is_refused() {
-        let e = build_str(
-            "kind = \"multisine\"\namplitude_m = 1e-5\nsignal_period_s = 1\nf_min_hz = 1\nf_max_hz = 4000",
-            &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.f_max_hz");
+        refused_at("kind = \"multisine\"\namplitude_m = 1e-5\nsignal_period_s = 1\nf_min_hz = 1\nf_max_hz = 4000", &["x"], "trajectory.f_max_hz");
     }
 
     #[test]
     fn an_excitation_written_as_csv_reads_back_as_a_trace_command() {
-        let tr = build_str(RANDOM, &["x", "y"]).unwrap();
+        let tr = built(RANDOM, &["x", "y"]);
         let bytes = write_excitation_csv(tr.as_ref(), 1e-4, &[], Vec::new()).unwrap();
         let text = String::from_utf8(bytes).unwrap();
         let trace = Trace::parse(Path::new("exc.csv"), &text).unwrap();

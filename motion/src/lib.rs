@@ -413,6 +413,25 @@ pub(crate) mod test_util {
         build(&t, Path::new("job.toml"), &axes, 1e-4)
     }
 
+    /// Builds `[trajectory]` TOML text that must be valid.
+    pub fn built(text: &str, axes: &[&str]) -> Box<dyn Trajectory> {
+        build_str(text, axes).expect("a valid trajectory")
+    }
+
+    /// Builds `[trajectory]` TOML text that must be refused and returns the error.
+    pub fn refused(text: &str, axes: &[&str]) -> ConfigError {
+        build_str(text, axes)
+            .err()
+            .expect("the trajectory is refused")
+    }
+
+    /// Builds `[trajectory]` TOML text that must be refused at `key` and returns the error.
+    pub fn refused_at(text: &str, axes: &[&str], key: &str) -> ConfigError {
+        let e = refused(text, axes);
+        assert_eq!(e.key, key, "{e}");
+        e
+    }
+
     /// Evaluates all axes at `t`.
     pub fn at(tr: &dyn Trajectory, t: f64) -> Vec<RefState> {
         let mut out = vec![[0.0; REF_DERIVS]; tr.axes().len()];
@@ -482,17 +501,17 @@ mod tests {
 
     #[test]
     fn an_unknown_kind_is_refused_listing_the_known_ones() {
-        let e = build_str("kind = \"spiral\"", &["x"]).err().unwrap();
-        assert_eq!(e.key, "trajectory.kind");
+        let e = refused_at("kind = \"spiral\"", &["x"], "trajectory.kind");
         assert!(e.reason.contains("circle"), "{e}");
     }
 
     #[test]
     fn an_unknown_key_is_refused_with_its_dotted_path() {
-        let e = build_str("kind = \"dwell\"\nduration_s = 1\nspeed = 2", &["x"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.speed");
+        let e = refused_at(
+            "kind = \"dwell\"\nduration_s = 1\nspeed = 2",
+            &["x"],
+            "trajectory.speed",
+        );
         assert!(e
             .to_string()
             .starts_with("job.toml: key `trajectory.speed`"));
@@ -500,11 +519,7 @@ mod tests {
 
     #[test]
     fn a_dwell_holds_its_positions_for_its_duration() {
-        let tr = build_str(
-            "kind = \"dwell\"\nduration_s = 0.5\nposition_m = { y = 0.01 }\nposition_rad = { c = 1.5 }",
-            &["x", "y", "c"],
-        )
-        .unwrap();
+        let tr = built("kind = \"dwell\"\nduration_s = 0.5\nposition_m = { y = 0.01 }\nposition_rad = { c = 1.5 }", &["x", "y", "c"]);
         assert_eq!(tr.duration_s(), 0.5);
         let s = at(tr.as_ref(), 0.25);
         assert_eq!([s[0][0], s[1][0], s[2][0]], [0.0, 0.01, 1.5]);
@@ -513,30 +528,30 @@ mod tests {
 
     #[test]
     fn an_axis_in_both_metre_and_radian_keys_is_refused() {
-        let e = build_str(
+        refused_at(
             "kind = \"dwell\"\nposition_m = { x = 0.01 }\nposition_rad = { x = 1 }",
             &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.position_rad");
+            "trajectory.position_rad",
+        );
     }
 
     #[test]
     fn a_per_axis_table_naming_an_unknown_axis_is_refused_at_that_axis() {
-        let e = build_str("kind = \"dwell\"\nposition_m = { z = 0.01 }", &["x", "y"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.position_m.z");
+        let e = refused_at(
+            "kind = \"dwell\"\nposition_m = { z = 0.01 }",
+            &["x", "y"],
+            "trajectory.position_m.z",
+        );
         assert!(e.reason.contains("axes: x, y"), "{e}");
     }
 
     #[test]
     fn a_plain_number_for_a_multi_axis_job_is_refused() {
-        let e = build_str("kind = \"dwell\"\nposition_m = 0.01", &["x", "y"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.position_m");
+        let e = refused_at(
+            "kind = \"dwell\"\nposition_m = 0.01",
+            &["x", "y"],
+            "trajectory.position_m",
+        );
         assert!(e.reason.contains("table keyed by axis name"), "{e}");
     }
 }

@@ -336,11 +336,7 @@ mod tests {
 
     #[test]
     fn a_c5_move_reaches_its_target_with_the_expected_peak_velocity() {
-        let tr = build_str(
-            "kind = \"move\"\nto_m = 0.05\nduration_s = 0.3\ndwell_before_s = 0.1\ndwell_after_s = 0.2",
-            &["x"],
-        )
-        .unwrap();
+        let tr = built("kind = \"move\"\nto_m = 0.05\nduration_s = 0.3\ndwell_before_s = 0.1\ndwell_after_s = 0.2", &["x"]);
         assert!((tr.duration_s() - 0.6).abs() < 1e-12);
         let mid = at(tr.as_ref(), 0.25);
         assert!((mid[0][0] - 0.025).abs() < 1e-12);
@@ -353,22 +349,14 @@ mod tests {
 
     #[test]
     fn move_derivatives_match_central_differences() {
-        let tr = build_str(
-            "kind = \"move\"\nfrom_m = { x = 0.01 }\nto_m = { x = 0.06, y = -0.02 }\nduration_s = 0.3",
-            &["x", "y"],
-        )
-        .unwrap();
+        let tr = built("kind = \"move\"\nfrom_m = { x = 0.01 }\nto_m = { x = 0.06, y = -0.02 }\nduration_s = 0.3", &["x", "y"]);
         let worst = check_derivatives(tr.as_ref(), 200, 1e-6, &[]);
         assert!(worst < 1e-5, "{worst}");
     }
 
     #[test]
     fn a_jerk_limited_move_respects_its_path_limits() {
-        let tr = build_str(
-            "kind = \"move\"\nto_m = { x = 0.03, y = 0.04 }\nprofile = \"jerk_limited\"\nmax_velocity_m_per_s = 0.2\nmax_accel_m_per_s2 = 2.0\nmax_jerk_m_per_s3 = 50.0",
-            &["x", "y"],
-        )
-        .unwrap();
+        let tr = built("kind = \"move\"\nto_m = { x = 0.03, y = 0.04 }\nprofile = \"jerk_limited\"\nmax_velocity_m_per_s = 0.2\nmax_accel_m_per_s2 = 2.0\nmax_jerk_m_per_s3 = 50.0", &["x", "y"]);
         let (mut vmax, mut amax, mut jmax): (f64, f64, f64) = (0.0, 0.0, 0.0);
         let n = 20_000;
         for k in 0..=n {
@@ -387,39 +375,31 @@ mod tests {
 
     #[test]
     fn a_jerk_limited_move_refuses_a_duration() {
-        let e = build_str(
-            "kind = \"move\"\nto_m = 0.1\nprofile = \"jerk_limited\"\nduration_s = 1\nmax_velocity_m_per_s = 0.2\nmax_accel_m_per_s2 = 2.0\nmax_jerk_m_per_s3 = 50.0",
-            &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.duration_s");
+        refused_at("kind = \"move\"\nto_m = 0.1\nprofile = \"jerk_limited\"\nduration_s = 1\nmax_velocity_m_per_s = 0.2\nmax_accel_m_per_s2 = 2.0\nmax_jerk_m_per_s3 = 50.0", &["x"], "trajectory.duration_s");
     }
 
     #[test]
     fn a_c5_move_without_duration_is_refused() {
-        let e = build_str("kind = \"move\"\nto_m = 0.1", &["x"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.duration_s");
+        let e = refused_at(
+            "kind = \"move\"\nto_m = 0.1",
+            &["x"],
+            "trajectory.duration_s",
+        );
         assert!(e.reason.contains("required"), "{e}");
     }
 
     #[test]
     fn a_move_shorter_than_two_periods_is_refused() {
-        let e = build_str("kind = \"move\"\nto_m = 0.1\nduration_s = 1e-4", &["x"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.duration_s");
+        refused_at(
+            "kind = \"move\"\nto_m = 0.1\nduration_s = 1e-4",
+            &["x"],
+            "trajectory.duration_s",
+        );
     }
 
     #[test]
     fn a_ramp_reaches_constant_velocity_and_returns_to_its_start() {
-        let tr = build_str(
-            "kind = \"ramp\"\nvelocity_m_per_s = 0.05\naccel_s = 0.1\nconstant_s = 0.4\nreturn = true\ndwell_between_s = 0.05\nstart_m = 0.01",
-            &["x"],
-        )
-        .unwrap();
+        let tr = built("kind = \"ramp\"\nvelocity_m_per_s = 0.05\naccel_s = 0.1\nconstant_s = 0.4\nreturn = true\ndwell_between_s = 0.05\nstart_m = 0.01", &["x"]);
         assert!((tr.duration_s() - (2.0 * 0.6 + 0.05)).abs() < 1e-12);
         let w = tr.steady_windows_s();
         assert_eq!(w.len(), 2);
@@ -442,13 +422,16 @@ mod tests {
 
     #[test]
     fn a_ramp_without_velocity_names_the_key() {
-        let e = build_str("kind = \"ramp\"\naccel_s = 0.1\nconstant_s = 1", &["x"])
-            .err()
-            .unwrap();
-        assert_eq!(e.key, "trajectory.velocity_m_per_s");
+        refused_at(
+            "kind = \"ramp\"\naccel_s = 0.1\nconstant_s = 1",
+            &["x"],
+            "trajectory.velocity_m_per_s",
+        );
     }
 
-    const REVERSAL: &str = r#"
+    #[test]
+    fn a_sequence_chains_its_segments_continuously_and_repeats() {
+        const REVERSAL: &str = r#"
 kind = "sequence"
 start_m = { x = 0.0 }
 repeat = 2
@@ -472,10 +455,7 @@ velocity_m_per_s = { x = -0.02 }
 accel_s = 0.05
 constant_s = 0.1
 "#;
-
-    #[test]
-    fn a_sequence_chains_its_segments_continuously_and_repeats() {
-        let tr = build_str(REVERSAL, &["x", "y"]).unwrap();
+        let tr = built(REVERSAL, &["x", "y"]);
         // C5 move 0.2 + dwell 0.05 + S-curve + ramp 0.2, twice.
         let d = tr.duration_s();
         assert!(d > 2.0 * 0.45 && d < 3.0, "{d}");
@@ -508,11 +488,7 @@ constant_s = 0.1
 
     #[test]
     fn a_sequence_of_c5_segments_has_continuous_derivatives_up_to_the_fifth_at_its_joins() {
-        let tr = build_str(
-            "kind = \"sequence\"\n[[segments]]\nkind = \"move\"\nby_m = 0.01\nduration_s = 0.1\n[[segments]]\nkind = \"move\"\nby_m = -0.02\nduration_s = 0.1\n[[segments]]\nkind = \"ramp\"\nvelocity_m_per_s = 0.1\naccel_s = 0.05\nconstant_s = 0.0\n",
-            &["x"],
-        )
-        .unwrap();
+        let tr = built("kind = \"sequence\"\n[[segments]]\nkind = \"move\"\nby_m = 0.01\nduration_s = 0.1\n[[segments]]\nkind = \"move\"\nby_m = -0.02\nduration_s = 0.1\n[[segments]]\nkind = \"ramp\"\nvelocity_m_per_s = 0.1\naccel_s = 0.05\nconstant_s = 0.0\n", &["x"]);
         for join in [0.1, 0.2, 0.25] {
             let lo = at(tr.as_ref(), join - 1e-9)[0];
             let hi = at(tr.as_ref(), join + 1e-9)[0];
@@ -532,19 +508,7 @@ constant_s = 0.1
 
     #[test]
     fn a_sequence_segment_with_a_bad_key_is_named_by_index() {
-        let e = build_str(
-            "kind = \"sequence\"\n[[segments]]\nkind = \"dwell\"\nduration_s = 1\n[[segments]]\nkind = \"move\"\nby_m = 0.01\nduration_s = 0.1\nspeed = 3\n",
-            &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.segments[1].speed");
-        let e = build_str(
-            "kind = \"sequence\"\n[[segments]]\nkind = \"move\"\nto_m = { q = 1 }\nduration_s = 0.1\n",
-            &["x"],
-        )
-        .err()
-        .unwrap();
-        assert_eq!(e.key, "trajectory.segments[0].to_m.q");
+        refused_at("kind = \"sequence\"\n[[segments]]\nkind = \"dwell\"\nduration_s = 1\n[[segments]]\nkind = \"move\"\nby_m = 0.01\nduration_s = 0.1\nspeed = 3\n", &["x"], "trajectory.segments[1].speed");
+        refused_at("kind = \"sequence\"\n[[segments]]\nkind = \"move\"\nto_m = { q = 1 }\nduration_s = 0.1\n", &["x"], "trajectory.segments[0].to_m.q");
     }
 }

@@ -449,13 +449,19 @@ mod tests {
     use crate::format::tests::{cols, parse};
     use proptest::prelude::*;
 
+    /// Parses `text`, which must be refused with a `TraceError::$variant` matching the fields
+    /// that follow; gives the error.
+    macro_rules! refused {
+        ($text:expr, $variant:ident $($fields:tt)*) => {{
+            let e = parse($text).unwrap_err();
+            assert!(matches!(e, TraceError::$variant $($fields)*), "{e}");
+            e
+        }};
+    }
+
     #[test]
     fn an_empty_file_has_no_header() {
-        let e = parse("").unwrap_err();
-        assert!(
-            matches!(e, TraceError::MissingHeader { line: 1, .. }),
-            "{e}"
-        );
+        let e = refused!("", MissingHeader { line: 1, .. });
         assert!(e
             .to_string()
             .starts_with("rig.csv: line 1: missing header row"));
@@ -463,27 +469,21 @@ mod tests {
 
     #[test]
     fn a_file_of_comments_only_has_no_header() {
-        let e = parse("# feedloop-trace v1\n# a=b\n").unwrap_err();
-        assert!(
-            matches!(e, TraceError::MissingHeader { line: 3, .. }),
-            "{e}"
+        refused!(
+            "# feedloop-trace v1\n# a=b\n",
+            MissingHeader { line: 3, .. }
         );
     }
 
     #[test]
     fn data_without_a_header_is_refused_at_its_first_line() {
-        let e = parse("# c\n0,1,2\n0.1,1,2\n").unwrap_err();
-        assert!(
-            matches!(e, TraceError::MissingHeader { line: 2, .. }),
-            "{e}"
-        );
+        let e = refused!("# c\n0,1,2\n0.1,1,2\n", MissingHeader { line: 2, .. });
         assert!(e.to_string().contains("holds numbers"), "{e}");
     }
 
     #[test]
     fn a_header_without_t_is_refused_listing_the_columns() {
-        let e = parse("time,x.cmd\n0,0\n1,1\n").unwrap_err();
-        assert!(matches!(e, TraceError::MissingTime { line: 1, .. }), "{e}");
+        let e = refused!("time,x.cmd\n0,0\n1,1\n", MissingTime { line: 1, .. });
         assert!(e.to_string().contains("time, x.cmd"), "{e}");
     }
 
@@ -513,11 +513,7 @@ mod tests {
             ("t,x..cmd\n", "empty parts"),
             ("t,x/cmd\n", "not allowed"),
         ] {
-            let e = parse(&format!("{header}0,0\n")).unwrap_err();
-            assert!(
-                matches!(e, TraceError::BadColumnName { line: 1, .. }),
-                "{e}"
-            );
+            let e = refused!(&format!("{header}0,0\n"), BadColumnName { line: 1, .. });
             assert!(e.to_string().contains(reason), "{header:?}: {e}");
         }
     }
@@ -534,15 +530,16 @@ mod tests {
 
     #[test]
     fn an_empty_cell_is_not_a_number() {
-        let e = parse("t,x.cmd\n0,0\n0.1,\n").unwrap_err();
-        assert!(matches!(e, TraceError::NotANumber { line: 3, .. }), "{e}");
+        refused!("t,x.cmd\n0,0\n0.1,\n", NotANumber { line: 3, .. });
     }
 
     #[test]
     fn nan_and_inf_cells_are_refused() {
         for cell in ["NaN", "nan", "inf", "-inf", "infinity"] {
-            let e = parse(&format!("t,x.cmd\n0,0\n0.1,{cell}\n")).unwrap_err();
-            assert!(matches!(e, TraceError::NotFinite { line: 3, .. }), "{e}");
+            let e = refused!(
+                &format!("t,x.cmd\n0,0\n0.1,{cell}\n"),
+                NotFinite { line: 3, .. }
+            );
             assert!(e.to_string().contains(cell), "{e}");
         }
     }
@@ -554,21 +551,18 @@ mod tests {
             e.to_string(),
             "rig.csv: line 3: 2 cells, but the header has 3 columns"
         );
-        let e = parse("t,x.cmd\n0,0\n0.1,0,7\n").unwrap_err();
-        assert!(matches!(e, TraceError::CellCount { found: 3, .. }), "{e}");
+        refused!("t,x.cmd\n0,0\n0.1,0,7\n", CellCount { found: 3, .. });
     }
 
     #[test]
     fn time_going_backwards_or_repeating_is_refused() {
-        let e = parse("t,x.cmd\n0,0\n0.1,0\n0.05,0\n").unwrap_err();
-        assert!(
-            matches!(e, TraceError::TimeNotIncreasing { line: 4, .. }),
-            "{e}"
+        refused!(
+            "t,x.cmd\n0,0\n0.1,0\n0.05,0\n",
+            TimeNotIncreasing { line: 4, .. }
         );
-        let e = parse("t,x.cmd\n0,0\n0.1,0\n0.1,0\n").unwrap_err();
-        assert!(
-            matches!(e, TraceError::TimeNotIncreasing { line: 4, .. }),
-            "{e}"
+        refused!(
+            "t,x.cmd\n0,0\n0.1,0\n0.1,0\n",
+            TimeNotIncreasing { line: 4, .. }
         );
     }
 
@@ -605,8 +599,7 @@ mod tests {
 
     #[test]
     fn a_header_without_rows_is_an_empty_trace() {
-        let e = parse("# feedloop-trace v1\nt,x.cmd\n").unwrap_err();
-        assert!(matches!(e, TraceError::Empty { .. }), "{e}");
+        let e = refused!("# feedloop-trace v1\nt,x.cmd\n", Empty { .. });
         assert_eq!(
             e.to_string(),
             "rig.csv: empty trace: header but no data rows"
@@ -615,23 +608,20 @@ mod tests {
 
     #[test]
     fn a_single_row_cannot_define_a_period() {
-        let e = parse("t,x.cmd\n0,0\n").unwrap_err();
-        assert!(matches!(e, TraceError::TooFewRows { line: 2, .. }), "{e}");
+        refused!("t,x.cmd\n0,0\n", TooFewRows { line: 2, .. });
     }
 
     #[test]
     fn a_comment_after_the_header_is_refused() {
-        let e = parse("t,x.cmd\n0,0\n# late\n0.1,0\n").unwrap_err();
-        assert!(
-            matches!(e, TraceError::MisplacedComment { line: 3, .. }),
-            "{e}"
+        refused!(
+            "t,x.cmd\n0,0\n# late\n0.1,0\n",
+            MisplacedComment { line: 3, .. }
         );
     }
 
     #[test]
     fn an_empty_line_between_rows_is_refused_but_trailing_ones_are_not() {
-        let e = parse("t,x.cmd\n0,0\n\n0.1,0\n").unwrap_err();
-        assert!(matches!(e, TraceError::BlankLine { line: 3, .. }), "{e}");
+        refused!("t,x.cmd\n0,0\n\n0.1,0\n", BlankLine { line: 3, .. });
         assert_eq!(parse("t,x.cmd\n0,0\n0.1,0\n\n\n").unwrap().len(), 2);
     }
 
@@ -643,16 +633,17 @@ mod tests {
 
     #[test]
     fn a_period_in_the_metadata_that_disagrees_with_the_time_column_is_refused() {
-        let e = parse("# period_s=0.002\nt,x.cmd\n0,0\n0.001,0\n0.002,0\n").unwrap_err();
-        assert!(matches!(e, TraceError::BadMeta { line: 1, .. }), "{e}");
+        refused!(
+            "# period_s=0.002\nt,x.cmd\n0,0\n0.001,0\n0.002,0\n",
+            BadMeta { line: 1, .. }
+        );
         let e = parse("# period_s=fast\nt,x.cmd\n0,0\n0.001,0\n").unwrap_err();
         assert!(e.to_string().contains("not a number"), "{e}");
     }
 
     #[test]
     fn a_repeated_metadata_key_is_refused() {
-        let e = parse("# a=1\n# a=2\nt,x.cmd\n0,0\n1,0\n").unwrap_err();
-        assert!(matches!(e, TraceError::BadMeta { line: 2, .. }), "{e}");
+        refused!("# a=1\n# a=2\nt,x.cmd\n0,0\n1,0\n", BadMeta { line: 2, .. });
     }
 
     #[test]
