@@ -3,6 +3,8 @@
 //! noise, each with one hidden effect, diagnosed against a nominal model without it; plus a trace
 //! with no hidden effect and traces where only a base parameter is wrong.
 
+mod controllers_util;
+
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -20,21 +22,11 @@ use feedloop_trace::Trace;
 
 const DT: f64 = 5e-4;
 
-const BASE: &str = r#"
-kind = "ballscrew"
-jm_kgm2 = 2.0e-3
-dm_nms_per_rad = 1.0e-3
-kl_nm_per_rad = 3000.0
-cl_nms_per_rad = 0.02
-jl_kgm2 = 3.0e-3
-dl_nms_per_rad = 2.0e-3
-lead_m = 0.01
-[controller]
-kp_per_s = 50.0
-kv_nms_per_rad = 5.0
-tv_s = 0.005
-torque_limit_nm = 30.0
-"#;
+/// The nominal ball-screw axis of the corpus: `examples/models/xy-x.toml`'s plant and loop with a
+/// 30 N m torque limit.
+fn base() -> String {
+    controllers_util::xy_x_model("torque_limit_nm = 30.0\n")
+}
 
 const SENSOR: &str = r#"
 [sensor]
@@ -96,7 +88,7 @@ fn command() -> Vec<f64> {
 /// The same axis with its velocity loop tuned for a drive that has a delay or a current lag
 /// (lower gain: with the stiff tuning a 1 ms delay makes the loop unstable).
 fn soft() -> String {
-    BASE.replace("kv_nms_per_rad = 5.0", "kv_nms_per_rad = 1.5")
+    base().replace("kv_nms_per_rad = 5.0", "kv_nms_per_rad = 1.5")
 }
 
 fn model_file(text: &str) -> ModelFile {
@@ -168,7 +160,7 @@ fn simulate_cmd(plant_text: &str, cmd: Vec<f64>) -> Trace {
 }
 
 fn run(hidden: &str, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
-    diagnose_trace(&simulate(&format!("{BASE}{hidden}{SENSOR}")), nominal)
+    diagnose_trace(&simulate(&format!("{}{hidden}{SENSOR}", base())), nominal)
 }
 
 fn diagnose_trace(tr: &Trace, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
@@ -189,7 +181,7 @@ fn diagnose_trace(tr: &Trace, nominal: &str) -> (WbModel, AxisData, Diagnosis) {
 /// simulation error (50 ms windows restarted from the measured state, the plant simulator's
 /// 2-mass axis with the model's effects) fall by at least 70 %.
 fn check_effect(hidden: &str, class: &str) {
-    check_effect_on(BASE, hidden, class);
+    check_effect_on(&base(), hidden, class);
 }
 
 fn check_effect_on(base: &str, hidden: &str, class: &str) {
@@ -272,7 +264,7 @@ fn hidden_delay_is_ranked_first_and_adding_it_cuts_the_error_by_70_percent() {
 
 #[test]
 fn a_trace_without_hidden_effect_gives_no_significant_effect() {
-    let (_, _, dg) = run("", BASE);
+    let (_, _, dg) = run("", &base());
     let sig: Vec<&str> = dg
         .candidates
         .iter()
@@ -290,7 +282,7 @@ fn a_trace_without_hidden_effect_gives_no_significant_effect() {
 
 #[test]
 fn a_wrong_load_inertia_is_named_as_a_parameter_not_an_effect() {
-    let nominal = BASE.replace("jl_kgm2 = 3.0e-3", "jl_kgm2 = 4.5e-3");
+    let nominal = base().replace("jl_kgm2 = 3.0e-3", "jl_kgm2 = 4.5e-3");
     let (_, _, dg) = run("", &nominal);
     let top = &dg.candidates[0];
     assert!(top.is_param, "{}", dg.verdict);
@@ -313,7 +305,7 @@ fn hidden_stribeck_friction_is_ranked_first_and_its_levels_are_recovered() {
     // explained by a velocity-driven friction law, so the cut is about half, not 70 %.
     let (m, d, dg) = run(
         "[effects.stribeck_friction]\nside = \"load\"\nfc_n = 60.0\nfs_n = 150.0\nvs_m_per_s = 0.002\n",
-        BASE,
+        &base(),
     );
     let top = &dg.candidates[0];
     assert_eq!(top.class, "friction", "{}", dg.verdict);
@@ -357,7 +349,7 @@ fn hidden_torque_saturation_is_ranked_first_and_adding_it_cuts_the_error_by_70_p
 
 #[test]
 fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
-    let (m, d, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", BASE);
+    let (m, d, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", &base());
     let top = &dg.candidates[0];
     assert_eq!(top.class, "backlash", "{}", dg.verdict);
     let gap = top.params["gap_m"];
@@ -375,7 +367,7 @@ fn hidden_backlash_is_ranked_first_and_adding_it_cuts_the_deflection_error() {
 
 #[test]
 fn hidden_pitch_error_is_ranked_first_with_its_amplitude() {
-    let (m, d, dg) = run("[effects.pitch_error]\namplitude_m = 10.0e-6\n", BASE);
+    let (m, d, dg) = run("[effects.pitch_error]\namplitude_m = 10.0e-6\n", &base());
     let top = &dg.candidates[0];
     assert_eq!(top.class, "pitch", "{}", dg.verdict);
     let a = top.params["amplitude_m"];
@@ -396,7 +388,7 @@ fn hidden_pitch_error_is_ranked_first_with_its_amplitude() {
 
 #[test]
 fn a_wrong_load_damping_is_named_as_a_damping_parameter() {
-    let nominal = BASE.replace("dl_nms_per_rad = 2.0e-3", "dl_nms_per_rad = 8.0e-3");
+    let nominal = base().replace("dl_nms_per_rad = 2.0e-3", "dl_nms_per_rad = 8.0e-3");
     let (_, _, dg) = run("", &nominal);
     let top = &dg.candidates[0];
     assert_eq!(top.class, "damping", "{}", dg.verdict);
@@ -421,7 +413,7 @@ fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
     cmd.extend(std::iter::repeat_n(last, (10.0 / DT) as usize));
     let hidden = "[[effects.coulomb_friction]]\nside = \"motor\"\nfc_nm = 0.3\n[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 200.0\n";
     let sensor = SENSOR.replace("seed = 7", "motor_vel_noise_rad_per_s = 0.01\nseed = 7");
-    let tr = simulate_cmd(&format!("{BASE}{hidden}{sensor}"), cmd);
+    let tr = simulate_cmd(&format!("{}{hidden}{sensor}", base()), cmd);
     let y = tr.column("x.torque").unwrap();
     let n = y.len();
     let hold = &y[n - (9.0 / DT) as usize..];
@@ -431,7 +423,7 @@ fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
             (l.min(*v), h.max(*v))
         });
     println!("hold torque range {lo:.3} .. {hi:.3} N m");
-    let (_, _, dg) = diagnose_trace(&tr, BASE);
+    let (_, _, dg) = diagnose_trace(&tr, &base());
     let top = &dg.candidates[0];
     println!("long hold: {} {:.1} %", top.effect, top.error_reduction_pct);
     assert_eq!(top.class, "friction", "{}", dg.verdict);
