@@ -204,7 +204,20 @@ fn trace_axis(t: &Trace, axis: Option<&str>) -> anyhow::Result<String> {
 /// A curve of the `identify inertia --svg` plot: label, colour, (load position, deviation).
 type Curve = (String, &'static str, Vec<(f64, f64)>);
 
-fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
+/// What `identify inertia` reads before estimating: the probe, the model job and its axis, the
+/// measured trace.
+struct InertiaInput {
+    probe: Probe,
+    job: Option<Job>,
+    /// Index of the axis in `job` (0 without a job).
+    i: usize,
+    /// Motor rad per load unit of the job's axis.
+    mpl: Option<f64>,
+    trace: Trace,
+    axis: String,
+}
+
+fn inertia_input(a: &InertiaArgs) -> anyhow::Result<InertiaInput> {
     let probe = Probe {
         at: a.at,
         half_window: a.window,
@@ -224,102 +237,33 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
         Some(j) => j.axes[i].name.clone(),
         None => trace_axis(&trace, a.axis.as_deref())?,
     };
+    Ok(InertiaInput {
+        probe,
+        job,
+        i,
+        mpl,
+        trace,
+        axis,
+    })
+}
+
+fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
+    let inp = inertia_input(&a)?;
     let mut curves: Vec<Curve> = vec![];
     let est = match a.method.as_str() {
-        "sim-match" => {
-            let job = job
-                .as_ref()
-                .context("--method sim-match needs --model JOB")?;
-            let mpl = mpl.unwrap_or(1.0);
-            let measured = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
-            let est = inertia::sim_match(job, i, measured, probe)?;
-            if a.svg.is_some() {
-                let ff = inertia::feedforward_jl(job, i).unwrap_or(est.jl_kgm2);
-                curves.push((
-                    format!("measured ({})", a.trace.display()),
-                    "black",
-                    inertia::trace_profile(&trace, &axis, mpl, probe.kind)?,
-                ));
-                curves.push((
-                    format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
-                    "steelblue",
-                    inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
-                ));
-            }
-            est
-        }
-        "linear" => {
-            let (Some(n0), Some(n1), Some(j1)) = (&a.no_load, &a.loaded, a.loaded_jl_kgm2) else {
-                bail!("--method linear needs --no-load T0 --loaded T1 --loaded-jl-kgm2 J1");
-            };
-            let j0 = match (a.no_load_jl_kgm2, &job) {
-                (Some(v), _) => v,
-                (None, Some(j)) => {
-                    inertia::feedforward_jl(j, i).context("the --model axis has no load inertia")?
-                }
-                (None, None) => bail!(
-                    "--method linear needs the no-load inertia: --no-load-jl-kgm2 J0 or --model JOB"
-                ),
-            };
-            let mpl = match mpl {
-                Some(m) => m,
-                None => bail!(
-                    "--method linear needs --model JOB for the screw lead (motor rad per load m)"
-                ),
-            };
-            let (t0, t1) = (read_trace(n0)?, read_trace(n1)?);
-            let d0 = inertia::trace_deviation(&t0, &axis, mpl, probe)?;
-            let d1 = inertia::trace_deviation(&t1, &axis, mpl, probe)?;
-            let d = inertia::trace_deviation(&trace, &axis, mpl, probe)?;
-            let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
-            if a.svg.is_some() {
-                for (t, label, colour) in [
-                    (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
-                    (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
-                    (
-                        &trace,
-                        format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
-                        "black",
-                    ),
-                ] {
-                    curves.push((
-                        label,
-                        colour,
-                        inertia::trace_profile(t, &axis, mpl, probe.kind)?,
-                    ));
-                }
-            }
-            est
-        }
+        "sim-match" => sim_match_estimate(&a, &inp, &mut curves)?,
+        "linear" => linear_estimate(&a, &inp, &mut curves)?,
         other => bail!("unknown method `{other}` (expected sim-match or linear)"),
     };
     if let Some(p) = &a.svg {
-        let series: Vec<Series> = curves
-            .iter()
-            .map(|(label, color, points)| Series {
-                label,
-                color,
-                points,
-            })
-            .collect();
-        let probe_label = format!("--at {}", a.at);
-        let text = lines_svg(
-            &format!(
-                "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
-                est.deviation, est.method, est.jl_kgm2
-            ),
-            "load position, m",
-            "deviation, m",
-            &series,
-            &[(probe_label.as_str(), a.at)],
-        );
-        std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))?;
+        write_deviation_svg(p, &curves, &est, a.at)?;
     }
     if let Some(out) = &a.apply {
-        let job = job
+        let job = inp
+            .job
             .as_ref()
             .context("--apply needs --model JOB (its axis model is rewritten)")?;
-        let (text, coef) = inertia::applied_model(job, i, est.jl_kgm2)?;
+        let (text, coef) = inertia::applied_model(job, inp.i, est.jl_kgm2)?;
         std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))?;
         if !a.json {
             eprintln!(
@@ -331,27 +275,143 @@ fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    if a.json {
-        println!("{}", serde_json::to_string(&est)?);
-    } else {
-        println!(
-            "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
-            est.jl_kgm2,
-            est.method,
-            est.iterations,
-            est.deviation,
-            a.at,
-            1e6 * est.deviation_measured_m,
-            1e6 * est.deviation_model_m,
-            a.window
-        );
-        if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
-            println!(
-                "literal feedforward: the patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
-            );
+    print_inertia(&a, &est)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Method 1: the model job simulated until its deviation matches the measured one (with --svg,
+/// the measured and the simulated curves into `curves`).
+fn sim_match_estimate(
+    a: &InertiaArgs,
+    inp: &InertiaInput,
+    curves: &mut Vec<Curve>,
+) -> anyhow::Result<inertia::InertiaEstimate> {
+    let (probe, i, trace, axis) = (inp.probe, inp.i, &inp.trace, inp.axis.as_str());
+    let job = inp
+        .job
+        .as_ref()
+        .context("--method sim-match needs --model JOB")?;
+    let mpl = inp.mpl.unwrap_or(1.0);
+    let measured = inertia::trace_deviation(trace, axis, mpl, probe)?;
+    let est = inertia::sim_match(job, i, measured, probe)?;
+    if a.svg.is_some() {
+        let ff = inertia::feedforward_jl(job, i).unwrap_or(est.jl_kgm2);
+        curves.push((
+            format!("measured ({})", a.trace.display()),
+            "black",
+            inertia::trace_profile(trace, axis, mpl, probe.kind)?,
+        ));
+        curves.push((
+            format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
+            "steelblue",
+            inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
+        ));
+    }
+    Ok(est)
+}
+
+/// Method 2: the deviation interpolated between a no-load and a loaded run (with --svg, the
+/// three traces' curves into `curves`).
+fn linear_estimate(
+    a: &InertiaArgs,
+    inp: &InertiaInput,
+    curves: &mut Vec<Curve>,
+) -> anyhow::Result<inertia::InertiaEstimate> {
+    let (probe, trace, axis) = (inp.probe, &inp.trace, inp.axis.as_str());
+    let (Some(n0), Some(n1), Some(j1)) = (&a.no_load, &a.loaded, a.loaded_jl_kgm2) else {
+        bail!("--method linear needs --no-load T0 --loaded T1 --loaded-jl-kgm2 J1");
+    };
+    let j0 = match (a.no_load_jl_kgm2, &inp.job) {
+        (Some(v), _) => v,
+        (None, Some(j)) => {
+            inertia::feedforward_jl(j, inp.i).context("the --model axis has no load inertia")?
+        }
+        (None, None) => {
+            bail!("--method linear needs the no-load inertia: --no-load-jl-kgm2 J0 or --model JOB")
+        }
+    };
+    let mpl = match inp.mpl {
+        Some(m) => m,
+        None => {
+            bail!("--method linear needs --model JOB for the screw lead (motor rad per load m)")
+        }
+    };
+    let (t0, t1) = (read_trace(n0)?, read_trace(n1)?);
+    let d0 = inertia::trace_deviation(&t0, axis, mpl, probe)?;
+    let d1 = inertia::trace_deviation(&t1, axis, mpl, probe)?;
+    let d = inertia::trace_deviation(trace, axis, mpl, probe)?;
+    let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
+    if a.svg.is_some() {
+        for (t, label, colour) in [
+            (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
+            (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
+            (
+                trace,
+                format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
+                "black",
+            ),
+        ] {
+            curves.push((
+                label,
+                colour,
+                inertia::trace_profile(t, axis, mpl, probe.kind)?,
+            ));
         }
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(est)
+}
+
+/// The `identify inertia --svg` plot: the deviation curves along the move, the probe marked.
+fn write_deviation_svg(
+    p: &Path,
+    curves: &[Curve],
+    est: &inertia::InertiaEstimate,
+    at: f64,
+) -> anyhow::Result<()> {
+    let series: Vec<Series> = curves
+        .iter()
+        .map(|(label, color, points)| Series {
+            label,
+            color,
+            points,
+        })
+        .collect();
+    let probe_label = format!("--at {at}");
+    let text = lines_svg(
+        &format!(
+            "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
+            est.deviation, est.method, est.jl_kgm2
+        ),
+        "load position, m",
+        "deviation, m",
+        &series,
+        &[(probe_label.as_str(), at)],
+    );
+    std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))
+}
+
+fn print_inertia(a: &InertiaArgs, est: &inertia::InertiaEstimate) -> anyhow::Result<()> {
+    if a.json {
+        println!("{}", serde_json::to_string(est)?);
+        return Ok(());
+    }
+    println!(
+        "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+        est.jl_kgm2,
+        est.method,
+        est.iterations,
+        est.deviation,
+        a.at,
+        1e6 * est.deviation_measured_m,
+        1e6 * est.deviation_model_m,
+        a.window
+    );
+    if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
+        println!(
+            "literal feedforward: the patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
+        );
+    }
+    Ok(())
 }
 
 fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
@@ -602,27 +662,35 @@ fn apply_gains(
     }
 }
 
-/// Runs `feedloop tune`.
-pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
-    use feedloop_analysis::identify::tune as t;
-    let job = Job::load(&a.job)?;
-    let grid = t::parse_grid(&a.grid)?;
-    let w: Vec<f64> = a
-        .weights
+/// Parses `--weights l1,l2,l3`.
+fn parse_weights(s: &str) -> anyhow::Result<[f64; 3]> {
+    let w: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .with_context(|| format!("--weights `{}`: expected l1,l2,l3", a.weights))?;
+        .with_context(|| format!("--weights `{s}`: expected l1,l2,l3"))?;
     let [l1, l2, l3] = w[..] else {
-        bail!("--weights `{}`: expected three numbers l1,l2,l3", a.weights);
+        bail!("--weights `{s}`: expected three numbers l1,l2,l3");
     };
-    let weights = [l1, l2, l3];
-    // Which axes: the one asked for, else every axis whose command has a ramp to score.
-    let mut skipped: Vec<(String, String)> = vec![];
+    Ok([l1, l2, l3])
+}
+
+/// Axes `tune` leaves out: (name, reason).
+type Skipped = Vec<(String, String)>;
+
+/// Which axes to tune: the one asked for, else every axis whose command has a ramp to score;
+/// also the axes left out, with the reason (printed on standard error).
+fn tunable_axes(
+    a: &TuneArgs,
+    job: &Job,
+    weights: [f64; 3],
+) -> anyhow::Result<(Vec<usize>, Skipped)> {
+    use feedloop_analysis::identify::tune as t;
+    let mut skipped: Skipped = vec![];
     let axes: Vec<usize> = match &a.axis {
-        Some(name) => vec![inertia::axis_index(&job, Some(name))?],
+        Some(name) => vec![inertia::axis_index(job, Some(name))?],
         None => (0..job.axes.len())
-            .filter(|&i| match t::ramp_error(&job, i, weights) {
+            .filter(|&i| match t::ramp_error(job, i, weights) {
                 Ok(_) => true,
                 Err(e) => {
                     skipped.push((job.axes[i].name.clone(), e.to_string()));
@@ -642,6 +710,18 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     for (n, e) in &skipped {
         eprintln!("axis {n} not tuned: {e}");
     }
+    Ok((axes, skipped))
+}
+
+/// Tunes `axes` one after another, each with the axes before it at their tuned gains.
+fn tune_axes(
+    a: &TuneArgs,
+    job: &Job,
+    grid: &[feedloop_analysis::identify::tune::GridAxis],
+    weights: [f64; 3],
+    axes: &[usize],
+) -> anyhow::Result<Vec<TunedAxis>> {
+    use feedloop_analysis::identify::tune as t;
     let per_axis: u64 = grid.iter().map(|g| g.values.len() as u64).product();
     let bar = if a.json {
         indicatif::ProgressBar::hidden()
@@ -653,11 +733,11 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     };
     let mut cur = job.clone();
     let mut tuned: Vec<TunedAxis> = vec![];
-    for &i in &axes {
+    for &i in axes {
         let name = job.axes[i].name.clone();
         bar.set_message(format!("axis {name}"));
         let t0 = std::time::Instant::now();
-        let r = t::tune(&cur, i, &grid, weights, a.delay_cycles, a.refine, &|| {
+        let r = t::tune(&cur, i, grid, weights, a.delay_cycles, a.refine, &|| {
             bar.inc(1)
         })
         .with_context(|| format!("tuning axis `{name}` of {}", a.job.display()))?;
@@ -669,6 +749,86 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
         });
     }
     bar.finish_and_clear();
+    Ok(tuned)
+}
+
+/// `tune --apply`: the job file with absolute model paths and the tuned gains in its chain.
+fn write_tuned_job(a: &TuneArgs, job: &Job, out: &Path, tuned: &[TunedAxis]) -> anyhow::Result<()> {
+    let text =
+        std::fs::read_to_string(&a.job).with_context(|| format!("reading {}", a.job.display()))?;
+    let mut table: toml::Table = text
+        .parse()
+        .with_context(|| format!("{}", a.job.display()))?;
+    if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
+        for ja in &job.axes {
+            if let Some(toml::Value::Table(ax)) = axes.get_mut(&ja.name) {
+                let abs =
+                    std::fs::canonicalize(&ja.model.path).unwrap_or_else(|_| ja.model.path.clone());
+                ax.insert("model".into(), abs.display().to_string().into());
+            }
+        }
+    }
+    let mut chain = match table.remove("chain") {
+        Some(toml::Value::Array(c)) => c,
+        _ => vec![],
+    };
+    let mut summary = vec![];
+    for ta in tuned {
+        apply_gains(&mut chain, &ta.name, ta.result.best);
+        summary.push(format!(
+            "{}: E {:.4e}, defaults {:.4e}",
+            ta.name, ta.result.e_best, ta.result.e_default
+        ));
+    }
+    table.insert("chain".into(), toml::Value::Array(chain));
+    std::fs::write(
+        out,
+        format!(
+            "# {} tuned by feedloop tune ({})\n{}",
+            a.job.display(),
+            summary.join("; "),
+            toml::to_string(&table)?
+        ),
+    )
+    .with_context(|| format!("writing {}", out.display()))
+}
+
+/// `tune --json`: one axis flat, several keyed by axis name (counts and seconds summed).
+fn tune_json(a: &TuneArgs, tuned: &[TunedAxis], skipped: &[(String, String)]) -> serde_json::Value {
+    let skipped_json: Vec<serde_json::Value> = skipped
+        .iter()
+        .map(|(n, e)| serde_json::json!({"axis": n, "reason": e}))
+        .collect();
+    if let [ta] = tuned {
+        let r = &ta.result;
+        return serde_json::json!({"best": r.best, "e_best": r.e_best, "e_default": r.e_default,
+            "evaluated": r.evaluated, "rejected": r.rejected, "seconds": ta.seconds,
+            "axis": ta.name, "delay_cycles": a.delay_cycles, "skipped": skipped_json});
+    }
+    let mut best = serde_json::Map::new();
+    let mut e_best = serde_json::Map::new();
+    let mut e_default = serde_json::Map::new();
+    for ta in tuned {
+        best.insert(ta.name.clone(), serde_json::json!(ta.result.best));
+        e_best.insert(ta.name.clone(), serde_json::json!(ta.result.e_best));
+        e_default.insert(ta.name.clone(), serde_json::json!(ta.result.e_default));
+    }
+    serde_json::json!({"best": best, "e_best": e_best, "e_default": e_default,
+        "evaluated": tuned.iter().map(|x| x.result.evaluated).sum::<usize>(),
+        "rejected": tuned.iter().map(|x| x.result.rejected).sum::<usize>(),
+        "seconds": tuned.iter().map(|x| x.seconds).sum::<f64>(),
+        "axes": tuned.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
+        "delay_cycles": a.delay_cycles, "skipped": skipped_json})
+}
+
+/// Runs `feedloop tune`.
+pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
+    use feedloop_analysis::identify::tune as t;
+    let job = Job::load(&a.job)?;
+    let grid = t::parse_grid(&a.grid)?;
+    let weights = parse_weights(&a.weights)?;
+    let (axes, skipped) = tunable_axes(&a, &job, weights)?;
+    let tuned = tune_axes(&a, &job, &grid, weights, &axes)?;
     let several = tuned.len() > 1;
     if let Some(p) = &a.svg {
         for ta in &tuned {
@@ -678,87 +838,26 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
         }
     }
     if let Some(out) = &a.apply {
-        let text = std::fs::read_to_string(&a.job)
-            .with_context(|| format!("reading {}", a.job.display()))?;
-        let mut table: toml::Table = text
-            .parse()
-            .with_context(|| format!("{}", a.job.display()))?;
-        if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
-            for ja in &job.axes {
-                if let Some(toml::Value::Table(ax)) = axes.get_mut(&ja.name) {
-                    let abs = std::fs::canonicalize(&ja.model.path)
-                        .unwrap_or_else(|_| ja.model.path.clone());
-                    ax.insert("model".into(), abs.display().to_string().into());
-                }
-            }
-        }
-        let mut chain = match table.remove("chain") {
-            Some(toml::Value::Array(c)) => c,
-            _ => vec![],
-        };
-        let mut summary = vec![];
-        for ta in &tuned {
-            apply_gains(&mut chain, &ta.name, ta.result.best);
-            summary.push(format!(
-                "{}: E {:.4e}, defaults {:.4e}",
-                ta.name, ta.result.e_best, ta.result.e_default
-            ));
-        }
-        table.insert("chain".into(), toml::Value::Array(chain));
-        std::fs::write(
-            out,
-            format!(
-                "# {} tuned by feedloop tune ({})\n{}",
-                a.job.display(),
-                summary.join("; "),
-                toml::to_string(&table)?
-            ),
-        )
-        .with_context(|| format!("writing {}", out.display()))?;
+        write_tuned_job(&a, &job, out, &tuned)?;
     }
     if a.json {
-        let skipped_json: Vec<serde_json::Value> = skipped
-            .iter()
-            .map(|(n, e)| serde_json::json!({"axis": n, "reason": e}))
-            .collect();
-        let v = if let [ta] = &tuned[..] {
-            let r = &ta.result;
-            serde_json::json!({"best": r.best, "e_best": r.e_best, "e_default": r.e_default,
-                "evaluated": r.evaluated, "rejected": r.rejected, "seconds": ta.seconds,
-                "axis": ta.name, "delay_cycles": a.delay_cycles, "skipped": skipped_json})
-        } else {
-            let mut best = serde_json::Map::new();
-            let mut e_best = serde_json::Map::new();
-            let mut e_default = serde_json::Map::new();
-            for ta in &tuned {
-                best.insert(ta.name.clone(), serde_json::json!(ta.result.best));
-                e_best.insert(ta.name.clone(), serde_json::json!(ta.result.e_best));
-                e_default.insert(ta.name.clone(), serde_json::json!(ta.result.e_default));
-            }
-            serde_json::json!({"best": best, "e_best": e_best, "e_default": e_default,
-                "evaluated": tuned.iter().map(|x| x.result.evaluated).sum::<usize>(),
-                "rejected": tuned.iter().map(|x| x.result.rejected).sum::<usize>(),
-                "seconds": tuned.iter().map(|x| x.seconds).sum::<f64>(),
-                "axes": tuned.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
-                "delay_cycles": a.delay_cycles, "skipped": skipped_json})
-        };
-        println!("{v}");
-    } else {
-        for ta in &tuned {
-            let r = &ta.result;
-            println!(
-                "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {:.1} s",
-                ta.name,
-                r.best.kp_per_s,
-                r.best.kv_nms_per_rad,
-                r.best.tv_s,
-                r.e_best,
-                r.e_default,
-                r.evaluated,
-                r.rejected,
-                ta.seconds
-            );
-        }
+        println!("{}", tune_json(&a, &tuned, &skipped));
+        return Ok(ExitCode::SUCCESS);
+    }
+    for ta in &tuned {
+        let r = &ta.result;
+        println!(
+            "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {:.1} s",
+            ta.name,
+            r.best.kp_per_s,
+            r.best.kv_nms_per_rad,
+            r.best.tv_s,
+            r.e_best,
+            r.e_default,
+            r.evaluated,
+            r.rejected,
+            ta.seconds
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

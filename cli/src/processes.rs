@@ -72,6 +72,23 @@ fn create_dir(out: &Path) -> Result<()> {
         .with_context(|| format!("creating output folder {}", out.display()))
 }
 
+/// Writes `summary.json` into `out` and prints it (pure JSON with `json_only`, else the human
+/// summary and the files written).
+fn write_summary(out: &Path, v: &Value, json_only: bool) -> Result<()> {
+    write_json(&out.join("summary.json"), v)?;
+    if json_only {
+        println!("{}", serde_json::to_string_pretty(v)?);
+    } else {
+        print!("{}", human_summary(v));
+        println!(
+            "  wrote {} and {}",
+            out.join("trace.csv").display(),
+            out.join("summary.json").display()
+        );
+    }
+    Ok(())
+}
+
 /// `feedloop sim`.
 pub fn sim(job_path: &Path, out: &Path, json_only: bool, quiet: bool) -> Result<ExitCode> {
     let job = Job::load(job_path)?;
@@ -111,17 +128,7 @@ pub fn sim(job_path: &Path, out: &Path, json_only: bool, quiet: bool) -> Result<
         end: &end,
         extra,
     });
-    write_json(&out.join("summary.json"), &v)?;
-    if json_only {
-        println!("{}", serde_json::to_string_pretty(&v)?);
-    } else {
-        print!("{}", human_summary(&v));
-        println!(
-            "  wrote {} and {}",
-            trace.display(),
-            out.join("summary.json").display()
-        );
-    }
+    write_summary(out, &v, json_only)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -173,19 +180,46 @@ fn apply_rt(a: &ProcArgs, wait: WaitKind) -> Value {
     serde_json::to_value(&applied).unwrap_or(Value::Null)
 }
 
-/// `feedloop plant`.
-pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
+/// What the plant and the scheduler process set up first.
+struct ProcStart {
+    loaded: Loaded,
+    mode: Mode,
+    wait: WaitKind,
+    /// The real-time settings applied (for the process' JSON report).
+    rt: Value,
+    spin: Duration,
+}
+
+/// Installs the signal handlers, loads the job, resolves mode and wait, creates the output
+/// folder and applies the real-time settings.
+fn start_process(a: &ProcArgs) -> Result<ProcStart> {
     signals::install();
-    let (instance, job_path, out) = (a.instance.as_str(), a.job.as_path(), a.out.as_path());
-    let Loaded { job, cycle, plant } = load(job_path)?;
-    let mode = mode_of(&job, a.mode.clone())?;
-    let wait = wait_of(&job, a.wait.clone())?;
-    create_dir(out)?;
+    let loaded = load(&a.job)?;
+    let mode = mode_of(&loaded.job, a.mode.clone())?;
+    let wait = wait_of(&loaded.job, a.wait.clone())?;
+    create_dir(&a.out)?;
     let rt = apply_rt(a, wait);
-    let spin = Duration::from_secs_f64(job.spin_s());
-    let ep = plant_endpoint(instance, wait, spin)?;
-    let cfg = PlantLoopConfig {
-        instance: instance.to_string(),
+    let spin = Duration::from_secs_f64(loaded.job.spin_s());
+    Ok(ProcStart {
+        loaded,
+        mode,
+        wait,
+        rt,
+        spin,
+    })
+}
+
+/// The plant loop's configuration from the job and the command line.
+fn plant_loop_config(
+    a: &ProcArgs,
+    job: &Job,
+    cycle: &ControlCycle,
+    mode: Mode,
+    wait: WaitKind,
+    spin: Duration,
+) -> PlantLoopConfig {
+    PlantLoopConfig {
+        instance: a.instance.clone(),
         mode,
         wait,
         spin,
@@ -210,7 +244,46 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
             .map(|a| a.model.controller.torque_limit.unwrap_or(f64::INFINITY))
             .collect(),
         cycle_hook: None,
-    };
+    }
+}
+
+/// The plant's `end` object of plant.json.
+fn plant_end_json(outcome: &PlantOutcome, job: &Job) -> Value {
+    match outcome.end {
+        PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
+        PlantEnd::Stopped {
+            cause,
+            cycle,
+            safe_stop,
+        } => {
+            let mut e =
+                json!({"reason": cause.reason(), "cycle": cycle, "safe_stop": safe_stop.id()});
+            match cause {
+                StopCause::SchedulerLost {
+                    detected_after_cycles,
+                } => e["detected_after_cycles"] = json!(detected_after_cycles),
+                StopCause::FollowingError { axis }
+                | StopCause::TorqueSaturation { axis }
+                | StopCause::SoftLimit { axis } => e["axis"] = json!(job.axes[axis].name),
+                StopCause::OperatorStop | StopCause::PluginFault => {}
+            }
+            e
+        }
+    }
+}
+
+/// `feedloop plant`.
+pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
+    let ProcStart {
+        loaded: Loaded { job, cycle, plant },
+        mode,
+        wait,
+        rt,
+        spin,
+    } = start_process(a)?;
+    let out = a.out.as_path();
+    let ep = plant_endpoint(&a.instance, wait, spin)?;
+    let cfg = plant_loop_config(a, &job, &cycle, mode, wait, spin);
     let mut dev = plant;
     let outcome = match run_plant(&cfg, &mut dev, &ep, &out.join("plant.log"), &signals::STOP) {
         Ok(o) => o,
@@ -233,27 +306,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
         Err(e) => return Err(e.into()),
     };
     drop(ep);
-    let end = match outcome.end {
-        PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
-        PlantEnd::Stopped {
-            cause,
-            cycle,
-            safe_stop,
-        } => {
-            let mut e =
-                json!({"reason": cause.reason(), "cycle": cycle, "safe_stop": safe_stop.id()});
-            match cause {
-                StopCause::SchedulerLost {
-                    detected_after_cycles,
-                } => e["detected_after_cycles"] = json!(detected_after_cycles),
-                StopCause::FollowingError { axis }
-                | StopCause::TorqueSaturation { axis }
-                | StopCause::SoftLimit { axis } => e["axis"] = json!(job.axes[axis].name),
-                StopCause::OperatorStop | StopCause::PluginFault => {}
-            }
-            e
-        }
-    };
+    let end = plant_end_json(&outcome, &job);
     write_json(
         &out.join("plant.json"),
         &json!({"pid": std::process::id(), "mode": mode.id(), "wait": wait.id(),
@@ -283,17 +336,17 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
 
 /// `feedloop scheduler`.
 pub fn scheduler(a: &ProcArgs) -> Result<ExitCode> {
-    signals::install();
-    let (instance, job_path, out) = (a.instance.as_str(), a.job.as_path(), a.out.as_path());
-    let Loaded { job, mut cycle, .. } = load(job_path)?;
+    let ProcStart {
+        loaded: Loaded { job, mut cycle, .. },
+        mode,
+        wait,
+        rt,
+        spin,
+    } = start_process(a)?;
     if let Some(c) = a.cycles {
         cycle.set_cycles(c);
     }
-    let mode = mode_of(&job, a.mode.clone())?;
-    let wait = wait_of(&job, a.wait.clone())?;
-    create_dir(out)?;
-    let rt = apply_rt(a, wait);
-    let spin = Duration::from_secs_f64(job.spin_s());
+    let (instance, out) = (a.instance.as_str(), a.out.as_path());
     let ep = scheduler_endpoint(instance, wait, spin)?;
     let cfg = SchedulerConfig {
         instance: instance.to_string(),
@@ -390,59 +443,43 @@ pub fn parse_pin(pin: &str) -> Result<[usize; 2]> {
     }
 }
 
-/// `feedloop run`.
-pub fn run(
+/// Starts the plant and then the scheduler process (the plant is killed if the scheduler cannot
+/// start).
+fn spawn_both(
+    instance: &str,
     job_path: &Path,
     out: &Path,
-    mode: Option<String>,
-    wait: Option<String>,
-    instance: Option<String>,
-    pin: Option<&str>,
-    json_only: bool,
-) -> Result<ExitCode> {
-    signals::install();
-    // Validate everything before any process starts.
-    let cpus = pin.map(parse_pin).transpose()?;
+    mode: Mode,
+    wait: WaitKind,
+    cpus: Option<[usize; 2]>,
+) -> Result<(Child, Child)> {
     let cpu_args = |i: usize| -> Vec<String> {
         cpus.map(|c| vec!["--cpu".to_string(), c[i].to_string()])
             .unwrap_or_default()
     };
-    let Loaded { job, .. } = load(job_path)?;
-    let mode = mode_of(&job, mode)?;
-    let wait = wait_of(&job, wait)?;
-    let instance = instance.unwrap_or_else(default_instance);
-    if !feedloop_model::job::valid_name(&instance, true) {
-        bail!("--instance `{instance}`: use lowercase letters, digits, `_` and `-` (at most 64)");
-    }
-    create_dir(out)?;
-    for f in [
-        "plant.log",
-        "plant.json",
-        "scheduler.log",
-        "scheduler.json",
-        "trace.csv",
-        "summary.json",
-    ] {
-        let _ = std::fs::remove_file(out.join(f));
-    }
-    let mut plant = spawn("plant", &instance, job_path, out, mode, wait, &cpu_args(0))?;
-    let mut sched = match spawn(
+    let mut plant = spawn("plant", instance, job_path, out, mode, wait, &cpu_args(0))?;
+    match spawn(
         "scheduler",
-        &instance,
+        instance,
         job_path,
         out,
         mode,
         wait,
         &cpu_args(1),
     ) {
-        Ok(c) => c,
+        Ok(sched) => Ok((plant, sched)),
         Err(e) => {
             let _ = plant.kill();
             let _ = plant.wait();
-            return Err(e);
+            Err(e)
         }
-    };
-    // Wait for the plant; forward an operator stop (SIGINT/SIGTERM to us) to it once.
+    }
+}
+
+/// Waits for both processes: the plant, forwarding an operator stop (SIGINT/SIGTERM to us) to
+/// it once; then the scheduler, killed if it outlives the peer timeout (+2 s). Reports a
+/// process that failed without writing its JSON file.
+fn wait_both(plant: &mut Child, sched: &mut Child, job: &Job, out: &Path) -> Result<()> {
     let mut forwarded = false;
     let plant_status = loop {
         if let Some(st) = plant.try_wait().context("waiting for the plant process")? {
@@ -477,19 +514,45 @@ pub fn run(
             eprintln!("feedloop: the scheduler process failed ({s})");
         }
     }
+    Ok(())
+}
+
+/// `feedloop run`.
+pub fn run(
+    job_path: &Path,
+    out: &Path,
+    mode: Option<String>,
+    wait: Option<String>,
+    instance: Option<String>,
+    pin: Option<&str>,
+    json_only: bool,
+) -> Result<ExitCode> {
+    signals::install();
+    // Validate everything before any process starts.
+    let cpus = pin.map(parse_pin).transpose()?;
+    let Loaded { job, .. } = load(job_path)?;
+    let mode = mode_of(&job, mode)?;
+    let wait = wait_of(&job, wait)?;
+    let instance = instance.unwrap_or_else(default_instance);
+    if !feedloop_model::job::valid_name(&instance, true) {
+        bail!("--instance `{instance}`: use lowercase letters, digits, `_` and `-` (at most 64)");
+    }
+    create_dir(out)?;
+    for f in [
+        "plant.log",
+        "plant.json",
+        "scheduler.log",
+        "scheduler.json",
+        "trace.csv",
+        "summary.json",
+    ] {
+        let _ = std::fs::remove_file(out.join(f));
+    }
+    let (mut plant, mut sched) = spawn_both(&instance, job_path, out, mode, wait, cpus)?;
+    wait_both(&mut plant, &mut sched, &job, out)?;
     let (mut v, code) = merge(out, &job)?;
     v["processes"] = json!({"plant_pid": plant.id(), "scheduler_pid": sched.id()});
-    write_json(&out.join("summary.json"), &v)?;
-    if json_only {
-        println!("{}", serde_json::to_string_pretty(&v)?);
-    } else {
-        print!("{}", human_summary(&v));
-        println!(
-            "  wrote {} and {}",
-            out.join("trace.csv").display(),
-            out.join("summary.json").display()
-        );
-    }
+    write_summary(out, &v, json_only)?;
     Ok(code)
 }
 
@@ -512,20 +575,18 @@ pub fn merge_cmd(dir: &Path, job_path: &Path, json_only: bool) -> Result<ExitCod
     Ok(code)
 }
 
-/// Builds trace.csv and summary.json in `dir` from the processes' logs.
-fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
-    let plant_log: PathBuf = dir.join("plant.log");
-    let plant_recs = read_log::<PlantRecord>(&plant_log)
-        .with_context(|| format!("reading {}", plant_log.display()))?;
-    let sched_recs = read_log::<SchedRecord>(&dir.join("scheduler.log")).ok();
-    let plant_info = read_json(&dir.join("plant.json"));
-    let sched_info = read_json(&dir.join("scheduler.json"));
+/// Writes `trace.csv` in `dir` from the plant's records; returns the tracking figures and the
+/// plant's compute time, ns.
+fn write_trace(
+    dir: &Path,
+    job: &Job,
+    cycle: &ControlCycle,
+    records: &[PlantRecord],
+) -> Result<(Tracking, u64)> {
     let names = job.axis_names();
     let n = names.len();
-    let cycle = ControlCycle::new(job, &Builtins)?;
-    let judge = ContourJudge::new(job, &cycle);
+    let judge = ContourJudge::new(job, cycle);
     let mut tracking = Tracking::for_job(job);
-
     let trace_path = dir.join("trace.csv");
     let f = std::fs::File::create(&trace_path)
         .with_context(|| format!("creating {}", trace_path.display()))?;
@@ -535,32 +596,21 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     )?;
     let mut row = Vec::with_capacity(1 + 5 * n);
     let mut plant_compute_ns = 0u64;
-    for r in &plant_recs.records {
+    for r in records {
         row_values(r.seq, job.period_s, &r.axes[..n], &mut row);
         w.write_row(&row)?;
-        let ce = judge.error_m(&cycle, cycle.time_of(r.seq), &r.axes[..n]);
+        let ce = judge.error_m(cycle, cycle.time_of(r.seq), &r.axes[..n]);
         tracking.push(&r.axes[..n], ce);
         plant_compute_ns += u64::from(r.compute_ns);
     }
     w.finish()?;
-    let sched_compute_ns: u64 = sched_recs
-        .as_ref()
-        .map(|s| s.records.iter().map(|r| u64::from(r.compute_ns)).sum())
-        .unwrap_or(0);
-    let t = timing(&plant_recs.records);
-    let mode = plant_info
-        .as_ref()
-        .and_then(|p| p["mode"].as_str().map(str::to_string))
-        .unwrap_or_else(|| "unknown".into());
-    let pids = match (&plant_info, &sched_info) {
-        (Some(p), Some(s)) => Some((
-            p["pid"].as_u64().unwrap_or(0) as u32,
-            s["pid"].as_u64().unwrap_or(0) as u32,
-        )),
-        _ => None,
-    };
-    let cycles = plant_recs.records.len() as u64;
-    let mut end = match &plant_info {
+    Ok((tracking, plant_compute_ns))
+}
+
+/// How the run ended, from plant.json (`plant_lost` without it; `incomplete_log` when a
+/// completed run logged fewer or more cycles than planned).
+fn merged_end(plant_info: Option<&Value>, cycles: u64, cycle: &ControlCycle) -> EndInfo {
+    let end = match plant_info {
         None => EndInfo::new("plant_lost", cycles),
         Some(p) => {
             let e = &p["end"];
@@ -579,12 +629,66 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
         }
     };
     let planned = plant_info
-        .as_ref()
         .and_then(|p| p["planned_cycles"].as_u64())
         .unwrap_or(cycle.cycles());
     if end.reason == "completed" && cycles != planned {
-        end = EndInfo::new("incomplete_log", cycles);
+        return EndInfo::new("incomplete_log", cycles);
     }
+    end
+}
+
+/// The scheduler's part of the summary's extra keys: its swaps, rejected requests, deadline
+/// misses near the swaps and elsewhere, and its whole report.
+fn scheduler_extra(s: &Value, records: &[PlantRecord], extra: &mut BTreeMap<String, Value>) {
+    extra.insert("swaps".into(), s["swaps"].clone());
+    extra.insert("rejected_requests".into(), s["rejected_requests"].clone());
+    let swap_cycles: Vec<u64> = s["swaps"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|w| w["cycle"].as_u64()).collect())
+        .unwrap_or_default();
+    if !swap_cycles.is_empty() {
+        let (near, elsewhere) = misses_near(records, &swap_cycles, SWAP_WINDOW);
+        let stats = |c: &WindowCount| {
+            json!({"cycles": c.cycles, "misses": c.misses,
+                   "rate": c.misses as f64 / c.cycles.max(1) as f64,
+                   "late_cycles": c.late, "late_rate": c.late as f64 / c.cycles.max(1) as f64})
+        };
+        let mut n = stats(&near);
+        n["window_cycles"] = json!(SWAP_WINDOW);
+        extra.insert("deadline_misses_near_swaps".into(), n);
+        extra.insert("deadline_misses_elsewhere".into(), stats(&elsewhere));
+    }
+    extra.insert("scheduler".into(), s.clone());
+}
+
+/// Builds trace.csv and summary.json in `dir` from the processes' logs.
+fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
+    let plant_log: PathBuf = dir.join("plant.log");
+    let plant_recs = read_log::<PlantRecord>(&plant_log)
+        .with_context(|| format!("reading {}", plant_log.display()))?;
+    let sched_recs = read_log::<SchedRecord>(&dir.join("scheduler.log")).ok();
+    let plant_info = read_json(&dir.join("plant.json"));
+    let sched_info = read_json(&dir.join("scheduler.json"));
+    let cycle = ControlCycle::new(job, &Builtins)?;
+    let (tracking, plant_compute_ns) = write_trace(dir, job, &cycle, &plant_recs.records)?;
+    let sched_compute_ns: u64 = sched_recs
+        .as_ref()
+        .map(|s| s.records.iter().map(|r| u64::from(r.compute_ns)).sum())
+        .unwrap_or(0);
+    let t = timing(&plant_recs.records);
+    let mode = plant_info
+        .as_ref()
+        .and_then(|p| p["mode"].as_str().map(str::to_string))
+        .unwrap_or_else(|| "unknown".into());
+    let pids = match (&plant_info, &sched_info) {
+        (Some(p), Some(s)) => Some((
+            p["pid"].as_u64().unwrap_or(0) as u32,
+            s["pid"].as_u64().unwrap_or(0) as u32,
+        )),
+        _ => None,
+    };
+    let cycles = plant_recs.records.len() as u64;
+    let end = merged_end(plant_info.as_ref(), cycles, &cycle);
     let mut extra = BTreeMap::new();
     extra.insert(
         "wait".into(),
@@ -598,25 +702,7 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     extra.insert("duplicate_commands".into(), json!(t.duplicate_commands));
     extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
     if let Some(s) = &sched_info {
-        extra.insert("swaps".into(), s["swaps"].clone());
-        extra.insert("rejected_requests".into(), s["rejected_requests"].clone());
-        let swap_cycles: Vec<u64> = s["swaps"]
-            .as_array()
-            .map(|a| a.iter().filter_map(|w| w["cycle"].as_u64()).collect())
-            .unwrap_or_default();
-        if !swap_cycles.is_empty() {
-            let (near, elsewhere) = misses_near(&plant_recs.records, &swap_cycles, SWAP_WINDOW);
-            let stats = |c: &WindowCount| {
-                json!({"cycles": c.cycles, "misses": c.misses,
-                       "rate": c.misses as f64 / c.cycles.max(1) as f64,
-                       "late_cycles": c.late, "late_rate": c.late as f64 / c.cycles.max(1) as f64})
-            };
-            let mut n = stats(&near);
-            n["window_cycles"] = json!(SWAP_WINDOW);
-            extra.insert("deadline_misses_near_swaps".into(), n);
-            extra.insert("deadline_misses_elsewhere".into(), stats(&elsewhere));
-        }
-        extra.insert("scheduler".into(), s.clone());
+        scheduler_extra(s, &plant_recs.records, &mut extra);
     }
     let v = summary_json(&SummaryInput {
         job: &job.name,

@@ -191,6 +191,23 @@ fn opt(v: Option<f64>) -> String {
     v.map(|x| format!("{x:.2} %")).unwrap_or_else(|| "-".into())
 }
 
+/// Writes `report.html` and the JSON file `json_name` into `out`.
+fn write_report(
+    out: &Path,
+    html: &str,
+    json_name: &str,
+    j: &serde_json::Value,
+) -> anyhow::Result<()> {
+    write(&out.join("report.html"), html)?;
+    write(&out.join(json_name), &serde_json::to_string_pretty(j)?)
+}
+
+/// Prints `j` as pretty JSON on standard output.
+fn print_json(j: &serde_json::Value) -> anyhow::Result<()> {
+    println!("{}", serde_json::to_string_pretty(j)?);
+    Ok(())
+}
+
 /// Runs a workbench subcommand.
 pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
     match cmd {
@@ -203,24 +220,7 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
                     out,
                     json,
                 },
-        } => {
-            let m = parse_map(&map)?;
-            let tr = import(&from, &m, period_s, &out)?;
-            if json {
-                println!(
-                    "{}",
-                    serde_json::json!({"out": out.display().to_string(), "samples": tr.len(), "period_s": tr.period_s(), "columns": tr.columns})
-                );
-            } else {
-                println!(
-                    "wrote {} ({} samples at {} s; columns {})",
-                    out.display(),
-                    tr.len(),
-                    tr.period_s(),
-                    tr.columns.join(", ")
-                );
-            }
-        }
+        } => trace_import(&from, &map, period_s, &out, json)?,
         WorkbenchCmd::Model {
             cmd:
                 ModelCmd::Init {
@@ -231,74 +231,13 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
                     out,
                     json,
                 },
-        } => {
-            let tr = Trace::read(&trace)?;
-            let m = model_init(&tr, &kind, axis.as_deref(), lead_m, &out)?;
-            let params: serde_json::Map<String, serde_json::Value> = m
-                .base
-                .iter()
-                .map(|(k, v)| (k.clone(), serde_json::json!(v)))
-                .collect();
-            if json {
-                println!(
-                    "{}",
-                    serde_json::json!({"out": out.display().to_string(), "kind": kind, "params": params})
-                );
-            } else {
-                println!(
-                    "wrote {}: {}",
-                    out.display(),
-                    m.base
-                        .iter()
-                        .map(|(k, v)| format!("{k} = {v:.6e}"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                );
-            }
-        }
+        } => init_model(&trace, &kind, axis.as_deref(), lead_m, &out, json)?,
         WorkbenchCmd::Compare {
             trace,
             model,
             out,
             common,
-        } => {
-            let (_tr, m, d) = load(&trace, &model, &common)?;
-            let c = compare(&m, &d, common.window_s);
-            mkdir(&out)?;
-            let mut j = c.to_json(&d);
-            let report_path = out.join("report.html");
-            j["report"] = serde_json::json!(report_path.display().to_string());
-            write(
-                &report_path,
-                &report::html(
-                    &d,
-                    &c,
-                    &format!("compare: {} vs {}", model.display(), trace.display()),
-                    "",
-                ),
-            )?;
-            write(
-                &out.join("compare.json"),
-                &serde_json::to_string_pretty(&j)?,
-            )?;
-            if common.json {
-                println!("{}", serde_json::to_string_pretty(&j)?);
-            } else {
-                println!(
-                    "equation error NRMSE: {}   windowed simulation NRMSE: {}   free run: {}",
-                    opt(j["equation_nrmse_pct"].as_f64()),
-                    opt(j["window_sim_nrmse_pct"].as_f64()),
-                    opt(j["free_sim_nrmse_pct"].as_f64())
-                );
-                for s in &c.by_kind {
-                    println!(
-                        "  {:<18} {:5.1} % of the residual in {:5.1} % of the time",
-                        s.name, s.share_pct, s.time_pct
-                    );
-                }
-                println!("report: {}", report_path.display());
-            }
-        }
+        } => compare_cmd(&trace, &model, &out, &common)?,
         WorkbenchCmd::Diagnose {
             trace,
             model,
@@ -311,73 +250,9 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             d.require_torque("diagnose (the equation error is measured on it)", &tr)?;
             if guided {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
-                mkdir(&out)?;
-                let r = auto(&m, &d, common.window_s, max_steps)?;
-                let model_path = out.join("model.toml");
-                r.model.write(&model_path)?;
-                let c = compare(&r.model, &d, common.window_s);
-                let extra = format!("{}{}", r.html(), diagnosis_html(&r.last));
-                write(
-                    &out.join("report.html"),
-                    &report::html(&d, &c, "diagnose --auto: final model", &extra),
-                )?;
-                let mut j = r.to_json();
-                j["model"] = serde_json::json!(model_path.display().to_string());
-                write(
-                    &out.join("diagnose.json"),
-                    &serde_json::to_string_pretty(&j)?,
-                )?;
-                if common.json {
-                    println!("{}", serde_json::to_string_pretty(&j)?);
-                } else {
-                    for (i, s) in r.steps.iter().enumerate() {
-                        println!(
-                            "step {i}: {:<40} equation NRMSE {}  windowed sim NRMSE {}",
-                            if s.added.is_empty() {
-                                "(nominal)".to_string()
-                            } else {
-                                s.added.join(", ")
-                            },
-                            opt(s.errors.equation_nrmse_pct),
-                            opt(s.errors.window_sim_nrmse_pct)
-                        );
-                    }
-                    println!("{}\nfinal model: {}", r.last.verdict, model_path.display());
-                }
+                diagnose_auto(&m, &d, &out, max_steps, &common)?;
             } else {
-                let dg = diagnose(&m, &d, &DiagOptions::default());
-                let j = dg.to_json();
-                if let Some(out) = &out {
-                    mkdir(out)?;
-                    let c = compare(&m, &d, common.window_s);
-                    write(
-                        &out.join("report.html"),
-                        &report::html(&d, &c, "diagnose", &diagnosis_html(&dg)),
-                    )?;
-                    write(
-                        &out.join("diagnose.json"),
-                        &serde_json::to_string_pretty(&j)?,
-                    )?;
-                }
-                if common.json {
-                    println!("{}", serde_json::to_string_pretty(&j)?);
-                } else {
-                    for c in &dg.candidates {
-                        println!(
-                            "{:<20} {:<10} {:>6.1} %  {}  {}",
-                            c.effect,
-                            c.class,
-                            c.error_reduction_pct,
-                            if c.significant {
-                                "significant"
-                            } else {
-                                "-          "
-                            },
-                            c.evidence
-                        );
-                    }
-                    println!("{}", dg.verdict);
-                }
+                diagnose_once(&m, &d, out.as_deref(), &common)?;
             }
         }
         WorkbenchCmd::Fit {
@@ -387,27 +262,201 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             free,
             out,
             common,
-        } => {
-            let (_tr, m, d) = load(&trace, &model, &common)?;
-            let add = parse_effects(&add)?;
-            let r = fit(&m, &d, &add, free.as_deref(), common.window_s)?;
-            r.model.write(&out)?;
-            if common.json {
-                println!("{}", serde_json::to_string_pretty(&r.to_json())?);
-            } else {
-                for (k, v) in &r.params {
-                    println!("{k} = {v:.6}");
-                }
-                println!(
-                    "equation NRMSE {} -> {}; windowed simulation NRMSE {} -> {}",
-                    opt(r.before.equation_nrmse_pct),
-                    opt(r.after.equation_nrmse_pct),
-                    opt(r.before.window_sim_nrmse_pct),
-                    opt(r.after.window_sim_nrmse_pct)
-                );
-                println!("wrote {}", out.display());
-            }
-        }
+        } => fit_cmd(&trace, &model, &add, free.as_deref(), &out, &common)?,
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `feedloop trace import`.
+fn trace_import(
+    from: &Path,
+    map: &str,
+    period_s: Option<f64>,
+    out: &Path,
+    json: bool,
+) -> anyhow::Result<()> {
+    let m = parse_map(map)?;
+    let tr = import(from, &m, period_s, out)?;
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({"out": out.display().to_string(), "samples": tr.len(), "period_s": tr.period_s(), "columns": tr.columns})
+        );
+    } else {
+        println!(
+            "wrote {} ({} samples at {} s; columns {})",
+            out.display(),
+            tr.len(),
+            tr.period_s(),
+            tr.columns.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// `feedloop model init`.
+fn init_model(
+    trace: &Path,
+    kind: &str,
+    axis: Option<&str>,
+    lead_m: Option<f64>,
+    out: &Path,
+    json: bool,
+) -> anyhow::Result<()> {
+    let tr = Trace::read(trace)?;
+    let m = model_init(&tr, kind, axis, lead_m, out)?;
+    let params: serde_json::Map<String, serde_json::Value> = m
+        .base
+        .iter()
+        .map(|(k, v)| (k.clone(), serde_json::json!(v)))
+        .collect();
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({"out": out.display().to_string(), "kind": kind, "params": params})
+        );
+    } else {
+        println!(
+            "wrote {}: {}",
+            out.display(),
+            m.base
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.6e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// `feedloop compare`.
+fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyhow::Result<()> {
+    let (_tr, m, d) = load(trace, model, common)?;
+    let c = compare(&m, &d, common.window_s);
+    mkdir(out)?;
+    let mut j = c.to_json(&d);
+    let report_path = out.join("report.html");
+    j["report"] = serde_json::json!(report_path.display().to_string());
+    let title = format!("compare: {} vs {}", model.display(), trace.display());
+    write_report(out, &report::html(&d, &c, &title, ""), "compare.json", &j)?;
+    if common.json {
+        return print_json(&j);
+    }
+    println!(
+        "equation error NRMSE: {}   windowed simulation NRMSE: {}   free run: {}",
+        opt(j["equation_nrmse_pct"].as_f64()),
+        opt(j["window_sim_nrmse_pct"].as_f64()),
+        opt(j["free_sim_nrmse_pct"].as_f64())
+    );
+    for s in &c.by_kind {
+        println!(
+            "  {:<18} {:5.1} % of the residual in {:5.1} % of the time",
+            s.name, s.share_pct, s.time_pct
+        );
+    }
+    println!("report: {}", report_path.display());
+    Ok(())
+}
+
+/// `feedloop diagnose --auto`: the guided loop; writes model.toml, report.html, diagnose.json.
+fn diagnose_auto(
+    m: &WbModel,
+    d: &AxisData,
+    out: &Path,
+    max_steps: usize,
+    common: &Common,
+) -> anyhow::Result<()> {
+    mkdir(out)?;
+    let r = auto(m, d, common.window_s, max_steps)?;
+    let model_path = out.join("model.toml");
+    r.model.write(&model_path)?;
+    let c = compare(&r.model, d, common.window_s);
+    let extra = format!("{}{}", r.html(), diagnosis_html(&r.last));
+    let html = report::html(d, &c, "diagnose --auto: final model", &extra);
+    let mut j = r.to_json();
+    j["model"] = serde_json::json!(model_path.display().to_string());
+    write_report(out, &html, "diagnose.json", &j)?;
+    if common.json {
+        return print_json(&j);
+    }
+    for (i, s) in r.steps.iter().enumerate() {
+        println!(
+            "step {i}: {:<40} equation NRMSE {}  windowed sim NRMSE {}",
+            if s.added.is_empty() {
+                "(nominal)".to_string()
+            } else {
+                s.added.join(", ")
+            },
+            opt(s.errors.equation_nrmse_pct),
+            opt(s.errors.window_sim_nrmse_pct)
+        );
+    }
+    println!("{}\nfinal model: {}", r.last.verdict, model_path.display());
+    Ok(())
+}
+
+/// `feedloop diagnose` without `--auto`: ranks the candidates once (report files with `--out`).
+fn diagnose_once(
+    m: &WbModel,
+    d: &AxisData,
+    out: Option<&Path>,
+    common: &Common,
+) -> anyhow::Result<()> {
+    let dg = diagnose(m, d, &DiagOptions::default());
+    let j = dg.to_json();
+    if let Some(out) = out {
+        mkdir(out)?;
+        let c = compare(m, d, common.window_s);
+        let html = report::html(d, &c, "diagnose", &diagnosis_html(&dg));
+        write_report(out, &html, "diagnose.json", &j)?;
+    }
+    if common.json {
+        return print_json(&j);
+    }
+    for c in &dg.candidates {
+        println!(
+            "{:<20} {:<10} {:>6.1} %  {}  {}",
+            c.effect,
+            c.class,
+            c.error_reduction_pct,
+            if c.significant {
+                "significant"
+            } else {
+                "-          "
+            },
+            c.evidence
+        );
+    }
+    println!("{}", dg.verdict);
+    Ok(())
+}
+
+/// `feedloop fit`.
+fn fit_cmd(
+    trace: &Path,
+    model: &Path,
+    add: &[String],
+    free: Option<&[String]>,
+    out: &Path,
+    common: &Common,
+) -> anyhow::Result<()> {
+    let (_tr, m, d) = load(trace, model, common)?;
+    let add = parse_effects(add)?;
+    let r = fit(&m, &d, &add, free, common.window_s)?;
+    r.model.write(out)?;
+    if common.json {
+        return print_json(&r.to_json());
+    }
+    for (k, v) in &r.params {
+        println!("{k} = {v:.6}");
+    }
+    println!(
+        "equation NRMSE {} -> {}; windowed simulation NRMSE {} -> {}",
+        opt(r.before.equation_nrmse_pct),
+        opt(r.after.equation_nrmse_pct),
+        opt(r.before.window_sim_nrmse_pct),
+        opt(r.after.window_sim_nrmse_pct)
+    );
+    println!("wrote {}", out.display());
+    Ok(())
 }
