@@ -142,6 +142,9 @@ pub fn identify_stiffness(
 }
 
 /// [`identify_stiffness`] on plain signals: torque `u`, motor velocity `y`, instrument `r`.
+/// Kept as one function (about 130 lines): the method reads in its own order (frequency
+/// response, extrema with their prominence, interpolation, the two-mass formulas, coherence over
+/// the picked band), its steps sharing the frequency grid and its closures.
 pub fn identify_stiffness_from(
     u: &[f64],
     y: &[f64],

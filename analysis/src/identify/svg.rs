@@ -169,6 +169,8 @@ pub struct Series<'a> {
 
 /// Curves over a linear x axis with vertical markers at `marks` (label, x); labels carry the
 /// units.
+/// Kept as one function (about 100 lines): one SVG from frame to legend (axes, ticks, zero
+/// line, curves, markers, labels), each part a few lines that share the same scales.
 pub fn lines_svg(
     title: &str,
     x_label: &str,

@@ -222,7 +222,7 @@ impl Effect {
     }
 
     /// Model-file keys and values of this effect (SI, the units the plant library documents).
-    /// Kept as one function (about 110 lines): one arm per effect, the mirror of `from_table`.
+    /// Kept as one function (about 100 lines): one arm per effect, the mirror of `from_table`.
     pub fn to_table(&self, kind: AxisKind, r: f64) -> toml::Table {
         let mut t = toml::Table::new();
         let put = |t: &mut toml::Table, k: &str, v: f64| {
@@ -326,7 +326,7 @@ impl Effect {
     }
 
     /// Reads an effect table of a model file (keys as the plant library documents them).
-    /// Kept as one function (about 130 lines): one arm per effect, so that an effect's keys are
+    /// Kept as one function (about 120 lines): one arm per effect, so that an effect's keys are
     /// read where its `to_table` arm writes them.
     pub fn from_table(
         id: &str,

@@ -204,6 +204,9 @@ fn free_keys(
 
 /// Adds the given effects (nonlinear parameters fixed as given, coefficients refitted) and
 /// refits the free base parameters jointly with them.
+/// Kept as one function (about 125 lines): the joint refit (torque-path effects, the columns of
+/// the added effects, the active set on the base parameters, the write-back) shares one
+/// regression and its index of which column is which parameter.
 pub fn fit_with(
     model: &WbModel,
     d: &AxisData,

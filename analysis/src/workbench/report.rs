@@ -329,7 +329,7 @@ pub fn spectrum(x: &[f64], dt: f64) -> (Vec<f64>, Vec<f64>) {
 
 /// Writes the HTML report of a comparison (and, when given, a diagnosis table and an error
 /// history) as a string.
-/// Kept as one function (about 220 lines): the report page from top to bottom, each section a
+/// Kept as one function (about 160 lines): the report page from top to bottom, each section a
 /// figure and its plot in the order the reader meets them.
 pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> String {
     let mut h = String::new();
