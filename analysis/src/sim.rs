@@ -90,13 +90,7 @@ impl Simulation {
             .zip(&self.cmd.axes)
             .take(self.n)
         {
-            *row = AxisRecord {
-                cmd: c.reference,
-                load: s.load_pos,
-                motor: s.motor_pos,
-                motor_vel: s.motor_vel,
-                torque: c.torque,
-            };
+            *row = AxisRecord::of(s, c);
         }
         self.k += 1;
     }

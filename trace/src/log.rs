@@ -12,6 +12,7 @@ use std::path::Path;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use feedloop_control::axis_io::{AxisCommand, AxisSensor};
 use feedloop_model::MAX_AXES;
 
 /// One axis' row of a trace: exactly the trace-format columns (SI, load units for positions
@@ -28,6 +29,22 @@ pub struct AxisRecord {
     pub motor_vel: f64,
     /// Torque (N m) / force (N) applied for this cycle.
     pub torque: f64,
+}
+
+impl AxisRecord {
+    /// The row of one axis in one cycle: what was measured at its start (`s`) and what was
+    /// commanded and applied for it (`c`). The one place a cycle becomes a trace row, in the
+    /// plant process and in the simulation alike.
+    #[inline]
+    pub fn of(s: &AxisSensor, c: &AxisCommand) -> Self {
+        Self {
+            cmd: c.reference,
+            load: s.load_pos,
+            motor: s.motor_pos,
+            motor_vel: s.motor_vel,
+            torque: c.torque,
+        }
+    }
 }
 
 /// `PlantRecord::flags`: the command for this cycle did not arrive in time (held the last one).

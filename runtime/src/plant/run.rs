@@ -378,14 +378,7 @@ pub fn run_plant<P: PlantDevice>(
             ..Default::default()
         };
         for i in 0..n {
-            let s = &sample.axes[i];
-            r.axes[i] = AxisRecord {
-                cmd: applied.axes[i].reference,
-                load: s.load_pos,
-                motor: s.motor_pos,
-                motor_vel: s.motor_vel,
-                torque: applied.axes[i].torque,
-            };
+            r.axes[i] = AxisRecord::of(&sample.axes[i], &applied.axes[i]);
         }
         rec.push(r);
         if let Some(h) = cfg.cycle_hook {
