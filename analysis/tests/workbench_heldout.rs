@@ -552,8 +552,8 @@ fn heldout_baseline_report() {
                     let mut ids = vec![k.effect.clone()];
                     ids.extend(k.same_as.iter().cloned());
                     for e in &k.add {
-                        if !ids.contains(&e.id) {
-                            ids.push(e.id.clone());
+                        if !ids.contains(&e.id.to_string()) {
+                            ids.push(e.id.to_string());
                         }
                     }
                     let ok = c.expect.contains(&k.class.as_str());

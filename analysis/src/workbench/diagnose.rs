@@ -147,7 +147,7 @@ fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
 }
 
 /// The grid of nonlinear parameters tried for effect `id`.
-pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
+pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
     let (a, b) = d.range;
     let vmax = quantile(
         &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
@@ -161,7 +161,7 @@ pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
             .collect()
     };
     match id {
-        "stribeck_friction" => {
+        EffectId::StribeckFriction => {
             let mut g = Vec::new();
             for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
                 for e in [1.0, 2.0] {
@@ -170,7 +170,7 @@ pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
             }
             g
         }
-        "cogging" => match d.kind {
+        EffectId::Cogging => match d.kind {
             AxisKind::Rigid => logspace(1e-3, 0.1, 120)
                 .into_iter()
                 .map(|p| vec![p])
@@ -179,7 +179,7 @@ pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
                 .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
                 .collect(),
         },
-        "third_mass" => {
+        EffectId::ThirdMass => {
             let mut g = Vec::new();
             for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
                 for z in [0.02, 0.1, 0.3] {
@@ -188,12 +188,12 @@ pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
             }
             g
         }
-        "delay" => (1..=10).map(|k| vec![k as f64]).collect(),
-        "current_lag" => logspace(d.dt * 0.3, d.dt * 20.0, 16)
+        EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
+        EffectId::CurrentLag => logspace(d.dt * 0.3, d.dt * 20.0, 16)
             .into_iter()
             .map(|t| vec![t])
             .collect(),
-        "torque_saturation" => {
+        EffectId::TorqueSaturation => {
             let Some(y) = &d.torque_raw else {
                 return vec![];
             };
@@ -203,7 +203,7 @@ pub fn hyper_grid(id: &str, d: &AxisData) -> Vec<Vec<f64>> {
                 .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
                 .collect()
         }
-        "pitch_error" => {
+        EffectId::PitchError => {
             let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
             vec![vec![lead]]
         }
@@ -239,7 +239,7 @@ pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
 /// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
 /// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
 pub fn best_effect(
-    id: &str,
+    id: EffectId,
     model: &WbModel,
     d: &AxisData,
     base: &[&[f64]],
@@ -249,7 +249,7 @@ pub fn best_effect(
 ) -> Option<(Effect, Cv)> {
     let side = default_side(d.kind);
     let mut grid = hyper_grid(id, d);
-    if id == "backlash" {
+    if id == EffectId::Backlash {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
         }
@@ -273,11 +273,11 @@ pub fn best_effect(
         };
         // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         let nb = base.len();
-        if id == "stribeck_friction" && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
+        if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
             return None;
         }
         // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
-        if id == "third_mass" && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
+        if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
             return None;
         }
         let mut e = e;
@@ -298,7 +298,7 @@ pub fn best_effect(
     }
     // a continuous time constant: refine between the grid's neighbours of the best point
     // (golden-section search on its logarithm)
-    if id == "current_lag" && best.is_some() && grid.len() >= 3 {
+    if id == EffectId::CurrentLag && best.is_some() && grid.len() >= 3 {
         let lo = grid[best_i.saturating_sub(1)][0].ln();
         let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
         let g = 0.5 * (5f64.sqrt() - 1.0);
@@ -392,8 +392,8 @@ fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>) -> String 
     } else {
         (tu, 1.0)
     };
-    match e.id.as_str() {
-        "coulomb_friction" => {
+    match e.id {
+        EffectId::CoulombFriction => {
             let fc = e.coef[0] * r;
             format!(
                 "the residual steps by about 2 Fc = {} {fu} at each of {} velocity reversals",
@@ -401,62 +401,60 @@ fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>) -> String 
                 reversals(d)
             )
         }
-        "stribeck_friction" => format!(
+        EffectId::StribeckFriction => format!(
             "friction rises by {} {fu} above its sliding level {} {fu} below about {} of velocity",
             fmt(e.coef[1] * r),
             fmt(e.coef[0] * r),
             fmt(e.hyper[0] / r)
         ),
-        "viscous_friction" => format!("the residual grows in proportion to velocity ({} per unit of velocity)", fmt(e.coef[0])),
-        "constant_force" => format!("the residual has the same offset of {} {fu} in both directions of travel", fmt(e.coef[0] * r)),
-        "cogging" => format!(
+        EffectId::ViscousFriction => format!("the residual grows in proportion to velocity ({} per unit of velocity)", fmt(e.coef[0])),
+        EffectId::ConstantForce => format!("the residual has the same offset of {} {fu} in both directions of travel", fmt(e.coef[0] * r)),
+        EffectId::Cogging => format!(
             "a ripple of {} {tu} repeating every {} {} of motor position",
             fmt(e.coef[0].hypot(e.coef[1])),
             fmt(e.hyper[0]),
             if kind == AxisKind::Rigid { "m" } else { "rad" }
         ),
-        "third_mass" => format!(
+        EffectId::ThirdMass => format!(
             "the residual follows a mode near {} Hz (damping ratio {}) carrying {} of inertia",
             fmt(e.hyper[0]),
             e.hyper[1],
             fmt(e.coef[0])
         ),
-        "delay" => format!(
+        EffectId::Delay => format!(
             "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
             e.hyper[0],
             fmt(e.hyper[0] * d.dt * 1e3)
         ),
-        "current_lag" => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
-        "torque_saturation" => format!(
+        EffectId::CurrentLag => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
+        EffectId::TorqueSaturation => format!(
             "where the recorded torque exceeds about {} {tu} the motion shows less torque than recorded",
             fmt(e.hyper[0])
         ),
-        "backlash" => format!(
+        EffectId::Backlash => format!(
             "motor minus load position steps by about {} at each of {} reversals",
             params.get("gap_m").map(|g| format!("{} m", fmt(*g))).unwrap_or_else(|| format!("{} rad", fmt(2.0 * e.coef[0]))),
             reversals(d)
         ),
-        "pitch_error" => format!(
+        EffectId::PitchError => format!(
             "motor minus load position varies with load position, period {} m, amplitude {} m",
             fmt(e.hyper[0]),
             fmt(params.get("amplitude_m").copied().unwrap_or(0.0))
         ),
-        _ => String::new(),
     }
 }
 
-fn class_of(id: &str) -> &'static str {
+fn class_of(id: EffectId) -> &'static str {
     match id {
-        "viscous_friction" => "damping",
-        "coulomb_friction" | "stribeck_friction" => "friction",
-        "constant_force" => "offset",
-        "cogging" => "cogging",
-        "third_mass" => "mode",
-        "delay" | "current_lag" => "delay",
-        "torque_saturation" => "saturation",
-        "backlash" => "backlash",
-        "pitch_error" => "pitch",
-        _ => "other",
+        EffectId::ViscousFriction => "damping",
+        EffectId::CoulombFriction | EffectId::StribeckFriction => "friction",
+        EffectId::ConstantForce => "offset",
+        EffectId::Cogging => "cogging",
+        EffectId::ThirdMass => "mode",
+        EffectId::Delay | EffectId::CurrentLag => "delay",
+        EffectId::TorqueSaturation => "saturation",
+        EffectId::Backlash => "backlash",
+        EffectId::PitchError => "pitch",
     }
 }
 
@@ -619,7 +617,7 @@ fn effect_candidates(
     let defl = deflection(model, d);
     let mut untested = Vec::new();
     for effect in EffectId::ALL {
-        let id = effect.id();
+        let id = effect;
         if !effect.repeatable() && model.effects.iter().any(|e| e.id == id) {
             untested.push((
                 id.to_string(),
@@ -627,12 +625,12 @@ fn effect_candidates(
             ));
             continue;
         }
-        if matches!(id, "backlash" | "pitch_error") {
+        if matches!(id, EffectId::Backlash | EffectId::PitchError) {
             if kind == AxisKind::Rigid {
                 untested.push((id.to_string(), "not defined on a rigid axis".to_string()));
                 continue;
             }
-            if kind == AxisKind::Rotary && id == "pitch_error" {
+            if kind == AxisKind::Rotary && id == EffectId::PitchError {
                 untested.push((id.to_string(), "ball-screw axes only".to_string()));
                 continue;
             }
@@ -646,7 +644,7 @@ fn effect_candidates(
             cands.extend(deflection_candidate(id, model, d, rd, dcols, &ch.bl));
             continue;
         }
-        if id == "viscous_friction" {
+        if id == EffectId::ViscousFriction {
             cands.push(viscous_candidate(d, ch));
             continue;
         }
@@ -658,7 +656,7 @@ fn effect_candidates(
 /// `backlash` or `pitch_error` scored on the deflection channel (residual `rd`, base columns
 /// `dcols`: compliance and zero offset).
 fn deflection_candidate(
-    id: &str,
+    id: EffectId,
     model: &WbModel,
     d: &AxisData,
     rd: &[f64],
@@ -670,7 +668,7 @@ fn deflection_candidate(
     // backlash says where the deflection is only while a flank transmits torque:
     // inside the gap (the transmitted torque within its dead band) the samples are
     // left out of its score (zero weight in the residual and every column)
-    let mask: Option<Vec<f64>> = (id == "backlash")
+    let mask: Option<Vec<f64>> = (id == EffectId::Backlash)
         .then(|| backlash_hyper(model, d))
         .flatten()
         .map(|h| {
@@ -713,7 +711,7 @@ fn deflection_candidate(
 /// `viscous_friction`: the same column as the damping parameter, scored the same way, one class.
 fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
     let (a, b) = d.range;
-    let id = "viscous_friction";
+    let id = EffectId::ViscousFriction;
     let e = Effect::new(id, default_side(d.kind), vec![]);
     let cols = e.columns(d);
     let cv = cv_cols_masked(&[], &[&cols[0]], &ch.res, &ch.bl, ch.mask.as_deref());
@@ -741,7 +739,7 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
 /// credited with all it achieves (with the base refit) when it is significant beyond a base
 /// refit, else only with what it adds to the base refit.
 fn torque_effect_candidate(
-    id: &str,
+    id: EffectId,
     model: &WbModel,
     d: &AxisData,
     ch: &TorqueChannel<'_>,
@@ -753,7 +751,7 @@ fn torque_effect_candidate(
     let mut cv = cv;
     let mut params = flat(&e.to_table(d.kind, d.r));
     let mut ev = evidence(&e, d, &params);
-    if id == "coulomb_friction" {
+    if id == EffectId::CoulombFriction {
         if let Some(with_offset) = coulomb_with_offset(&e, &cv, d, ch) {
             (add, cv, params, ev) = with_offset;
         }
@@ -768,7 +766,7 @@ fn torque_effect_candidate(
     };
     let mut contribution = vec![0.0; d.len()];
     for e in &add {
-        if channel(&e.id) == Channel::TorquePath {
+        if channel(e.id) == Channel::TorquePath {
             let mut with = model.clone();
             with.effects.push(e.clone());
             let t = with.applied(d).unwrap_or_else(|| ch.y_app.clone());
@@ -824,7 +822,7 @@ fn coulomb_with_offset(
     let nb = ch.base_cols.len();
     let mut ec = e.clone();
     ec.coef = vec![cv2.theta[nb], 0.0];
-    let mut cf = Effect::new("constant_force", ec.side, vec![]);
+    let mut cf = Effect::new(EffectId::ConstantForce, ec.side, vec![]);
     cf.coef = vec![cv2.theta[nb + 1]];
     let mut params = flat(&ec.to_table(kind, d.r));
     let off = cv2.theta[nb + 1]
@@ -932,7 +930,7 @@ fn verdict(cands: &[Candidate], white: bool, ac: &[f64]) -> String {
                 if top.is_param {
                     format!("refit it with `feedloop fit --free {}`", top.effect)
                 } else {
-                    let ids: Vec<&str> = top.add.iter().map(|e| e.id.as_str()).collect();
+                    let ids: Vec<&str> = top.add.iter().map(|e| e.id.id()).collect();
                     format!("add it with `feedloop fit --add {}`", ids.join(","))
                 }
             )
@@ -976,7 +974,7 @@ fn condition_on_top(
     let mut with_top = model.clone();
     let mut top_cols: Vec<Vec<f64>> = Vec::new();
     for e in &top_add {
-        match channel(&e.id) {
+        match channel(e.id) {
             Channel::TorquePath => with_top.effects.push(e.clone()),
             Channel::Torque => top_cols.extend(e.columns(d)),
             Channel::Deflection => {}
@@ -1000,7 +998,7 @@ fn condition_on_top(
         let mut with = with_top.clone();
         let mut extra_cols: Vec<Vec<f64>> = Vec::new();
         for e in &c.add {
-            match channel(&e.id) {
+            match channel(e.id) {
                 Channel::TorquePath => with.effects.push(e.clone()),
                 Channel::Torque => extra_cols.extend(e.columns(d)),
                 Channel::Deflection => {}
@@ -1053,7 +1051,7 @@ pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f6
             for e in model
                 .effects
                 .iter()
-                .filter(|e| channel(&e.id) == Channel::Torque && e.side == Side::Motor)
+                .filter(|e| channel(e.id) == Channel::Torque && e.side == Side::Motor)
             {
                 for (x, c) in motor_side.iter_mut().zip(e.contribution(d)) {
                     *x += c;
@@ -1076,7 +1074,7 @@ pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f6
     for e in model
         .effects
         .iter()
-        .filter(|e| channel(&e.id) == Channel::Deflection)
+        .filter(|e| channel(e.id) == Channel::Deflection)
     {
         for (x, c) in rd.iter_mut().zip(e.contribution(d)) {
             *x -= c;

@@ -24,8 +24,8 @@ pub use feedloop_model::{EffectId, Side};
 /// One effect in regressor form.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Effect {
-    /// Effect id (the [`EffectId::id`] of one effect).
-    pub id: String,
+    /// Which effect.
+    pub id: EffectId,
     /// Body it acts on (friction effects).
     pub side: Side,
     /// Nonlinear parameters (see the module doc of each id in `columns`).
@@ -46,11 +46,16 @@ pub enum Channel {
 }
 
 /// Channel of effect `id`.
-pub fn channel(id: &str) -> Channel {
+pub fn channel(id: EffectId) -> Channel {
     match id {
-        "delay" | "current_lag" | "torque_saturation" => Channel::TorquePath,
-        "backlash" | "pitch_error" => Channel::Deflection,
-        _ => Channel::Torque,
+        EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => Channel::TorquePath,
+        EffectId::Backlash | EffectId::PitchError => Channel::Deflection,
+        EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::StribeckFriction
+        | EffectId::Cogging
+        | EffectId::ConstantForce
+        | EffectId::ThirdMass => Channel::Torque,
     }
 }
 
@@ -73,15 +78,18 @@ fn sgn(v: f64, eps: f64) -> f64 {
 
 impl Effect {
     /// A new effect with zero coefficients of the right count.
-    pub fn new(id: &str, side: Side, hyper: Vec<f64>) -> Self {
+    pub fn new(id: EffectId, side: Side, hyper: Vec<f64>) -> Self {
         let n = match id {
-            "viscous_friction" | "constant_force" | "third_mass" | "backlash" => 1,
-            "coulomb_friction" | "stribeck_friction" | "cogging" => 2,
-            "pitch_error" => 3,
-            _ => 0,
+            EffectId::ViscousFriction
+            | EffectId::ConstantForce
+            | EffectId::ThirdMass
+            | EffectId::Backlash => 1,
+            EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging => 2,
+            EffectId::PitchError => 3,
+            EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => 0,
         };
         Self {
-            id: id.to_string(),
+            id,
             side,
             hyper,
             coef: vec![0.0; n],
@@ -106,8 +114,8 @@ impl Effect {
         let cols = self.raw_columns(d);
         if d.torque_filtered
             && matches!(
-                self.id.as_str(),
-                "coulomb_friction" | "stribeck_friction" | "cogging"
+                self.id,
+                EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging
             )
         {
             let fs = 1.0 / d.dt;
@@ -124,15 +132,15 @@ impl Effect {
             Side::Motor => (&d.qm, &d.vm),
             Side::Load => (&d.ql, &d.vl),
         };
-        match self.id.as_str() {
-            "viscous_friction" => vec![v.clone()],
-            "coulomb_friction" => {
+        match self.id {
+            EffectId::ViscousFriction => vec![v.clone()],
+            EffectId::CoulombFriction => {
                 let eps = dead_band(d, v);
                 let s: Vec<f64> = v.iter().map(|x| sgn(*x, eps)).collect();
                 let a: Vec<f64> = s.iter().map(|x| x.abs()).collect();
                 vec![s, a]
             }
-            "stribeck_friction" => {
+            EffectId::StribeckFriction => {
                 let eps = dead_band(d, v);
                 let (vs, e) = (self.hyper[0], self.hyper[1]);
                 let s: Vec<f64> = v.iter().map(|x| sgn(*x, eps)).collect();
@@ -143,16 +151,16 @@ impl Effect {
                     .collect();
                 vec![s, st]
             }
-            "constant_force" => vec![vec![1.0; d.len()]],
-            "cogging" => {
+            EffectId::ConstantForce => vec![vec![1.0; d.len()]],
+            EffectId::Cogging => {
                 let w = 2.0 * PI / self.hyper[0];
                 vec![
                     d.qm.iter().map(|x| (w * x).sin()).collect(),
                     d.qm.iter().map(|x| (w * x).cos()).collect(),
                 ]
             }
-            "third_mass" => vec![third_mass_accel(d, self.hyper[0], self.hyper[1])],
-            "backlash" => vec![match (self.hyper.as_slice(), &d.torque) {
+            EffectId::ThirdMass => vec![third_mass_accel(d, self.hyper[0], self.hyper[1])],
+            EffectId::Backlash => vec![match (self.hyper.as_slice(), &d.torque) {
                 // the flank in contact follows the torque the screw transmits, not the
                 // direction of travel (a load without friction is braked through the other
                 // flank); inside the dead band of that torque the position in the gap is
@@ -165,7 +173,7 @@ impl Effect {
                     d.vm.iter().map(|x| sgn(*x, eps)).collect()
                 }
             }],
-            "pitch_error" => {
+            EffectId::PitchError => {
                 let w = 2.0 * PI / (self.hyper[0] * d.r);
                 vec![
                     d.qm.iter().map(|x| (w * x).sin()).collect(),
@@ -193,14 +201,14 @@ impl Effect {
 
     /// Applies a torque-path effect to the recorded torque `y` (identity for other effects).
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
-        match self.id.as_str() {
-            "delay" => {
+        match self.id {
+            EffectId::Delay => {
                 let k = self.hyper[0].round().max(0.0) as usize;
                 (0..y.len())
                     .map(|i| if i >= k { y[i - k] } else { 0.0 })
                     .collect()
             }
-            "current_lag" => {
+            EffectId::CurrentLag => {
                 let a = (-dt / self.hyper[0].max(1e-12)).exp();
                 let mut s = y.first().copied().unwrap_or(0.0);
                 // the mean over each period of a first-order response to a held input
@@ -213,7 +221,7 @@ impl Effect {
                     })
                     .collect()
             }
-            "torque_saturation" => {
+            EffectId::TorqueSaturation => {
                 let l = self.hyper[0];
                 y.iter().map(|x| x.clamp(-l, l)).collect()
             }
@@ -238,18 +246,18 @@ impl Effect {
             (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
         };
         let side = || toml::Value::String(self.side.id().into());
-        match self.id.as_str() {
-            "viscous_friction" => {
+        match self.id {
+            EffectId::ViscousFriction => {
                 put(&mut t, &format!("c_{cs}"), self.coef[0] * tf / vf);
             }
-            "coulomb_friction" => {
+            EffectId::CoulombFriction => {
                 let (s, a) = (self.coef[0], self.coef[1]);
                 put(&mut t, &format!("fc_{ts}"), (s + a) * tf);
                 if a.abs() > 1e-12 * s.abs().max(1e-300) {
                     put(&mut t, &format!("fc_neg_{ts}"), (s - a) * tf);
                 }
             }
-            "stribeck_friction" => {
+            EffectId::StribeckFriction => {
                 put(&mut t, &format!("fc_{ts}"), self.coef[0] * tf);
                 put(
                     &mut t,
@@ -259,12 +267,12 @@ impl Effect {
                 put(&mut t, &format!("vs_{vs}"), self.hyper[0] * vf);
                 put(&mut t, "exponent", self.hyper[1]);
             }
-            "constant_force" => match kind {
+            EffectId::ConstantForce => match kind {
                 AxisKind::Rotary => put(&mut t, "torque_nm", -self.coef[0]),
                 AxisKind::BallScrew => put(&mut t, "force_n", -self.coef[0] * r),
                 AxisKind::Rigid => put(&mut t, "force_n", -self.coef[0]),
             },
-            "cogging" => {
+            EffectId::Cogging => {
                 let (a, b) = (self.coef[0], self.coef[1]);
                 let amp = a.hypot(b);
                 let phase = (-b).atan2(-a);
@@ -283,7 +291,7 @@ impl Effect {
                 }
                 t.insert("phase_rad".into(), toml::Value::Float(round_sig(phase)));
             }
-            "third_mass" => {
+            EffectId::ThirdMass => {
                 let w = 2.0 * PI * self.hyper[0];
                 let m = self.coef[0].max(0.0);
                 let (k1, k2, k3, f) = third_mass_keys(kind, r);
@@ -291,22 +299,22 @@ impl Effect {
                 put(&mut t, k2, m * f * w * w);
                 put(&mut t, k3, 2.0 * self.hyper[1] * w * m * f);
             }
-            "delay" => {
+            EffectId::Delay => {
                 t.insert(
                     "delay_cycles".into(),
                     toml::Value::Integer(self.hyper[0].round() as i64),
                 );
             }
-            "current_lag" => put(&mut t, "tau_s", self.hyper[0]),
-            "torque_saturation" => match kind {
+            EffectId::CurrentLag => put(&mut t, "tau_s", self.hyper[0]),
+            EffectId::TorqueSaturation => match kind {
                 AxisKind::Rigid => put(&mut t, "limit_n", self.hyper[0]),
                 _ => put(&mut t, "limit_nm", self.hyper[0]),
             },
-            "backlash" => match kind {
+            EffectId::Backlash => match kind {
                 AxisKind::BallScrew => put(&mut t, "gap_m", (2.0 * self.coef[0] / r).max(0.0)),
                 _ => put(&mut t, "gap_rad", (2.0 * self.coef[0]).max(0.0)),
             },
-            "pitch_error" => {
+            EffectId::PitchError => {
                 // the deflection carries minus the lead error (the motor angle makes up for it)
                 let (a, b) = (-self.coef[0], -self.coef[1]);
                 put(&mut t, "amplitude_m", a.hypot(b) / r);
@@ -317,9 +325,8 @@ impl Effect {
                 );
                 put(&mut t, "slope_um_per_m", -self.coef[2] * 1e6);
             }
-            _ => {}
         }
-        if EffectId::parse(&self.id).is_some_and(EffectId::has_side) && kind != AxisKind::Rigid {
+        if self.id.has_side() && kind != AxisKind::Rigid {
             t.insert("side".into(), side());
         }
         t
@@ -329,7 +336,7 @@ impl Effect {
     /// Kept as one function (about 120 lines): one arm per effect, so that an effect's keys are
     /// read where its `to_table` arm writes them.
     pub fn from_table(
-        id: &str,
+        id: EffectId,
         t: &toml::Table,
         kind: AxisKind,
         r: f64,
@@ -368,31 +375,31 @@ impl Effect {
         };
         let mut e = Effect::new(id, side, vec![]);
         match id {
-            "viscous_friction" => {
+            EffectId::ViscousFriction => {
                 let c = need(&format!("c_{cs}"))?;
                 let cn = num(&format!("c_neg_{cs}"))?.unwrap_or(c);
                 e.coef = vec![0.5 * (c + cn) * vf / tf];
             }
-            "coulomb_friction" => {
+            EffectId::CoulombFriction => {
                 let fc = need(&format!("fc_{ts}"))?;
                 let fcn = num(&format!("fc_neg_{ts}"))?.unwrap_or(fc);
                 e.coef = vec![0.5 * (fc + fcn) / tf, 0.5 * (fc - fcn) / tf];
             }
-            "stribeck_friction" => {
+            EffectId::StribeckFriction => {
                 let fc = need(&format!("fc_{ts}"))?;
                 let fs = need(&format!("fs_{ts}"))?;
                 let v = need(&format!("vs_{vs}"))?;
                 e.hyper = vec![v / vf, num("exponent")?.unwrap_or(2.0)];
                 e.coef = vec![fc / tf, (fs - fc) / tf];
             }
-            "constant_force" => {
+            EffectId::ConstantForce => {
                 e.coef = vec![match kind {
                     AxisKind::Rotary => -need("torque_nm")?,
                     AxisKind::BallScrew => -need("force_n")? / r,
                     AxisKind::Rigid => -need("force_n")?,
                 }];
             }
-            "cogging" => {
+            EffectId::Cogging => {
                 let (amp, period) = match kind {
                     AxisKind::Rigid => (need("amplitude_n")?, need("period_m")?),
                     _ => (need("amplitude_nm")?, 2.0 * PI / need("periods_per_rev")?),
@@ -401,7 +408,7 @@ impl Effect {
                 e.hyper = vec![period];
                 e.coef = vec![-amp * ph.cos(), -amp * ph.sin()];
             }
-            "third_mass" => {
+            EffectId::ThirdMass => {
                 let (k1, k2, k3, f) = third_mass_keys(kind, r);
                 let m = need(k1)?;
                 let k = need(k2)?;
@@ -410,21 +417,21 @@ impl Effect {
                 e.hyper = vec![w / (2.0 * PI), c / (2.0 * m * w)];
                 e.coef = vec![m / f];
             }
-            "delay" => e.hyper = vec![need("delay_cycles")?],
-            "current_lag" => e.hyper = vec![need("tau_s")?],
-            "torque_saturation" => {
+            EffectId::Delay => e.hyper = vec![need("delay_cycles")?],
+            EffectId::CurrentLag => e.hyper = vec![need("tau_s")?],
+            EffectId::TorqueSaturation => {
                 e.hyper = vec![match kind {
                     AxisKind::Rigid => need("limit_n")?,
                     _ => need("limit_nm")?,
                 }]
             }
-            "backlash" => {
+            EffectId::Backlash => {
                 e.coef = vec![match kind {
                     AxisKind::BallScrew => 0.5 * need("gap_m")? * r,
                     _ => 0.5 * need("gap_rad")?,
                 }]
             }
-            "pitch_error" => {
+            EffectId::PitchError => {
                 let a = need("amplitude_m")? * r;
                 let ph = num("phase_rad")?.unwrap_or(0.0);
                 e.hyper = vec![num("period_m")?.unwrap_or(lead)];
@@ -433,16 +440,6 @@ impl Effect {
                     -a * ph.sin(),
                     -num("slope_um_per_m")?.unwrap_or(0.0) * 1e-6,
                 ];
-            }
-            other => {
-                return Err(ConfigError::new(
-                    file,
-                    key,
-                    format!(
-                        "unknown effect `{other}` (known: {})",
-                        EffectId::list(|_| true)
-                    ),
-                ))
             }
         }
         Ok(e)
@@ -579,8 +576,19 @@ impl WbModel {
                     return Err(ConfigError::new(&file.path, key, "must be a table").into());
                 }
             };
+            let Some(eid) = EffectId::parse(id) else {
+                return Err(ConfigError::new(
+                    &file.path,
+                    key,
+                    format!(
+                        "unknown effect `{id}` (known: {})",
+                        EffectId::list(|_| true)
+                    ),
+                )
+                .into());
+            };
             for t in tables {
-                effects.push(Effect::from_table(id, t, kind, r, lead, &file.path, &key)?);
+                effects.push(Effect::from_table(eid, t, kind, r, lead, &file.path, &key)?);
             }
         }
         Ok(Self {
@@ -621,7 +629,11 @@ impl WbModel {
                 }
             })
             .collect();
-        for id in ["delay", "torque_saturation", "current_lag"] {
+        for id in [
+            EffectId::Delay,
+            EffectId::TorqueSaturation,
+            EffectId::CurrentLag,
+        ] {
             for e in self.effects.iter().filter(|e| e.id == id) {
                 out = e.applied_torque(&out, dt);
             }
@@ -654,7 +666,7 @@ impl WbModel {
         for e in self
             .effects
             .iter()
-            .filter(|e| channel(&e.id) == Channel::Torque)
+            .filter(|e| channel(e.id) == Channel::Torque)
         {
             for (o, x) in out.iter_mut().zip(e.contribution(d)) {
                 *o += x;
@@ -671,14 +683,14 @@ impl WbModel {
         let mut eff = toml::Table::new();
         for e in &self.effects {
             let et = e.to_table(kind, r);
-            match eff.get_mut(&e.id) {
+            match eff.get_mut(e.id.id()) {
                 None => {
-                    eff.insert(e.id.clone(), toml::Value::Table(et));
+                    eff.insert(e.id.id().to_string(), toml::Value::Table(et));
                 }
                 Some(toml::Value::Table(prev)) => {
                     let prev = prev.clone();
                     eff.insert(
-                        e.id.clone(),
+                        e.id.id().to_string(),
                         toml::Value::Array(vec![toml::Value::Table(prev), toml::Value::Table(et)]),
                     );
                 }

@@ -121,6 +121,10 @@ pub fn fit(
     let moving = moving_mask(d);
     let mut effects = Vec::new();
     for id in add {
+        // ids come checked by `parse_effects`; one that names no effect adds nothing
+        let Some(id) = EffectId::parse(id) else {
+            continue;
+        };
         match channel(id) {
             Channel::Deflection => {
                 let (rd, dcols) =
@@ -151,7 +155,7 @@ pub fn fit(
                 if let Some((mut e, _)) =
                     best_effect(id, model, d, &base_cols, &res, &bl, moving.as_deref())
                 {
-                    if e.id == "coulomb_friction" {
+                    if e.id == EffectId::CoulombFriction {
                         e.coef[1] = 0.0;
                     }
                     effects.push(e);
@@ -220,7 +224,7 @@ pub fn fit_with(
     // torque-path effects first: they change the target
     for e in effects
         .iter()
-        .filter(|e| channel(&e.id) == Channel::TorquePath)
+        .filter(|e| channel(e.id) == Channel::TorquePath)
     {
         new.effects.push(e.clone());
     }
@@ -237,15 +241,16 @@ pub fn fit_with(
         for (i, e) in effects
             .iter()
             .enumerate()
-            .filter(|(_, e)| channel(&e.id) == Channel::Torque)
+            .filter(|(_, e)| channel(e.id) == Channel::Torque)
         {
             let c = e.columns(d);
-            let nfree =
-                if e.id == "coulomb_friction" && e.coef.get(1).copied().unwrap_or(0.0) == 0.0 {
-                    1
-                } else {
-                    c.len()
-                };
+            let nfree = if e.id == EffectId::CoulombFriction
+                && e.coef.get(1).copied().unwrap_or(0.0) == 0.0
+            {
+                1
+            } else {
+                c.len()
+            };
             for (j, col) in c.into_iter().take(nfree).enumerate() {
                 slots.push((i, j));
                 ecols.push(col);
@@ -288,25 +293,29 @@ pub fn fit_with(
         }
         for e in fitted
             .into_iter()
-            .filter(|e| channel(&e.id) == Channel::Torque)
+            .filter(|e| channel(e.id) == Channel::Torque)
         {
             new.effects.push(e);
         }
     } else {
-        for e in effects.iter().filter(|e| channel(&e.id) == Channel::Torque) {
+        for e in effects.iter().filter(|e| channel(e.id) == Channel::Torque) {
             new.effects.push(e.clone());
         }
     }
     for e in effects
         .iter()
-        .filter(|e| channel(&e.id) == Channel::Deflection)
+        .filter(|e| channel(e.id) == Channel::Deflection)
     {
         new.effects.push(e.clone());
     }
     let kind = new.kind();
     let r = new.file.plant.motor_per_load();
-    let added: Vec<String> = effects.iter().map(|e| e.id.clone()).collect();
-    for e in new.effects.iter().filter(|e| added.contains(&e.id)) {
+    let added: Vec<String> = effects.iter().map(|e| e.id.id().to_string()).collect();
+    for e in new
+        .effects
+        .iter()
+        .filter(|e| effects.iter().any(|a| a.id == e.id))
+    {
         for (k, v) in flat(&e.to_table(kind, r)) {
             let key = if params.contains_key(&k) {
                 format!("effects.{}.{k}", e.id)

@@ -20,7 +20,7 @@
 use feedloop_plant::AxisPlant;
 
 use super::data::AxisData;
-use super::effects::{dead_band, third_mass_track, WbModel};
+use super::effects::{dead_band, third_mass_track, EffectId, WbModel};
 use super::signal::{filtfilt_butter4, nrmse_pct, rms};
 
 /// Error of one simulated channel.
@@ -106,26 +106,26 @@ impl Body {
             }
         }
         for e in &model.effects {
-            match e.id.as_str() {
-                "viscous_friction" => b.damping += e.coef[0],
-                "coulomb_friction" => {
+            match e.id {
+                EffectId::ViscousFriction => b.damping += e.coef[0],
+                EffectId::CoulombFriction => {
                     b.fc += e.coef[0];
                     b.fasym += e.coef[1];
                 }
-                "stribeck_friction" => {
+                EffectId::StribeckFriction => {
                     b.fc += e.coef[0];
                     b.fs_extra += e.coef[1];
                     b.vs = e.hyper[0];
                     b.ex = e.hyper[1];
                 }
-                "constant_force" => b.offset += e.coef[0],
-                "cogging" => b.cog.push((
+                EffectId::ConstantForce => b.offset += e.coef[0],
+                EffectId::Cogging => b.cog.push((
                     2.0 * std::f64::consts::PI / e.hyper[0],
                     e.coef[0],
                     e.coef[1],
                 )),
-                "third_mass" => b.inertia += e.coef[0].max(0.0),
-                "torque_saturation" => b.limit = b.limit.min(e.hyper[0]),
+                EffectId::ThirdMass => b.inertia += e.coef[0].max(0.0),
+                EffectId::TorqueSaturation => b.limit = b.limit.min(e.hyper[0]),
                 _ => {}
             }
         }
@@ -195,7 +195,7 @@ impl Sim {
                 let third = model
                     .effects
                     .iter()
-                    .find(|e| e.id == "third_mass" && e.hyper.len() >= 2)
+                    .find(|e| e.id == EffectId::ThirdMass && e.hyper.len() >= 2)
                     .map(|e| {
                         let (x, v, _) = third_mass_track(d, e.hyper[0], e.hyper[1]);
                         (x, v)
@@ -482,7 +482,7 @@ fn run_closed(
         model
             .effects
             .iter()
-            .filter(|e| e.id == "delay")
+            .filter(|e| e.id == EffectId::Delay)
             .map(|e| e.hyper[0].round().max(0.0) as usize)
             .sum::<usize>()
     };
