@@ -10,6 +10,7 @@
 //! need both position columns. These forms are deliberately simple and generic: the diagnosis
 //! must not depend on the exact formula of any simulator.
 
+use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::path::Path;
 
@@ -17,6 +18,7 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{read_toml_file, ConfigError};
 
 use super::data::AxisData;
+use super::signal::quantile;
 use super::WorkbenchError;
 
 pub use feedloop_model::{EffectId, Side};
@@ -761,5 +763,132 @@ fn third_mass_keys(kind: AxisKind, r: f64) -> (&'static str, &'static str, &'sta
         ),
         AxisKind::BallScrew => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r),
         AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
+    }
+}
+
+// What `diagnose` says of each effect: its class and its evidence sentence, beside the
+// regressor so that the workbench's per-effect tables stand in one file.
+
+pub(crate) fn fmt(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e5).contains(&a) {
+        format!("{v:.3e}")
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else if a >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+pub(crate) fn reversals(d: &AxisData) -> usize {
+    let (a, b) = d.range;
+    let vmax = quantile(
+        &d.vm[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
+        0.99,
+    );
+    let th = 0.02 * vmax;
+    let mut last = 0.0;
+    let mut n = 0;
+    for &v in &d.vm[a..b] {
+        let s = if v > th {
+            1.0
+        } else if v < -th {
+            -1.0
+        } else {
+            0.0
+        };
+        if s != 0.0 {
+            if last != 0.0 && s != last {
+                n += 1;
+            }
+            last = s;
+        }
+    }
+    n
+}
+
+pub(crate) fn units(kind: AxisKind) -> (&'static str, &'static str) {
+    match kind {
+        AxisKind::Rotary => ("N m", "rad"),
+        AxisKind::BallScrew => ("N m", "rad"),
+        AxisKind::Rigid => ("N", "m"),
+    }
+}
+
+pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>) -> String {
+    let (tu, _) = units(d.kind);
+    let kind = d.kind;
+    let (fu, r) = if kind == AxisKind::BallScrew {
+        ("N", d.r)
+    } else {
+        (tu, 1.0)
+    };
+    match e.id {
+        EffectId::CoulombFriction => {
+            let fc = e.coef[0] * r;
+            format!(
+                "the residual steps by about 2 Fc = {} {fu} at each of {} velocity reversals",
+                fmt(2.0 * fc),
+                reversals(d)
+            )
+        }
+        EffectId::StribeckFriction => format!(
+            "friction rises by {} {fu} above its sliding level {} {fu} below about {} of velocity",
+            fmt(e.coef[1] * r),
+            fmt(e.coef[0] * r),
+            fmt(e.hyper[0] / r)
+        ),
+        EffectId::ViscousFriction => format!("the residual grows in proportion to velocity ({} per unit of velocity)", fmt(e.coef[0])),
+        EffectId::ConstantForce => format!("the residual has the same offset of {} {fu} in both directions of travel", fmt(e.coef[0] * r)),
+        EffectId::Cogging => format!(
+            "a ripple of {} {tu} repeating every {} {} of motor position",
+            fmt(e.coef[0].hypot(e.coef[1])),
+            fmt(e.hyper[0]),
+            if kind == AxisKind::Rigid { "m" } else { "rad" }
+        ),
+        EffectId::ThirdMass => format!(
+            "the residual follows a mode near {} Hz (damping ratio {}) carrying {} of inertia",
+            fmt(e.hyper[0]),
+            e.hyper[1],
+            fmt(e.coef[0])
+        ),
+        EffectId::Delay => format!(
+            "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
+            e.hyper[0],
+            fmt(e.hyper[0] * d.dt * 1e3)
+        ),
+        EffectId::CurrentLag => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
+        EffectId::TorqueSaturation => format!(
+            "where the recorded torque exceeds about {} {tu} the motion shows less torque than recorded",
+            fmt(e.hyper[0])
+        ),
+        EffectId::Backlash => format!(
+            "motor minus load position steps by about {} at each of {} reversals",
+            params.get("gap_m").map(|g| format!("{} m", fmt(*g))).unwrap_or_else(|| format!("{} rad", fmt(2.0 * e.coef[0]))),
+            reversals(d)
+        ),
+        EffectId::PitchError => format!(
+            "motor minus load position varies with load position, period {} m, amplitude {} m",
+            fmt(e.hyper[0]),
+            fmt(params.get("amplitude_m").copied().unwrap_or(0.0))
+        ),
+    }
+}
+
+pub(crate) fn class_of(id: EffectId) -> &'static str {
+    match id {
+        EffectId::ViscousFriction => "damping",
+        EffectId::CoulombFriction | EffectId::StribeckFriction => "friction",
+        EffectId::ConstantForce => "offset",
+        EffectId::Cogging => "cogging",
+        EffectId::ThirdMass => "mode",
+        EffectId::Delay | EffectId::CurrentLag => "delay",
+        EffectId::TorqueSaturation => "saturation",
+        EffectId::Backlash => "backlash",
+        EffectId::PitchError => "pitch",
     }
 }
