@@ -26,8 +26,9 @@ use feedloop_control::controller::REF_DERIVS;
 use feedloop_model::params::{ConfigError, Fields, Range};
 use feedloop_trace::TraceWriter;
 
+use super::moves::finish;
 use super::poly::{smoothstep, Builder};
-use super::{per_axis, Ctx, PolyTrajectory, RefState, Trajectory};
+use super::{per_axis, Ctx, RefState, Trajectory};
 
 /// SplitMix64: a small, well-mixed 64-bit generator (deterministic per seed).
 #[derive(Debug, Clone)]
@@ -101,16 +102,6 @@ pub fn prbs_sequence(order: u32) -> Vec<i8> {
         state = (state >> 1) | (bit << (order - 1));
     }
     out
-}
-
-fn finish_poly(kind: &'static str, ctx: &Ctx, b: Builder) -> Box<dyn Trajectory> {
-    let (poly, windows) = b.finish();
-    Box::new(PolyTrajectory {
-        kind,
-        axes: ctx.axes.to_vec(),
-        poly,
-        windows,
-    })
 }
 
 fn start_positions(f: &mut Fields, ctx: &Ctx) -> Result<Vec<f64>, ConfigError> {
@@ -254,7 +245,7 @@ pub(crate) fn random_segments(
         let back: Vec<f64> = start.iter().zip(b.position()).map(|(s, p)| s - p).collect();
         b.smooth_move(r, &back);
     }
-    Ok(finish_poly("random_segments", ctx, b))
+    Ok(finish("random_segments", ctx, b))
 }
 
 /// `kind = "prbs"`.
@@ -304,7 +295,7 @@ pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Conf
         b.smooth_move(tr_s, &back);
     }
     b.hold(dwell_s);
-    Ok(finish_poly("prbs", ctx, b))
+    Ok(finish("prbs", ctx, b))
 }
 
 /// A multisine command (kind `multisine`).

@@ -91,7 +91,7 @@ fn dwell_key(f: &mut Fields, ctx: &Ctx, key: &str) -> Result<f64, ConfigError> {
     Ok(d)
 }
 
-fn finish(kind: &'static str, ctx: &Ctx, b: Builder) -> Box<dyn Trajectory> {
+pub(crate) fn finish(kind: &'static str, ctx: &Ctx, b: Builder) -> Box<dyn Trajectory> {
     let (poly, windows) = b.finish();
     Box::new(PolyTrajectory {
         kind,

@@ -88,15 +88,7 @@ impl Trace {
             header_line,
             columns,
         } = read_head(path, &mut lines)?;
-        let t_index =
-            columns
-                .iter()
-                .position(|c| c == "t")
-                .ok_or_else(|| TraceError::MissingTime {
-                    path: p(),
-                    line: header_line,
-                    present: columns.join(", "),
-                })?;
+        let t_index = time_column(path, header_line, &columns)?;
         let (mut data, rows) = read_rows(path, &mut lines, &columns, t_index, size_bytes)?;
         if rows == 0 {
             return Err(TraceError::Empty { path: p() });
@@ -143,15 +135,7 @@ impl Trace {
             })?;
         }
         check_header(path, header_line, &columns)?;
-        let t_index =
-            columns
-                .iter()
-                .position(|c| c == "t")
-                .ok_or_else(|| TraceError::MissingTime {
-                    path: p(),
-                    line: header_line,
-                    present: columns.join(", "),
-                })?;
+        let t_index = time_column(path, header_line, &columns)?;
         if data.len() != columns.len() {
             return Err(TraceError::CellCount {
                 path: p(),
@@ -441,6 +425,18 @@ fn check_meta_period(path: &Path, line: usize, text: &str, median: f64) -> Resul
         )));
     }
     Ok(())
+}
+
+/// Index of the `t` column, or the error naming the header line and the columns present.
+fn time_column(path: &Path, header_line: usize, columns: &[String]) -> Result<usize, TraceError> {
+    columns
+        .iter()
+        .position(|c| c == "t")
+        .ok_or_else(|| TraceError::MissingTime {
+            path: path.to_path_buf(),
+            line: header_line,
+            present: columns.join(", "),
+        })
 }
 
 #[cfg(test)]
