@@ -11,6 +11,7 @@ use feedloop_analysis::workbench::{
     effects::WbModel,
     fit::fit,
 };
+use feedloop_model::EffectId;
 use feedloop_trace::Trace;
 
 fn data_file() -> Option<PathBuf> {
@@ -105,7 +106,7 @@ fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
 #[test]
 fn emps_fit_with_coulomb_and_offset_reproduces_the_published_estimates() {
     let Some((m, d)) = setup() else { return };
-    let add = vec!["coulomb_friction".to_string(), "constant_force".to_string()];
+    let add = [EffectId::CoulombFriction, EffectId::ConstantForce];
     let r = fit(&m, &d, &add, None, 0.05).unwrap();
     let p = &r.params;
     let rel = |v: f64, want: f64| ((v - want) / want).abs();

@@ -11,6 +11,7 @@ use feedloop_analysis::workbench::{
     import::{import, model_init, parse_map},
     report,
 };
+use feedloop_model::EffectId;
 use feedloop_trace::Trace;
 
 fn dir(name: &str) -> PathBuf {
@@ -52,7 +53,7 @@ fn an_imported_foreign_export_gets_a_nominal_model_close_to_the_truth_and_a_repo
     assert!((m.base_value("mass_kg") - 50.0).abs() < 2.5, "{:?}", m.base);
     let m = WbModel::load(&d.join("m.toml")).unwrap();
     let ax = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
-    let r = fit(&m, &ax, &["coulomb_friction".to_string()], None, 0.05).unwrap();
+    let r = fit(&m, &ax, &[EffectId::CoulombFriction], None, 0.05).unwrap();
     assert!((r.params["fc_n"] - 10.0).abs() < 1.0, "{:?}", r.params);
     assert!(
         (r.params["viscous_ns_per_m"] - 100.0).abs() < 10.0,

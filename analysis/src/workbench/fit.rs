@@ -87,10 +87,10 @@ fn comma_list(list: &[String]) -> impl Iterator<Item = &str> {
 }
 
 /// Checks effect ids given with `--add`.
-pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
+pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
     let mut out = Vec::new();
     for s in comma_list(list) {
-        if EffectId::parse(s).is_none() {
+        let Some(id) = EffectId::parse(s) else {
             return Err(WorkbenchError::BadArgument {
                 arg: format!("--add {s}"),
                 reason: format!(
@@ -98,9 +98,9 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
                     EffectId::list(|_| true)
                 ),
             });
-        }
-        if !out.iter().any(|x| x == s) {
-            out.push(s.to_string());
+        };
+        if !out.contains(&id) {
+            out.push(id);
         }
     }
     Ok(out)
@@ -110,7 +110,7 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<String>, WorkbenchError> {
 pub fn fit(
     model: &WbModel,
     d: &AxisData,
-    add: &[String],
+    add: &[EffectId],
     free: Option<&[String]>,
     window_s: f64,
 ) -> Result<FitResult, WorkbenchError> {
@@ -120,11 +120,7 @@ pub fn fit(
     let bl = blocks(d.range, FOLDS);
     let moving = moving_mask(d);
     let mut effects = Vec::new();
-    for id in add {
-        // ids come checked by `parse_effects`; one that names no effect adds nothing
-        let Some(id) = EffectId::parse(id) else {
-            continue;
-        };
+    for &id in add {
         match channel(id) {
             Channel::Deflection => {
                 let (rd, dcols) =
