@@ -299,16 +299,7 @@ impl QuadrantParams {
             }
         };
         f.finish()?;
-        let kp_per_s = kp.or(axis.defaults.kp_per_s).ok_or_else(|| {
-            ConfigError::new(
-                file,
-                "kp_per_s",
-                format!(
-                    "is required: give it in the plugin params or in the [controller] table of axis `{}`'s model",
-                    axis.name
-                ),
-            )
-        })?;
+        let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         let dir = file.parent().unwrap_or(Path::new("."));
         let table_path = dir.join(table_rel);
         if !table_path.exists() {
@@ -451,8 +442,7 @@ impl Controller for QuadrantCompensator {
     }
 
     fn restore(&mut self, state: &ControllerState) {
-        let v = state.as_slice();
-        let at = |i: usize| v.get(i).copied().filter(|x| x.is_finite()).unwrap_or(0.0);
+        let at = |i: usize| state.finite_or_zero(i);
         self.detector = ReversalDetector {
             sign: at(0).signum() as i8 * (at(0) != 0.0) as i8,
             last_v: at(1),
