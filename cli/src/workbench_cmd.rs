@@ -105,6 +105,11 @@ pub struct Common {
     /// Length of the simulation windows restarted from the measured state, s.
     #[arg(long, default_value_t = 0.05)]
     window_s: f64,
+    /// A trace column holding a known input added to the controller's output after the
+    /// controller (torque units, included in the recorded torque), e.g. `x.pulses`; default
+    /// `A.torque_add` when the trace has it.
+    #[arg(long)]
+    added_input: Option<String>,
     /// Print pure JSON on standard output.
     #[arg(long)]
     json: bool,
@@ -174,6 +179,7 @@ fn load(
         &Prep {
             cutoff_hz: c.cutoff_hz,
             filter_torque: !c.raw_torque,
+            added_input: c.added_input.clone(),
         },
     )?;
     Ok((tr, m, d))
@@ -348,6 +354,27 @@ fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyho
         opt(j["window_sim_nrmse_pct"].as_f64()),
         opt(j["free_sim_nrmse_pct"].as_f64())
     );
+    if let Some(cc) = &c.controller {
+        let ev = cc.events(&d);
+        println!(
+            "controller channel (recorded torque against the controller law) NRMSE: {}{}",
+            opt(Some(cc.nrmse_pct)),
+            if cc.fails() {
+                format!(
+                    "; departs beyond its noise, in {} stretches{}",
+                    ev.len(),
+                    ev.first()
+                        .map(|e| format!(
+                            " (first {:.4} .. {:.4} s, {:.4} mean)",
+                            e.start_s, e.end_s, e.mean
+                        ))
+                        .unwrap_or_default()
+                )
+            } else {
+                String::new()
+            }
+        );
+    }
     for s in &c.by_kind {
         println!(
             "  {:<18} {:5.1} % of the residual in {:5.1} % of the time",

@@ -1,5 +1,11 @@
 //! `diagnose --auto`: the guided loop. Add the most significant candidate, refit, diagnose
 //! again, until nothing significant remains; record the error after each step.
+//!
+//! The rule, in one sentence: add the first significant candidate (significant = it lowers the
+//! cross-validated error of the channel where it shows by a margin noise cannot give) as long
+//! as it is not already in the model and adding it lowers that channel's error, else stop.
+//! Candidates that cannot be added to a model (an input added after the controller, a
+//! controller law that differs) end the loop and are named in its verdict.
 
 use serde_json::{json, Value};
 
@@ -46,6 +52,19 @@ pub fn auto(
         let Some(top) = last.candidates.iter().find(|c| c.significant).cloned() else {
             break;
         };
+        // what cannot be added to a model (an input after the controller, a law that differs)
+        // is reported, not fitted; an effect already in the model is never added again
+        if !top.is_param && top.add.is_empty() {
+            break;
+        }
+        if !top.is_param
+            && top
+                .add
+                .iter()
+                .all(|e| m.effects.iter().any(|x| x.id == e.id) && !e.id.repeatable())
+        {
+            break;
+        }
         let res = if top.is_param {
             let mut free = vec![top.effect.clone()];
             for o in &top.same_as {
@@ -59,13 +78,16 @@ pub fn auto(
         };
         // an effect of the transmission (backlash, lead error) barely shows in the torque
         // balance: it must lower the windowed simulation error instead
-        let (b, a) = if top.channel == "deflection" {
-            (
+        let (b, a) = match top.channel {
+            "deflection" => (
                 res.before.window_sim_nrmse_pct,
                 res.after.window_sim_nrmse_pct,
-            )
-        } else {
-            (res.before.equation_nrmse_pct, res.after.equation_nrmse_pct)
+            ),
+            "controller" => (
+                res.before.controller_nrmse_pct,
+                res.after.controller_nrmse_pct,
+            ),
+            _ => (res.before.equation_nrmse_pct, res.after.equation_nrmse_pct),
         };
         let better = match (b, a) {
             (Some(b), Some(a)) => a < b,
@@ -103,6 +125,7 @@ impl AutoResult {
                 "equation_nrmse_pct": s.errors.equation_nrmse_pct,
                 "relative_error_pct": s.errors.relative_error_pct,
                 "window_sim_nrmse_pct": s.errors.window_sim_nrmse_pct,
+                "controller_nrmse_pct": s.errors.controller_nrmse_pct,
             })).collect::<Vec<_>>(),
             "verdict": self.last.verdict,
             "candidates": self.last.to_json()["candidates"].clone(),

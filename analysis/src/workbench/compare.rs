@@ -3,6 +3,7 @@
 
 use serde_json::{json, Value};
 
+use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::effects::WbModel;
 use super::signal::{nrmse_pct, quantile, relative_error_pct, rms};
@@ -263,6 +264,9 @@ pub struct Comparison {
     pub by_kind: Vec<Share>,
     /// Share per load-position band.
     pub by_position: Vec<Share>,
+    /// The controller channel (recorded torque against the controller law), when the trace
+    /// has torque and the model a controller.
+    pub controller: Option<ControllerChannel>,
 }
 
 /// Compares `model` with the axis data `d`.
@@ -282,6 +286,7 @@ pub fn compare(model: &WbModel, d: &AxisData, window_s: f64) -> Comparison {
         segments,
         by_kind,
         by_position,
+        controller: ControllerChannel::new(model, d),
     }
 }
 
@@ -319,6 +324,9 @@ impl Comparison {
                 }),
             );
         }
+        if let Some(c) = &self.controller {
+            channels.insert("controller".into(), c.to_json(d));
+        }
         for c in &self.sim.channels {
             let entry = channels.entry(c.name.clone()).or_insert_with(|| json!({}));
             entry["window_sim_nrmse_pct"] = json!(c.window_nrmse_pct);
@@ -336,6 +344,7 @@ impl Comparison {
             "relative_error_pct": self.eq.as_ref().map(|e| e.relative_error_pct),
             "window_sim_nrmse_pct": self.sim.headline_nrmse_pct(),
             "free_sim_nrmse_pct": self.sim.headline_free_nrmse_pct(),
+            "controller_nrmse_pct": self.controller.as_ref().map(|c| c.nrmse_pct),
             "sim_mode": self.sim.mode,
             "sim_plant": self.sim.plant,
             "window_s": self.sim.window_s,

@@ -15,7 +15,7 @@ use super::signal::{derivative, filtfilt_butter4};
 use super::WorkbenchError;
 
 /// How the trace is prepared.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Prep {
     /// Cut-off of the zero-phase filter applied to positions before differentiation, Hz
     /// (`None`: `min(100 Hz, fs / 10)`).
@@ -23,6 +23,10 @@ pub struct Prep {
     /// Filter the torque column with the same zero-phase filter ("parallel filtering", so the
     /// residual compares like with like and is not dominated by torque noise above the cut-off).
     pub filter_torque: bool,
+    /// Column holding a known input added to the controller's output after the controller
+    /// (`None`: `A.torque_add` when the trace has it). Same units as `A.torque`; the recorded
+    /// torque is taken to include it, as a drive reports the total command.
+    pub added_input: Option<String>,
 }
 
 impl Default for Prep {
@@ -30,6 +34,7 @@ impl Default for Prep {
         Self {
             cutoff_hz: None,
             filter_torque: true,
+            added_input: None,
         }
     }
 }
@@ -59,6 +64,11 @@ pub struct AxisData {
     pub torque: Option<Vec<f64>>,
     /// The torque column as recorded.
     pub torque_raw: Option<Vec<f64>>,
+    /// Measured motor velocity (`A.motor_vel`), motor units/s, when the trace has it.
+    pub motor_vel_raw: Option<Vec<f64>>,
+    /// A known input added after the controller (see [`Prep::added_input`]): its column name
+    /// and values, torque units, as recorded.
+    pub added_input: Option<(String, Vec<f64>)>,
     /// Filtered motor position (from `A.motor`, else the load position in motor units).
     pub qm: Vec<f64>,
     /// Its velocity.
@@ -171,6 +181,22 @@ pub fn load_axis(
     let load_raw = col("load", "the measured position")?;
     let motor_raw = trace.column(&format!("{axis}.motor")).map(<[f64]>::to_vec);
     let torque = trace.column(&format!("{axis}.torque")).map(<[f64]>::to_vec);
+    let motor_vel_raw = trace
+        .column(&format!("{axis}.motor_vel"))
+        .map(<[f64]>::to_vec);
+    let added_input = match &prep.added_input {
+        Some(name) => Some((
+            name.clone(),
+            trace
+                .column(name)
+                .map(<[f64]>::to_vec)
+                .ok_or_else(|| missing(trace, name, "the declared added input (--added-input)"))?,
+        )),
+        None => {
+            let name = format!("{axis}.torque_add");
+            trace.column(&name).map(|c| (name, c.to_vec()))
+        }
+    };
     let n = trace.len();
     if n < 50 {
         return Err(WorkbenchError::Data {
@@ -234,6 +260,8 @@ pub fn load_axis(
         motor_raw,
         torque,
         torque_raw,
+        motor_vel_raw,
+        added_input,
         qm,
         vm,
         am,

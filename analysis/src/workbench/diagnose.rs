@@ -22,6 +22,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
+use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::effects::{
     base_class, base_column, base_keys, channel, class_of, evidence, fmt, Channel, Effect,
@@ -37,6 +38,10 @@ pub const FOLDS: usize = 5;
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
 pub const MIN_FOLD_WINS: usize = 4;
+/// Half-width of a refitted value's confidence interval, in standard errors (jackknife over
+/// the blocks; with 5 blocks, 3 standard errors is about the 96 % interval of Student's t with
+/// 4 degrees of freedom).
+pub const CI_SIGMAS: f64 = 3.0;
 
 /// One candidate cause.
 #[derive(Debug, Clone)]
@@ -80,6 +85,8 @@ pub struct Diagnosis {
     pub whiteness_passed: bool,
     /// Effects that could not be tested on this trace, with the reason.
     pub untested: Vec<(String, String)>,
+    /// The controller channel's figures (JSON), when the model has a controller law.
+    pub controller: Option<Value>,
 }
 
 fn corr(a: &[f64], b: &[f64]) -> f64 {
@@ -237,13 +244,34 @@ pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
     ])
 }
 
+/// The current values of the inertias (and the mass) among `keys`, 0 for the other keys: what
+/// [`best_effect`] keeps physical.
+pub fn inertias_now<K: AsRef<str>>(model: &WbModel, keys: &[K]) -> Vec<f64> {
+    keys.iter()
+        .map(|k| {
+            let k = k.as_ref();
+            if base_class(k) == "inertia" {
+                model.base_value(k)
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
 /// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
 /// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
+/// `base_now` holds the current values of the base parameters whose columns are `base` (0 for
+/// those not checked, empty when those columns are not base parameters; see [`inertias_now`]):
+/// a variant that would take one of them to less than a tenth of its value (an inertia or a
+/// mass that the effect makes vanish) is not physical and is not considered.
+#[allow(clippy::too_many_arguments)]
 pub fn best_effect(
     id: EffectId,
     model: &WbModel,
     d: &AxisData,
     base: &[&[f64]],
+    base_now: &[f64],
     y: &[f64],
     bl: &[(usize, usize)],
     mask: Option<&[f64]>,
@@ -272,8 +300,15 @@ pub fn best_effect(
                 cv_cols_masked(base, &refs, y, bl, mask)
             }
         };
-        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         let nb = base.len();
+        let unphysical = base_now
+            .iter()
+            .enumerate()
+            .any(|(i, v)| *v > 0.0 && v + cv.theta.get(i).copied().unwrap_or(0.0) < 0.1 * v);
+        if unphysical {
+            return None;
+        }
+        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
         if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
             return None;
         }
@@ -297,9 +332,13 @@ pub fn best_effect(
             }
         }
     }
-    // a continuous time constant: refine between the grid's neighbours of the best point
-    // (golden-section search on its logarithm)
-    if id == EffectId::CurrentLag && best.is_some() && grid.len() >= 3 {
+    // a continuous time constant or limit: refine between the grid's neighbours of the best
+    // point (golden-section search on its logarithm)
+    if matches!(id, EffectId::CurrentLag | EffectId::TorqueSaturation)
+        && best.is_some()
+        && grid.len() >= 3
+        && grid[0][0] > 0.0
+    {
         let lo = grid[best_i.saturating_sub(1)][0].ln();
         let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
         let g = 0.5 * (5f64.sqrt() - 1.0);
@@ -357,6 +396,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     let ch = TorqueChannel::new(model, d);
     let mut cands = base_parameter_candidates(model, d, &ch);
     let untested = effect_candidates(model, d, &ch, &mut cands);
+    let cc = ControllerChannel::new(model, d);
+    if let Some(cc) = &cc {
+        controller_candidates(model, d, cc, &mut cands);
+    }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
     let tf = TorqueFit {
         base_cols: &ch.base_cols,
@@ -367,7 +410,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     condition_on_top(&mut cands, model, d, &tf, ch.e0);
     mark_indistinguishable(&mut cands);
     let (white, ac) = residual_whiteness(d, &ch);
-    let verdict = verdict(&cands, white, &ac);
+    let verdict = verdict(&cands, white, &ac, cc.as_ref(), d);
     Diagnosis {
         candidates: cands,
         verdict,
@@ -375,6 +418,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         base_refit_rms: ch.cvb.rms,
         whiteness_passed: white,
         untested,
+        controller: cc.as_ref().map(|c| c.to_json(d)),
     }
 }
 
@@ -455,21 +499,26 @@ fn base_parameter_candidates(
         let mut params = BTreeMap::new();
         params.insert(k.to_string(), old + delta);
         let contribution: Vec<f64> = decimate(col, a, b).iter().map(|x| x * delta).collect();
+        // a change inside its own confidence interval is not a wrong value
+        let se = cv.theta_se[0];
+        let outside = delta.abs() > CI_SIGMAS * se;
         cands.push(Candidate {
             effect: k.to_string(),
             is_param: true,
             class: base_class(k).to_string(),
-            significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+            significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && outside,
             error_reduction_pct: red.min(100.0),
             evidence: format!(
-                "refitting {k} alone moves it from {} to {} ({:+.1} %)",
+                "refitting {k} alone moves it from {} to {} ({:+.1} %, +-{} at {CI_SIGMAS} standard errors{})",
                 fmt(old),
                 fmt(old + delta),
                 if old != 0.0 {
                     100.0 * delta / old
                 } else {
                     f64::INFINITY
-                }
+                },
+                fmt(CI_SIGMAS * se),
+                if outside { "" } else { ": inside its interval, not significant" }
             ),
             params,
             same_as: vec![],
@@ -564,7 +613,7 @@ fn deflection_candidate(
     let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
     let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
     let dbase = cv_cols(&dref, &[], rd, bl);
-    let (e, cv) = best_effect(id, model, d, &dref, rd, bl, None)?;
+    let (e, cv) = best_effect(id, model, d, &dref, &[], rd, bl, None)?;
     // % of the deflection's misfit after its base refit (compliance, zero offset)
     let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
     let wins = fold_wins(&cv, &dbase.fold_mse);
@@ -623,7 +672,8 @@ fn torque_effect_candidate(
 ) -> Option<Candidate> {
     let (a, b) = d.range;
     let mk = ch.mask.as_deref();
-    let (e, cv) = best_effect(id, model, d, &ch.base_cols, &ch.res, &ch.bl, mk)?;
+    let now = inertias_now(model, &ch.free_keys);
+    let (e, cv) = best_effect(id, model, d, &ch.base_cols, &now, &ch.res, &ch.bl, mk)?;
     let mut add = vec![e.clone()];
     let mut cv = cv;
     let mut params = flat(&e.to_table(d.kind, d.r));
@@ -635,7 +685,31 @@ fn torque_effect_candidate(
     }
     let extra = 100.0 * (ch.cvb.rms - cv.rms) / ch.e0;
     let wins = fold_wins(&cv, &ch.cvb.fold_mse);
-    let significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
+    let mut significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
+    let mut extra = extra;
+    // its leading coefficient must lie outside its own confidence interval around zero
+    let nb = ch.base_cols.len();
+    if channel(id) == Channel::Torque && cv.theta.len() > nb {
+        let (c, se) = (cv.theta[nb], cv.theta_se[nb]);
+        if c.abs() <= CI_SIGMAS * se {
+            significant = false;
+            ev = format!("{ev}; its size is inside its own confidence interval (+-{} at {CI_SIGMAS} standard errors): not significant", fmt(CI_SIGMAS * se));
+        }
+    }
+    if significant && id == EffectId::CoulombFriction && add.len() > 1 {
+        // Coulomb friction is a step at reversals: it must earn its sign column beyond a
+        // constant force, or the constant force alone is the name (gravity on an inclined axis)
+        let one = vec![1.0; d.len()];
+        let cv_off = cv_cols_masked(&ch.base_cols, &[&one], &ch.res, &ch.bl, mk);
+        let beyond = 100.0 * (cv_off.rms - cv.rms) / ch.e0;
+        if beyond < MIN_REDUCTION_PCT || fold_wins(&cv, &cv_off.fold_mse) < MIN_FOLD_WINS {
+            significant = false;
+            extra = beyond;
+            ev = format!(
+                "{ev}; beyond a constant force it lowers the cross-validated error by only {beyond:.1} %: there is no friction step at the reversals"
+            );
+        }
+    }
     let red = if significant {
         (100.0 * (ch.e0 - cv.rms) / ch.e0).max(extra)
     } else {
@@ -786,20 +860,53 @@ fn residual_whiteness(d: &AxisData, ch: &TorqueChannel<'_>) -> (bool, Vec<f64>) 
 
 /// The one-sentence verdict: the first significant candidate with what to do about it, or why
 /// nothing was found.
-fn verdict(cands: &[Candidate], white: bool, ac: &[f64]) -> String {
+fn verdict(
+    cands: &[Candidate],
+    white: bool,
+    ac: &[f64],
+    cc: Option<&ControllerChannel>,
+    d: &AxisData,
+) -> String {
     let sig: Vec<&Candidate> = cands.iter().filter(|c| c.significant).collect();
+    let cc_fails = cc.filter(|c| c.fails());
     match sig.first() {
+        None if cc_fails.is_some() => {
+            let c = cc_fails.expect("checked");
+            format!(
+                "the torque balance shows no missing effect, but the recorded torque departs from the controller law (controller channel NRMSE {:.1} %, {:.0} times its noise floor; largest at t = {} s): the drive does something the model's [controller] does not say",
+                c.nrmse_pct,
+                c.rms / c.noise_rms.max(1e-300),
+                fmt(largest_at(c, d))
+            )
+        }
         None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
         None => format!(
             "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more",
             ac.first().copied().unwrap_or(0.0)
         ),
+        Some(top) if top.channel == "controller" && top.add.is_empty() => format!(
+            "the controller channel: {} (class {}) explains {:.0} % of the recorded torque's departure from the controller law ({}); {}",
+            top.effect,
+            top.class,
+            top.error_reduction_pct,
+            top.evidence,
+            if top.effect == "added_input" {
+                format!("declare it as a known input (`--added-input COLUMN`, or a trace column `{}.torque_add`) so that the equation and the simulation use it", d.axis)
+            } else {
+                "check the drive's gains and filters against the model's [controller]".to_string()
+            }
+        ),
         Some(top) => {
             let mut names = vec![top.effect.clone()];
             names.extend(top.same_as.iter().cloned());
             let what = if top.is_param { "a wrong base parameter" } else { "a missing effect" };
+            let of = if top.channel == "controller" {
+                "of the recorded torque's departure from the controller law"
+            } else {
+                "of the error"
+            };
             format!(
-                "{what}: {} (class {}) explains {:.0} % of the error ({}); {}",
+                "{what}: {} (class {}) explains {:.0} % {of} ({}); {}",
                 names.join(" / "),
                 top.class,
                 top.error_reduction_pct,
@@ -961,6 +1068,170 @@ pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f6
     Some((rd, vec![transmitted, one]))
 }
 
+/// Time of the controller residual's largest magnitude, s.
+fn largest_at(c: &ControllerChannel, d: &AxisData) -> f64 {
+    let (a, b) = c.range;
+    let k = (a..b)
+        .max_by(|&i, &j| c.residual[i].abs().total_cmp(&c.residual[j].abs()))
+        .unwrap_or(a);
+    d.t[k]
+}
+
+/// Torque unit of the axis kind.
+fn torque_unit(kind: AxisKind) -> &'static str {
+    if kind == AxisKind::Rigid {
+        "N"
+    } else {
+        "N m"
+    }
+}
+
+/// Candidates of the controller channel, when the record departs from the law beyond its
+/// noise: a clamp of the drive recorded after clamping (`torque_saturation`), then, on what is
+/// left, an input added after the controller when the departure is concentrated in time
+/// (`added_input`, reported as events), or else a law that differs (`controller_law`). A
+/// torque-channel candidate of the same id that is not significant gives way to the controller
+/// channel's. Scores are % of the controller residual's RMS.
+fn controller_candidates(
+    model: &WbModel,
+    d: &AxisData,
+    cc: &ControllerChannel,
+    cands: &mut Vec<Candidate>,
+) {
+    if !cc.fails() {
+        return;
+    }
+    let tu = torque_unit(d.kind);
+    let (a, b) = cc.range;
+    let mut rest = cc.clone();
+    let noise2 = 9.0 * cc.noise_rms * cc.noise_rms;
+    if let Some((l, after)) = cc.clamp_fit(model, d) {
+        let red = 100.0 * (cc.rms - after) / cc.rms;
+        if red >= MIN_REDUCTION_PCT && cc.rms * cc.rms - after * after > noise2 {
+            let mut e = Effect::new(EffectId::TorqueSaturation, Side::Motor, vec![l]);
+            e.coef.clear();
+            let at_limit = (a..b)
+                .filter(|&k| (cc.recorded[k].abs() - l).abs() <= 5e-3 * l)
+                .count();
+            let lc = model.file.controller.torque_limit;
+            let params = flat(&e.to_table(d.kind, d.r));
+            cands.retain(|c| c.effect != "torque_saturation" || c.significant);
+            cands.push(Candidate {
+                effect: EffectId::TorqueSaturation.to_string(),
+                is_param: false,
+                class: class_of(EffectId::TorqueSaturation).into(),
+                significant: true,
+                error_reduction_pct: red.min(100.0),
+                evidence: format!(
+                    "the recorded torque sits at +-{} {tu} in {} samples ({:.1} % of the time) where the controller law asks for more{}: the drive clamps and records the clamped value",
+                    fmt(l),
+                    at_limit,
+                    100.0 * at_limit as f64 / (b - a) as f64,
+                    lc.map(|x| format!(" (the controller's own limit is {} {tu})", fmt(x)))
+                        .unwrap_or_default()
+                ),
+                params,
+                same_as: vec![],
+                contribution: decimate(&cc.residual, a, b),
+                add: vec![e],
+                channel: "controller",
+            });
+            let mut with = model.clone();
+            with.effects.push(Effect::new(
+                EffectId::TorqueSaturation,
+                Side::Motor,
+                vec![l],
+            ));
+            if let Some(c2) = ControllerChannel::new(&with, d) {
+                rest = c2;
+            }
+        }
+    }
+    if !rest.fails() {
+        return;
+    }
+    let events = rest.events(d);
+    let (share, time) = rest.event_shares(d, &events);
+    if !events.is_empty() && share >= 50.0 && time <= 75.0 {
+        let red = 100.0 * (1.0 - (1.0 - share / 100.0).max(0.0).sqrt());
+        let starts: Vec<f64> = events.iter().map(|e| e.start_s).collect();
+        let mut gaps: Vec<f64> = starts.windows(2).map(|w| w[1] - w[0]).collect();
+        let spacing = if gaps.len() >= 2 {
+            gaps.sort_by(f64::total_cmp);
+            let med = gaps[gaps.len() / 2];
+            let regular = gaps.iter().all(|g| (g - med).abs() <= 0.05 * med);
+            regular.then_some(med)
+        } else {
+            None
+        };
+        let sizes: Vec<f64> = events.iter().map(|e| e.mean).collect();
+        let size = quantile(&sizes.iter().map(|x| x.abs()).collect::<Vec<_>>(), 0.5);
+        let first: Vec<String> = events
+            .iter()
+            .take(3)
+            .map(|e| format!("{}..{} s", fmt(e.start_s), fmt(e.end_s)))
+            .collect();
+        let mut params = BTreeMap::new();
+        params.insert("events".to_string(), events.len() as f64);
+        params.insert("median_size".to_string(), size);
+        params.insert("first_start_s".to_string(), events[0].start_s);
+        if let Some(p) = spacing {
+            params.insert("period_s".to_string(), p);
+        }
+        cands.push(Candidate {
+            effect: "added_input".into(),
+            is_param: false,
+            class: "input".into(),
+            significant: true,
+            error_reduction_pct: red.min(100.0),
+            evidence: format!(
+                "the recorded torque departs from the controller law in {} stretches ({:.0} % of the time, {:.0} % of the departure), by about {} {tu} each, switching on and off at once: {}{}{}; the controller law ignores it, so something is added after the controller",
+                events.len(),
+                time,
+                share,
+                fmt(size),
+                first.join(", "),
+                if events.len() > 3 { ", ..." } else { "" },
+                spacing
+                    .map(|p| format!(", repeating every {} s", fmt(p)))
+                    .unwrap_or_default()
+            ),
+            params,
+            same_as: vec![],
+            contribution: decimate(&rest.residual, a, b),
+            add: vec![],
+            channel: "controller",
+        });
+        return;
+    }
+    // a law that differs: the record as a gain on the law plus an offset
+    let one = vec![1.0; d.len()];
+    let bl = blocks(rest.range, FOLDS);
+    let cv = cv_cols(&[&rest.law, &one], &[], &rest.residual, &bl);
+    let red = 100.0 * (rest.rms - cv.rms) / rest.rms;
+    let mut params = BTreeMap::new();
+    params.insert("gain".to_string(), 1.0 + cv.theta[0]);
+    params.insert("offset".to_string(), cv.theta[1]);
+    cands.push(Candidate {
+        effect: "controller_law".into(),
+        is_param: false,
+        class: "controller".into(),
+        significant: red >= MIN_REDUCTION_PCT,
+        error_reduction_pct: red.clamp(0.0, 100.0),
+        evidence: format!(
+            "the recorded torque departs from the controller law throughout (NRMSE {:.1} %); as a gain on the law it is {:.3} times the law plus {} {tu}",
+            rest.nrmse_pct,
+            1.0 + cv.theta[0],
+            fmt(cv.theta[1])
+        ),
+        params,
+        same_as: vec![],
+        contribution: decimate(&rest.residual, a, b),
+        add: vec![],
+        channel: "controller",
+    });
+}
+
 /// Numeric entries of an effect table, flat.
 pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
     t.iter()
@@ -998,6 +1269,7 @@ impl Diagnosis {
             "model_cv_rms": self.model_rms,
             "base_refit_cv_rms": self.base_refit_rms,
             "whiteness_passed": self.whiteness_passed,
+            "controller": self.controller,
             "untested": self.untested.iter().map(|(k, r)| json!({"effect": k, "reason": r})).collect::<Vec<_>>(),
         })
     }

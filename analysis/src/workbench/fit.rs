@@ -10,9 +10,10 @@ use std::collections::BTreeMap;
 use serde_json::{json, Value};
 
 use super::compare::equation_error;
+use super::controller::ControllerChannel;
 use super::data::AxisData;
-use super::diagnose::{best_effect, deflection, flat, moving_mask, FOLDS};
-use super::effects::{base_column, base_keys, channel, Channel, Effect, EffectId, WbModel};
+use super::diagnose::{best_effect, deflection, flat, inertias_now, moving_mask, FOLDS};
+use super::effects::{base_column, base_keys, channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
 use super::window::window_sim;
 use super::WorkbenchError;
@@ -26,6 +27,9 @@ pub struct Errors {
     pub relative_error_pct: Option<f64>,
     /// Windowed-simulation NRMSE of the headline channel, %.
     pub window_sim_nrmse_pct: Option<f64>,
+    /// NRMSE of the recorded torque against the controller law, % (None without torque or
+    /// without a controller in the model).
+    pub controller_nrmse_pct: Option<f64>,
 }
 
 impl Errors {
@@ -37,6 +41,7 @@ impl Errors {
             equation_nrmse_pct: eq.as_ref().map(|e| e.nrmse_pct),
             relative_error_pct: eq.as_ref().map(|e| e.relative_error_pct),
             window_sim_nrmse_pct: ws.headline_nrmse_pct(),
+            controller_nrmse_pct: ControllerChannel::new(model, d).map(|c| c.nrmse_pct),
         }
     }
 
@@ -46,6 +51,7 @@ impl Errors {
             "equation_nrmse_pct": self.equation_nrmse_pct,
             "relative_error_pct": self.relative_error_pct,
             "window_sim_nrmse_pct": self.window_sim_nrmse_pct,
+            "controller_nrmse_pct": self.controller_nrmse_pct,
         })
     }
 }
@@ -133,7 +139,7 @@ pub fn fit(
                         present: String::new(),
                     })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                if let Some((e, _)) = best_effect(id, model, d, &dref, &rd, &bl, None) {
+                if let Some((e, _)) = best_effect(id, model, d, &dref, &[], &rd, &bl, None) {
                     effects.push(e);
                 }
             }
@@ -147,9 +153,19 @@ pub fn fit(
                         needed_for: format!("fitting `{id}` by inverse dynamics"),
                         present: String::new(),
                     })?;
+                // a drive that records its clamped torque shows its limit in the controller
+                // channel, not in the torque balance: take the limit from there when it
+                // explains the record's departure from the law better than the balance
+                if id == EffectId::TorqueSaturation {
+                    if let Some(l) = controller_clamp(model, d) {
+                        effects.push(Effect::new(id, Side::Motor, vec![l]));
+                        continue;
+                    }
+                }
                 let res = residual(model, d, y);
+                let now = inertias_now(model, &free_keys);
                 if let Some((mut e, _)) =
-                    best_effect(id, model, d, &base_cols, &res, &bl, moving.as_deref())
+                    best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
                 {
                     if e.id == EffectId::CoulombFriction {
                         e.coef[1] = 0.0;
@@ -161,6 +177,18 @@ pub fn fit(
     }
     let _ = kind;
     fit_with(model, d, effects, free, window_s)
+}
+
+/// The drive's torque limit as the controller channel shows it: when the record departs from
+/// the controller law beyond its noise and a clamp at the largest recorded magnitude removes at
+/// least half of that departure.
+fn controller_clamp(model: &WbModel, d: &AxisData) -> Option<f64> {
+    let cc = ControllerChannel::new(model, d)?;
+    if !cc.fails() {
+        return None;
+    }
+    let (l, after) = cc.clamp_fit(model, d)?;
+    (after < 0.5 * cc.rms).then_some(l)
 }
 
 fn residual(model: &WbModel, d: &AxisData, y: &[f64]) -> Vec<f64> {

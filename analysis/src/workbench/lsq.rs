@@ -183,6 +183,9 @@ pub struct Cv {
     pub theta: DVector<f64>,
     /// In-sample RMS of that fit.
     pub rms_in: f64,
+    /// Standard error of each coefficient of `theta`, from the spread of the leave-one-block-out
+    /// fits (jackknife over the blocks, so correlated noise inside a block is accounted for).
+    pub theta_se: DVector<f64>,
 }
 
 /// Blocked k-fold cross-validation from per-block normal equations.
@@ -196,6 +199,7 @@ pub fn cross_validate(ne: &[Normal]) -> Cv {
     let rms_in = (total.sse(&theta) / total.n.max(1) as f64).sqrt();
     let mut sse = 0.0;
     let mut fold_mse = Vec::with_capacity(ne.len());
+    let mut loo: Vec<DVector<f64>> = Vec::with_capacity(ne.len());
     for (i, fold) in ne.iter().enumerate() {
         let th = if ne.len() == 1 {
             theta.clone()
@@ -211,12 +215,22 @@ pub fn cross_validate(ne: &[Normal]) -> Cv {
         let s = fold.sse(&th);
         sse += s;
         fold_mse.push(s / fold.n.max(1) as f64);
+        loo.push(th);
     }
+    let k = loo.len() as f64;
+    let theta_se = DVector::from_fn(p, |j, _| {
+        if loo.len() < 2 {
+            return 0.0;
+        }
+        let m = loo.iter().map(|t| t[j]).sum::<f64>() / k;
+        ((k - 1.0) / k * loo.iter().map(|t| (t[j] - m).powi(2)).sum::<f64>()).sqrt()
+    });
     Cv {
         rms: (sse / total.n.max(1) as f64).sqrt(),
         fold_mse,
         theta,
         rms_in,
+        theta_se,
     }
 }
 

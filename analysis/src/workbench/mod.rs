@@ -13,6 +13,7 @@
 
 pub mod auto;
 pub mod compare;
+pub mod controller;
 pub mod data;
 pub mod diagnose;
 pub mod effects;

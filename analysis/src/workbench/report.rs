@@ -344,6 +344,9 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
     if let Some(e) = &c.eq {
         let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{:.4}</td></tr>", e.nrmse_pct, e.rms);
     }
+    if let Some(cc) = &c.controller {
+        let _ = write!(h, "<tr><td>controller</td><td>recorded torque against the controller law on the recorded signals (velocity: {}; noise floor {:.3e}{})</td><td>{:.2}</td><td>{:.4e}</td></tr>", esc(cc.velocity), cc.noise_rms, if cc.fails() { ", <b>departs</b>" } else { "" }, cc.nrmse_pct, cc.rms);
+    }
     for ch in &c.sim.channels {
         let _ = write!(h, "<tr><td>{}</td><td>{} simulation, {:.0} ms windows from measured state</td><td>{:.2}</td><td>{:.4e}</td></tr>", ch.name, c.sim.mode, c.sim.window_s * 1e3, ch.window_nrmse_pct, ch.window_rms);
         let _ = write!(
@@ -401,6 +404,22 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
                 Series::line("model", "#d62728", &tx2, &sy),
             ],
             &[],
+            false,
+        ));
+    }
+    if let Some(cc) = &c.controller {
+        let ev = cc.events(d);
+        let ev_shade: Vec<(f64, f64)> = ev.iter().take(200).map(|e| (e.start_s, e.end_s)).collect();
+        let (tx, ry) = envelope(&d.t, &cc.residual, 1600);
+        h.push_str(&plot(
+            &format!(
+                "Controller channel: recorded torque minus controller law ({} stretches where it departs, shaded)",
+                ev.len()
+            ),
+            "time (s)",
+            "recorded - law (N m or N)",
+            &[Series::line("recorded - law", "#9467bd", &tx, &ry)],
+            &ev_shade,
             false,
         ));
     }

@@ -419,6 +419,7 @@ fn e_meas(d: &AxisData, k: usize, kp: f64) -> f64 {
 /// measured error, held while the clamped output and the error point the same way) from the last
 /// sample where it was known. `y` is the torque compared with the model (filtered with the
 /// positions when the torque column is), `raw` the column as recorded (it tells saturation).
+#[allow(clippy::too_many_arguments)]
 fn integrator_track(
     d: &AxisData,
     y: &[f64],
@@ -427,14 +428,15 @@ fn integrator_track(
     kv: f64,
     tv: f64,
     lim: f64,
+    rec_lim: f64,
 ) -> Vec<f64> {
     let n = d.len();
     let mut out = vec![0.0; n];
     if tv <= 0.0 || kv == 0.0 {
         return out;
     }
-    // a recorded output within 0.5 % of the limit counts as clamped
-    let clamped = |u: f64| lim.is_finite() && u.abs() >= 0.995 * lim;
+    // a recorded output within 0.5 % of the limit it was recorded at counts as clamped
+    let clamped = |u: f64| rec_lim.is_finite() && u.abs() >= 0.995 * rec_lim;
     let mut integ = 0.0;
     let mut known = false;
     for k in 0..n {
@@ -487,7 +489,35 @@ fn run_closed(
             .sum::<usize>()
     };
     let past: &[f64] = d.torque_raw.as_deref().unwrap_or(&[]);
-    let integ_meas = y.map(|y| integrator_track(d, y, past, kp, kv, tv, lim));
+    // a declared input added after the controller: applied with the controller's output, and
+    // taken out of the recorded torque where that tells the controller's state
+    let add: Vec<f64> = super::controller::ControllerChannel::new(model, d)
+        .and_then(|c| c.scaled_input(d))
+        .unwrap_or_else(|| vec![0.0; n]);
+    let y_law: Option<Vec<f64>> = y.map(|y| {
+        if add.iter().all(|x| *x == 0.0) {
+            y.clone()
+        } else if d.torque_filtered {
+            let fa = filtfilt_butter4(&add, d.cutoff_hz, 1.0 / d.dt);
+            y.iter().zip(&fa).map(|(a, b)| a - b).collect()
+        } else {
+            y.iter().zip(&add).map(|(a, b)| a - b).collect()
+        }
+    });
+    let raw_law: Vec<f64> = past.iter().zip(&add).map(|(a, b)| a - b).collect();
+    // a drive limit below the controller's (the model's torque_saturation): a record that
+    // never exceeds it was recorded after the clamp, and the simulated record is clamped too
+    let drive_lim = model
+        .effects
+        .iter()
+        .filter(|e| e.id == EffectId::TorqueSaturation)
+        .map(|e| e.hyper[0])
+        .fold(f64::INFINITY, f64::min);
+    let rec_clamped = drive_lim < lim && past.iter().all(|x| x.abs() <= 1.005 * drive_lim);
+    let rec_lim = if rec_clamped { drive_lim } else { lim };
+    let integ_meas = y_law
+        .as_ref()
+        .map(|y| integrator_track(d, y, &raw_law, kp, kv, tv, lim, rec_lim));
     let mut hist: Vec<f64> = Vec::new();
     for k in 0..n {
         let restart = k % wlen == 0;
@@ -517,8 +547,12 @@ fn run_closed(
             integ = prev;
         }
         fe[k] = d.cmd[k] - q;
-        tq[k] = u;
-        hist.push(u);
+        tq[k] = if rec_clamped {
+            u.clamp(-drive_lim, drive_lim)
+        } else {
+            u
+        } + add[k];
+        hist.push(u + add[k]);
         let applied = if hist.len() > delay {
             hist[hist.len() - 1 - delay]
         } else {

@@ -1,0 +1,416 @@
+//! The controller as a channel: the recorded torque against the model's controller law applied
+//! to the recorded signals.
+//!
+//! The torque balance says whether the plant model explains the motion for the torque that was
+//! applied; it cannot see what happened between the controller and the record. The controller
+//! residual can: with the `[controller]` of the model file (P position loop on the load
+//! position, PI velocity loop on the motor velocity, output limit), the law is evaluated on the
+//! very samples the drive's controller read (`A.cmd`, `A.load`, the motor velocity) and compared
+//! with `A.torque`. A clamp of the drive recorded after clamping, a different gain, or an input
+//! added after the controller (a disturbance test, a feed-forward the model does not know)
+//! show there directly, while the torque balance still closes.
+//!
+//! The law's discretisation follows the velocity loop of feedloop and of common drives: the
+//! integrator by the rectangle rule, `I += e dt` then `u = clamp(Kv (e + I / Tv))`, conditional
+//! anti-windup at the law's own limit. The velocity the drive used is not always recorded: the
+//! `A.motor_vel` column, a backward difference, a two-sample average and a central difference
+//! of the position (for a drive with an observer) are tried, and the one the record agrees
+//! with best is used (and named). The integrator starts so
+//! that the law's first output equals the first recorded one (bumpless).
+//!
+//! The channel's noise floor is estimated from the residual itself: the robust spread (median
+//! absolute deviation) of its first difference, which steps and slow departures hardly touch.
+
+use serde_json::{json, Value};
+
+use super::data::AxisData;
+use super::effects::{EffectId, WbModel};
+use super::signal::{densest_quarter, nrmse_pct, quantile, rms};
+
+/// The model's controller law.
+#[derive(Debug, Clone, Copy)]
+pub struct Law {
+    /// Position gain, 1/s.
+    pub kp: f64,
+    /// Velocity gain, torque units per motor unit/s.
+    pub kv: f64,
+    /// Integral time, s (0: no integral action).
+    pub tv: f64,
+    /// Output limit of the law, torque units (infinite when the model gives none).
+    pub lim: f64,
+}
+
+impl Law {
+    /// The law of `model`'s `[controller]`, when it has a position and a velocity gain.
+    pub fn of(model: &WbModel) -> Option<Self> {
+        let c = &model.file.controller;
+        Some(Self {
+            kp: c.kp_per_s?,
+            kv: c.kv?,
+            tv: c.tv_s.unwrap_or(0.0),
+            lim: c.torque_limit.unwrap_or(f64::INFINITY),
+        })
+    }
+
+    /// The law's output at every sample, for the recorded position `x` (motor units), command
+    /// `cmd` and velocity `vel`; the integrator starts so that the first output is `first`.
+    pub fn run(&self, cmd: &[f64], x: &[f64], vel: &[f64], dt: f64, first: f64) -> Vec<f64> {
+        let n = cmd.len();
+        let mut out = vec![0.0; n];
+        let use_i = self.tv > 0.0;
+        let mut integ = 0.0;
+        for k in 0..n {
+            let e = self.kp * (cmd[k] - x[k]) - vel[k];
+            let e = if e.is_finite() { e } else { 0.0 };
+            let prev = integ;
+            if use_i {
+                if k == 0 {
+                    integ = (first / self.kv - e) * self.tv;
+                    if !integ.is_finite() {
+                        integ = 0.0;
+                    }
+                } else {
+                    integ += dt * e;
+                }
+            }
+            let raw = self.kv * (e + if use_i { integ / self.tv } else { 0.0 });
+            let u = raw.clamp(-self.lim, self.lim);
+            if k > 0 && u != raw && e * raw > 0.0 {
+                integ = prev;
+            }
+            out[k] = u;
+        }
+        out
+    }
+}
+
+/// A stretch of time where the controller residual stands out of its noise.
+#[derive(Debug, Clone)]
+pub struct Event {
+    /// First sample.
+    pub start: usize,
+    /// One past the last sample.
+    pub end: usize,
+    /// Start, s.
+    pub start_s: f64,
+    /// End, s.
+    pub end_s: f64,
+    /// Mean residual inside (recorded minus law), torque units.
+    pub mean: f64,
+    /// Largest absolute residual inside.
+    pub peak: f64,
+}
+
+/// The controller channel of one axis.
+#[derive(Debug, Clone)]
+pub struct ControllerChannel {
+    /// The torque column as recorded.
+    pub recorded: Vec<f64>,
+    /// The law's output on the recorded signals.
+    pub law: Vec<f64>,
+    /// What the record should hold by the model: the law, plus a declared added input, through
+    /// the model's torque limit where the record sits at it.
+    pub predicted: Vec<f64>,
+    /// `recorded - predicted`.
+    pub residual: Vec<f64>,
+    /// RMS of the residual over the fit range.
+    pub rms: f64,
+    /// NRMSE of the residual against the recorded torque, %.
+    pub nrmse_pct: f64,
+    /// Noise floor of the residual (RMS), estimated from the data.
+    pub noise_rms: f64,
+    /// Which velocity the law was evaluated with.
+    pub velocity: &'static str,
+    /// When the drive's velocity lags (positive) or leads the chosen estimate: by how much, s
+    /// (taken into the law; `None` when it explains too little to count).
+    pub velocity_lag_s: Option<f64>,
+    /// Least-squares gain of the declared added input in the record (1: the record includes it;
+    /// between 0.5 and 2 the input is taken into the prediction at this scale, else it is
+    /// taken as not in the record).
+    pub added_gain: Option<f64>,
+    /// First and one-past-last sample compared.
+    pub range: (usize, usize),
+}
+
+/// Noise floor of a residual: the larger of two robust spreads, that of its first difference
+/// over `sqrt 2` (white noise) and that of the residual itself (coloured noise: the spread of
+/// its densest quarter, see [`densest_quarter`]; a
+/// departure that lasts less than three quarters of the time, such as a clamp, a pulse train
+/// or a collision, leaves that quarter to the noise).
+pub fn noise_floor(r: &[f64]) -> f64 {
+    if r.len() < 3 {
+        return 0.0;
+    }
+    let d: Vec<f64> = r.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let white = 1.4826 * quantile(&d, 0.5) / std::f64::consts::SQRT_2;
+    white.max(densest_quarter(r).1)
+}
+
+/// The velocity estimates the drive may have used: (name, values).
+fn velocity_sources(d: &AxisData) -> Vec<(&'static str, Vec<f64>)> {
+    let q: Vec<f64> = match &d.motor_raw {
+        Some(m) => m.clone(),
+        None => d.load_raw.iter().map(|x| x * d.r).collect(),
+    };
+    let n = q.len();
+    let mut v = Vec::new();
+    if let Some(c) = &d.motor_vel_raw {
+        v.push(("the motor_vel column", c.clone()));
+    }
+    let back: Vec<f64> = (0..n)
+        .map(|k| {
+            if k == 0 {
+                0.0
+            } else {
+                (q[k] - q[k - 1]) / d.dt
+            }
+        })
+        .collect();
+    let avg: Vec<f64> = (0..n)
+        .map(|k| {
+            if k < 2 {
+                back[k]
+            } else {
+                (q[k] - q[k - 2]) / (2.0 * d.dt)
+            }
+        })
+        .collect();
+    let central: Vec<f64> = (0..n)
+        .map(|k| {
+            if k == 0 || k + 1 >= n {
+                back[k]
+            } else {
+                (q[k + 1] - q[k - 1]) / (2.0 * d.dt)
+            }
+        })
+        .collect();
+    v.push(("a backward difference of the position", back));
+    v.push((
+        "a central difference of the position (an observer's or the true velocity)",
+        central,
+    ));
+    v.push(("a two-sample average of the position's differences", avg));
+    v
+}
+
+/// The model's torque limit (a `torque_saturation` effect), torque units.
+fn model_limit(model: &WbModel) -> Option<f64> {
+    model
+        .effects
+        .iter()
+        .filter(|e| e.id == EffectId::TorqueSaturation)
+        .map(|e| e.hyper[0])
+        .fold(None, |a: Option<f64>, l| Some(a.map_or(l, |x| x.min(l))))
+}
+
+/// What the record holds by the model: `law + add`, clamped to `limit` where the recorded
+/// torque sits at the limit (a drive that reports the clamped value; one that reports its
+/// command records the unclamped law and needs nothing here).
+fn predict(law: &[f64], add: Option<&[f64]>, rec: &[f64], limit: Option<f64>) -> Vec<f64> {
+    (0..law.len())
+        .map(|k| {
+            let p = law[k] + add.map_or(0.0, |a| a[k]);
+            match limit {
+                Some(l) if (rec[k].abs() - l).abs() <= 5e-3 * l && p.abs() > l => p.clamp(-l, l),
+                _ => p,
+            }
+        })
+        .collect()
+}
+
+impl ControllerChannel {
+    /// The channel of `model` on `d`: `None` without a torque column or without a controller
+    /// law in the model.
+    pub fn new(model: &WbModel, d: &AxisData) -> Option<Self> {
+        Self::with_limit(model, d, model_limit(model))
+    }
+
+    /// The channel with the drive's torque limit `limit` (instead of the model's).
+    pub fn with_limit(model: &WbModel, d: &AxisData, limit: Option<f64>) -> Option<Self> {
+        let law_p = Law::of(model)?;
+        let rec = d.torque_raw.clone()?;
+        let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+        let add = d.added_input.as_ref().map(|(_, a)| a.as_slice());
+        let first = rec[0] - add.map_or(0.0, |a| a[0]);
+        let (a, b) = (2.min(d.len()), d.len());
+        let mut best: Option<(f64, &'static str, Vec<f64>)> = None;
+        for (name, v) in velocity_sources(d) {
+            let law = law_p.run(&d.cmd, &x, &v, d.dt, first);
+            let dev: Vec<f64> = (a..b)
+                .map(|k| rec[k] - law[k] - add.map_or(0.0, |x| x[k]))
+                .collect();
+            let score = densest_quarter(&dev).1;
+            if best.as_ref().is_none_or(|(s, _, _)| score < *s) {
+                best = Some((score, name, law));
+            }
+        }
+        let (_, velocity, law) = best?;
+        let added_gain = add.map(|ad| {
+            let (mut num, mut den) = (0.0, 0.0);
+            for k in a..b {
+                num += (rec[k] - law[k]) * ad[k];
+                den += ad[k] * ad[k];
+            }
+            if den > 0.0 {
+                num / den
+            } else {
+                0.0
+            }
+        });
+        // the declared input as the record holds it (its least-squares scale, when that is
+        // near 1: a drive's injection path has its own gain error)
+        let scaled: Option<Vec<f64>> = match (add, added_gain) {
+            (Some(ad), Some(g)) if (0.5..=2.0).contains(&g) => {
+                Some(ad.iter().map(|x| g * x).collect())
+            }
+            _ => None,
+        };
+        let mut predicted = predict(&law, scaled.as_deref(), &rec, limit);
+        let (fa, fb) = d.range;
+        // the velocity the drive used may be none of the recorded ones (a filtered or true
+        // velocity): a lag of the velocity estimate shows as Kv times the acceleration; when
+        // that explains most of the departure, it is part of the law, not of the drive
+        let lag_col: Vec<f64> = d.am.iter().map(|a| law_p.kv * a).collect();
+        let res0: Vec<f64> = rec.iter().zip(&predicted).map(|(r, p)| r - p).collect();
+        let (mut num, mut den) = (0.0, 0.0);
+        for k in fa..fb {
+            num += res0[k] * lag_col[k];
+            den += lag_col[k] * lag_col[k];
+        }
+        let lag = if den > 0.0 { num / den } else { 0.0 };
+        let e0: f64 = res0[fa..fb].iter().map(|x| x * x).sum();
+        let e1: f64 = (fa..fb).map(|k| (res0[k] - lag * lag_col[k]).powi(2)).sum();
+        let velocity_lag_s = (e1 < 0.5 * e0).then(|| {
+            for (p, c) in predicted.iter_mut().zip(&lag_col) {
+                *p += lag * c;
+            }
+            -lag
+        });
+        let residual: Vec<f64> = rec.iter().zip(&predicted).map(|(r, p)| r - p).collect();
+        Some(Self {
+            rms: rms(&residual[fa..fb]),
+            nrmse_pct: nrmse_pct(&rec[fa..fb], &residual[fa..fb]),
+            noise_rms: noise_floor(&residual[fa..fb]),
+            velocity_lag_s,
+            recorded: rec,
+            law,
+            predicted,
+            residual,
+            velocity,
+            added_gain,
+            range: (fa, fb),
+        })
+    }
+
+    /// The declared added input at the scale the record holds it (`None` without one, or when
+    /// the record does not hold it).
+    pub fn scaled_input(&self, d: &AxisData) -> Option<Vec<f64>> {
+        let (_, ad) = d.added_input.as_ref()?;
+        let g = self.added_gain.filter(|g| (0.5..=2.0).contains(g))?;
+        Some(ad.iter().map(|x| g * x).collect())
+    }
+
+    /// Whether the record departs from the law by more than its noise can: the residual's RMS
+    /// above three times its noise floor and above 0.5 % of the recorded torque's RMS (a
+    /// departure smaller than that changes nothing a servo engineer tunes).
+    pub fn fails(&self) -> bool {
+        self.rms > 3.0 * self.noise_rms && self.nrmse_pct > 0.5
+    }
+
+    /// A clamp of the drive that the record shows: the limit (the largest recorded magnitude,
+    /// where a clamped record sits) and the residual's RMS with it. `None` when it does not
+    /// lower the residual.
+    pub fn clamp_fit(&self, model: &WbModel, d: &AxisData) -> Option<(f64, f64)> {
+        let (a, b) = self.range;
+        let l = self.recorded[a..b]
+            .iter()
+            .fold(0.0f64, |m, x| m.max(x.abs()));
+        if l <= 0.0 {
+            return None;
+        }
+        let _ = model;
+        let add = self.scaled_input(d);
+        let p = predict(&self.law, add.as_deref(), &self.recorded, Some(l));
+        let r: Vec<f64> = (a..b).map(|k| self.recorded[k] - p[k]).collect();
+        let after = rms(&r);
+        (after < self.rms).then_some((l, after))
+    }
+
+    /// Stretches where the residual stands out of its noise (above six times the noise floor
+    /// and 1 % of the recorded torque's RMS), gaps shorter than 2 ms merged, single samples
+    /// dropped.
+    pub fn events(&self, d: &AxisData) -> Vec<Event> {
+        let (a, b) = self.range;
+        let thr = (6.0 * self.noise_rms).max(0.01 * rms(&self.recorded[a..b]));
+        let gap = ((2e-3 / d.dt).ceil() as usize).max(2);
+        let mut out = Vec::new();
+        let mut k = a;
+        while k < b {
+            if self.residual[k].abs() <= thr {
+                k += 1;
+                continue;
+            }
+            let s = k;
+            let mut last = k;
+            while k < b && k - last <= gap {
+                if self.residual[k].abs() > thr {
+                    last = k;
+                }
+                k += 1;
+            }
+            let e = last + 1;
+            if e - s >= 2 {
+                let r = &self.residual[s..e];
+                out.push(Event {
+                    start: s,
+                    end: e,
+                    start_s: d.t[s],
+                    end_s: d.t[e - 1],
+                    mean: r.iter().sum::<f64>() / r.len() as f64,
+                    peak: r.iter().fold(0.0f64, |m, x| m.max(x.abs())),
+                });
+            }
+        }
+        out
+    }
+
+    /// Share of the residual's energy inside `events`, and the share of the time they cover, %.
+    pub fn event_shares(&self, d: &AxisData, events: &[Event]) -> (f64, f64) {
+        let (a, b) = self.range;
+        let total: f64 = self.residual[a..b].iter().map(|x| x * x).sum::<f64>();
+        let _ = d;
+        let (mut inside, mut cnt) = (0.0, 0usize);
+        for e in events {
+            for k in e.start.max(a)..e.end.min(b) {
+                inside += self.residual[k] * self.residual[k];
+                cnt += 1;
+            }
+        }
+        (
+            100.0 * inside / total.max(1e-300),
+            100.0 * cnt as f64 / (b - a).max(1) as f64,
+        )
+    }
+
+    /// JSON of the channel (without the series).
+    pub fn to_json(&self, d: &AxisData) -> Value {
+        let ev = self.events(d);
+        let (share, time) = self.event_shares(d, &ev);
+        json!({
+            "controller_nrmse_pct": self.nrmse_pct,
+            "controller_rms": self.rms,
+            "noise_rms": self.noise_rms,
+            "fails": self.fails(),
+            "velocity": self.velocity,
+            "velocity_lag_s": self.velocity_lag_s,
+            "added_input": d.added_input.as_ref().map(|(n, _)| n.clone()),
+            "added_input_gain": self.added_gain,
+            "events": ev.iter().take(50).map(|e| json!({
+                "t_start_s": e.start_s, "t_end_s": e.end_s, "mean": e.mean, "peak": e.peak,
+            })).collect::<Vec<_>>(),
+            "event_count": ev.len(),
+            "event_energy_share_pct": share,
+            "event_time_share_pct": time,
+        })
+    }
+}
