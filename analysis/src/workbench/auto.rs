@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 
 use super::data::AxisData;
 use super::diagnose::{diagnose, DiagOptions, Diagnosis};
-use super::effects::WbModel;
+use super::effects::{EffectId, WbModel};
 use super::fit::{fit_with, Errors};
 use super::WorkbenchError;
 
@@ -65,6 +65,22 @@ pub fn auto(
         {
             break;
         }
+        // Stribeck friction is Coulomb friction with a hump: it replaces a Coulomb friction of
+        // the same body instead of adding a second friction step
+        let mut base_m = m.clone();
+        let mut replaced = Vec::new();
+        for e in &top.add {
+            if e.id == EffectId::StribeckFriction {
+                let before = base_m.effects.len();
+                base_m
+                    .effects
+                    .retain(|x| !(x.id == EffectId::CoulombFriction && x.side == e.side));
+                if base_m.effects.len() < before {
+                    replaced.push(EffectId::CoulombFriction.to_string());
+                }
+            }
+        }
+        let m_in = if replaced.is_empty() { &m } else { &base_m };
         let res = if top.is_param {
             let mut free = vec![top.effect.clone()];
             for o in &top.same_as {
@@ -74,7 +90,7 @@ pub fn auto(
             }
             fit_with(&m, d, vec![], Some(&free), window_s)?
         } else {
-            fit_with(&m, d, top.add.clone(), None, window_s)?
+            fit_with(m_in, d, top.add.clone(), None, window_s)?
         };
         // an effect of the transmission (backlash, lead error) barely shows in the torque
         // balance: it must lower the windowed simulation error instead
@@ -98,6 +114,11 @@ pub fn auto(
         }
         let added = if top.is_param {
             vec![format!("refit {}", top.effect)]
+        } else if !replaced.is_empty() {
+            res.added
+                .iter()
+                .map(|a| format!("{a} (replaces {})", replaced.join(", ")))
+                .collect()
         } else {
             res.added.clone()
         };

@@ -29,7 +29,7 @@ use super::effects::{
     EffectId, Side, WbModel,
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
-use super::signal::{autocorrelation, mean, quantile};
+use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_model::model::AxisKind;
 
 /// Folds of the blocked cross-validation.
@@ -38,6 +38,20 @@ pub const FOLDS: usize = 5;
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
 pub const MIN_FOLD_WINS: usize = 4;
+/// Smallest deflection effect that counts, m at the load (the finest linear scales of feed
+/// drives resolve about 1 nm).
+pub const DEFLECTION_FLOOR_M: f64 = 1e-9;
+
+/// Motor units per metre at the load (the ball screw's `r`), 1 for other kinds (whose deflection
+/// is already in their own units).
+fn load_to_motor(d: &AxisData) -> f64 {
+    if d.kind == AxisKind::BallScrew {
+        d.r
+    } else {
+        1.0
+    }
+}
+
 /// Half-width of a refitted value's confidence interval, in standard errors (jackknife over
 /// the blocks; with 5 blocks, 3 standard errors is about the 96 % interval of Student's t with
 /// 4 degrees of freedom).
@@ -401,8 +415,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
         controller_candidates(model, d, cc, &mut cands);
     }
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+    let now = inertias_now(model, &ch.free_keys);
     let tf = TorqueFit {
         base_cols: &ch.base_cols,
+        now: &now,
         res: &ch.res,
         bl: &ch.bl,
         mask: ch.mask.as_deref(),
@@ -617,15 +633,25 @@ fn deflection_candidate(
     // % of the deflection's misfit after its base refit (compliance, zero offset)
     let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
     let wins = fold_wins(&cv, &dbase.fold_mse);
+    // a deflection effect smaller than any feed-drive encoder resolves (1 nm at the load) is
+    // numerical noise, however much of a residual at that level it explains
+    let resolvable = rms(&e.contribution(d)[a..b]) >= DEFLECTION_FLOOR_M * load_to_motor(d);
     let params = flat(&e.to_table(kind, d.r));
     let contribution = decimate(&e.contribution(d), a, b);
     Some(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
-        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && resolvable,
         error_reduction_pct: red.min(100.0),
-        evidence: evidence(&e, d, &params),
+        evidence: if resolvable {
+            evidence(&e, d, &params)
+        } else {
+            format!(
+                "{}; below the 1 nm any feed-drive encoder resolves: not significant",
+                evidence(&e, d, &params)
+            )
+        },
         params,
         same_as: vec![],
         add: vec![e],
@@ -750,7 +776,8 @@ fn torque_effect_candidate(
 type WithOffset = (Vec<Effect>, Cv, BTreeMap<String, f64>, String);
 
 /// Asymmetric Coulomb friction = Coulomb + a constant force while the axis moves: fitted
-/// together and reported both, when that fits at least as well (within 2 %) as Coulomb alone.
+/// together and reported both, when that fits at least as well (within 2 %) as Coulomb alone
+/// and the offset lies outside its confidence interval around zero.
 fn coulomb_with_offset(
     e: &Effect,
     cv: &Cv,
@@ -767,10 +794,12 @@ fn coulomb_with_offset(
         &ch.bl,
         ch.mask.as_deref(),
     );
-    if cv2.rms > cv.rms * 1.02 {
+    let nb = ch.base_cols.len();
+    // the offset is kept only where the data say it is not zero (outside its own confidence
+    // interval) and it does not worsen the held-out error
+    if cv2.rms > cv.rms * 1.02 || cv2.theta[nb + 1].abs() <= CI_SIGMAS * cv2.theta_se[nb + 1] {
         return None;
     }
-    let nb = ch.base_cols.len();
     let mut ec = e.clone();
     ec.coef = vec![cv2.theta[nb], 0.0];
     let mut cf = Effect::new(EffectId::ConstantForce, ec.side, vec![]);
@@ -926,6 +955,8 @@ fn verdict(
 /// cross-validation blocks and the rows used (see [`moving_mask`]).
 struct TorqueFit<'a> {
     base_cols: &'a [&'a [f64]],
+    /// Current values of the inertias among the base parameters (see [`inertias_now`]).
+    now: &'a [f64],
     res: &'a [f64],
     bl: &'a [(usize, usize)],
     mask: Option<&'a [f64]>,
@@ -974,30 +1005,66 @@ fn condition_on_top(
     let mut cols: Vec<&[f64]> = base_cols.to_vec();
     cols.extend(top_cols.iter().map(|c| c.as_slice()));
     let cv_ref = cv_cols_masked(&cols, &[], &t_ref, bl, mk);
+    let mut now_ext = tf.now.to_vec();
+    now_ext.resize(cols.len(), 0.0);
     let mut included = Vec::new();
     for c in cands.iter_mut().skip(1) {
-        if c.is_param || !c.significant || c.channel != "torque" || c.add.is_empty() {
+        if c.is_param || c.channel != "torque" || c.add.is_empty() {
             continue;
         }
-        let mut with = with_top.clone();
-        let mut extra_cols: Vec<Vec<f64>> = Vec::new();
-        for e in &c.add {
-            match channel(e.id) {
-                Channel::TorquePath => with.effects.push(e.clone()),
-                Channel::Torque => extra_cols.extend(e.columns(d)),
-                Channel::Deflection => {}
+        let was_significant = c.significant;
+        // a single effect is refitted beyond the first one (its nonlinear parameter chosen
+        // again: the first one's misfit no longer hides it)
+        let single = (c.add.len() == 1).then(|| c.add[0].id).filter(|id| {
+            channel(*id) != Channel::Deflection
+                && (id.repeatable() || !top_add.iter().any(|t| t.id == *id))
+        });
+        let rescored =
+            single.and_then(|id| best_effect(id, &with_top, d, &cols, &now_ext, &t_ref, bl, mk));
+        let cv = match &rescored {
+            Some((_, cv)) => cv.clone(),
+            None => {
+                let mut with = with_top.clone();
+                let mut extra_cols: Vec<Vec<f64>> = Vec::new();
+                for e in &c.add {
+                    match channel(e.id) {
+                        Channel::TorquePath => with.effects.push(e.clone()),
+                        Channel::Torque => extra_cols.extend(e.columns(d)),
+                        Channel::Deflection => {}
+                    }
+                }
+                let t = if with.effects.len() > with_top.effects.len() {
+                    target_of(&with)
+                } else {
+                    t_ref.clone()
+                };
+                let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
+                cv_cols_masked(&cols, &refs, &t, bl, mk)
             }
-        }
-        let t = if with.effects.len() > with_top.effects.len() {
-            target_of(&with)
-        } else {
-            t_ref.clone()
         };
-        let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
-        let cv = cv_cols_masked(&cols, &refs, &t, bl, mk);
         let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
-        if extra < MIN_REDUCTION_PCT || wins < MIN_FOLD_WINS {
+        let nb = cols.len();
+        let inside_ci = rescored.as_ref().is_some_and(|(e, cv)| {
+            channel(e.id) == Channel::Torque
+                && cv.theta.len() > nb
+                && cv.theta[nb].abs() <= CI_SIGMAS * cv.theta_se[nb]
+        });
+        if extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && !inside_ci {
+            if let Some((e, _)) = rescored {
+                c.params = flat(&e.to_table(d.kind, d.r));
+                c.evidence = evidence(&e, d, &c.params);
+                c.add = vec![e];
+            }
+            if !was_significant {
+                c.significant = true;
+                c.error_reduction_pct = extra;
+            }
+            c.evidence = format!(
+                "{}; beyond {top_name} it lowers the cross-validated error by {extra:.1} %",
+                c.evidence
+            );
+        } else {
             c.significant = false;
             c.error_reduction_pct = extra;
             if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
