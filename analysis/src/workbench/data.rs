@@ -106,6 +106,43 @@ impl AxisData {
         self.motor_raw.is_some()
     }
 
+    /// The same data prepared with another filter cut-off (derivatives, filtered torque and
+    /// the fit range recomputed from the recorded columns).
+    pub fn with_cutoff(&self, cutoff_hz: f64) -> AxisData {
+        let fs = 1.0 / self.dt;
+        let n = self.len();
+        let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
+        let ql = filtfilt_butter4(&load_m, cutoff_hz, fs);
+        let vl = derivative(&ql, self.dt);
+        let al = derivative(&vl, self.dt);
+        let (qm, vm, am) = match &self.motor_raw {
+            Some(m) => {
+                let q = filtfilt_butter4(m, cutoff_hz, fs);
+                let v = derivative(&q, self.dt);
+                let a = derivative(&v, self.dt);
+                (q, v, a)
+            }
+            None => (ql.clone(), vl.clone(), al.clone()),
+        };
+        let torque = match &self.torque_raw {
+            Some(y) if self.torque_filtered => Some(filtfilt_butter4(y, cutoff_hz, fs)),
+            other => other.clone(),
+        };
+        let edge = ((fs / cutoff_hz).ceil() as usize * 2).min(n / 10);
+        AxisData {
+            qm,
+            vm,
+            am,
+            ql,
+            vl,
+            al,
+            torque,
+            cutoff_hz,
+            range: (edge, n - edge),
+            ..self.clone()
+        }
+    }
+
     /// The torque column or an error naming it and the method that needs it.
     pub fn require_torque(
         &self,

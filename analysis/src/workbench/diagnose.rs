@@ -590,6 +590,10 @@ fn effect_candidates(
             cands.push(viscous_candidate(d, ch));
             continue;
         }
+        if id == EffectId::ThirdMass {
+            cands.extend(mode_candidate(model, d, ch));
+            continue;
+        }
         cands.extend(torque_effect_candidate(id, model, d, ch));
     }
     untested
@@ -685,6 +689,83 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
         add: vec![e],
         channel: "torque",
     }
+}
+
+/// `third_mass`, searched where a mode shows: a structural mode of 50 to 150 Hz rings above
+/// the 100 Hz the torque channel keeps, and below it a mass that follows the table is the same
+/// as more load inertia. When the sampling allows a wider band than the channel's, the mode is
+/// searched and judged on the data filtered at a tenth of the sampling rate (at most 1 kHz):
+/// it must lower that band's cross-validated error beyond a refit of every base parameter by
+/// the usual margin, and be a resonance (damping ratio below 0.3). A mode found there is then
+/// fitted on the torque channel with the
+/// frequency and damping found in the wide band, and credited with everything it achieves
+/// there. Without a wider band it is an ordinary torque-channel candidate.
+fn mode_candidate(model: &WbModel, d: &AxisData, ch: &TorqueChannel<'_>) -> Option<Candidate> {
+    let id = EffectId::ThirdMass;
+    let wide_hz = (0.1 / d.dt).min(1000.0);
+    if wide_hz < 1.5 * d.cutoff_hz {
+        return torque_effect_candidate(id, model, d, ch);
+    }
+    let dw = d.with_cutoff(wide_hz);
+    let chw = TorqueChannel::new(model, &dw);
+    let wide = torque_effect_candidate(id, model, &dw, &chw)?;
+    let narrow = torque_effect_candidate(id, model, d, ch);
+    // a structure's mode is a resonance: lightly damped (a damping ratio of 0.3 or more is a
+    // broad-band correction of the high frequencies, not a peak the spectrum shows)
+    let resonant = wide.add[0].hyper.get(1).is_some_and(|z| *z < 0.3);
+    if !wide.significant || !resonant {
+        // not a mode in the wide band: the narrow candidate may still say something, but it
+        // cannot be significant
+        return narrow.map(|mut c| {
+            if c.significant {
+                c.significant = false;
+                c.evidence = format!(
+                    "{}; in the band up to {} Hz it {} (not significant)",
+                    c.evidence,
+                    fmt(wide_hz),
+                    if resonant {
+                        format!(
+                            "lowers the error by only {:.1} % beyond a base refit",
+                            wide.error_reduction_pct
+                        )
+                    } else {
+                        "is no resonance (damping ratio 0.3 or more)".to_string()
+                    }
+                );
+            }
+            c
+        });
+    }
+    // the mode of the wide band, its coefficient refitted on the torque channel
+    let e = wide.add[0].clone();
+    let cols = e.columns(d);
+    let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    let cv = cv_cols_masked(&ch.base_cols, &refs, &ch.res, &ch.bl, ch.mask.as_deref());
+    let nb = ch.base_cols.len();
+    let mut e = e;
+    e.coef = vec![cv.theta.get(nb).copied().unwrap_or(0.0)];
+    let params = flat(&e.to_table(d.kind, d.r));
+    let (a, b) = d.range;
+    let red = (100.0 * (ch.e0 - cv.rms) / ch.e0).max(100.0 * (ch.cvb.rms - cv.rms) / ch.e0);
+    Some(Candidate {
+        effect: id.to_string(),
+        is_param: false,
+        class: class_of(id).into(),
+        significant: true,
+        // a mode that the data single out ranks before the inertia refit it also explains
+        error_reduction_pct: red.min(100.0),
+        evidence: format!(
+            "{}; in the band up to {} Hz it lowers the error by {:.1} % beyond a refit of the base parameters",
+            evidence(&e, d, &params),
+            fmt(wide_hz),
+            wide.error_reduction_pct
+        ),
+        params,
+        same_as: vec![],
+        contribution: decimate(&e.contribution(d), a, b),
+        add: vec![e],
+        channel: "torque",
+    })
 }
 
 /// An effect of the torque channel, refitted together with every base parameter. It is

@@ -879,7 +879,8 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
     }
 }
 
-pub(crate) fn class_of(id: EffectId) -> &'static str {
+/// Identifiability class of effect `id` (the name a diagnosis groups candidates under).
+pub fn class_of(id: EffectId) -> &'static str {
     match id {
         EffectId::ViscousFriction => "damping",
         EffectId::CoulombFriction | EffectId::StribeckFriction => "friction",

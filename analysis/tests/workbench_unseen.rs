@@ -1,0 +1,386 @@
+//! The workbench on traces it has never seen (issue 14): closed-loop traces of a ball-screw axis
+//! from the independent generator of `heldout/` (RK4 two-mass axis with its own effect forms,
+//! 4 kHz, 20-bit encoder, 10 nm scale, velocity noise), with other parameters, seeds and noise
+//! levels than the baseline report of `workbench_heldout.rs`.
+//!
+//! For every trace: the hidden effect's class is the first significant candidate (nothing is
+//! significant on a right model); adding the first candidate cuts the error of the channel
+//! where it shows (equation, controller or windowed simulation) by at least 70 % and raises
+//! no other channel; the guided loop ends with exactly the hidden effects' classes. An input
+//! added after the controller is named and dated, not fitted; declared as a known input it
+//! closes the controller channel and brings the windowed simulation within 2x of its figure
+//! without the input.
+
+mod heldout;
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use feedloop_analysis::workbench::{
+    auto::auto,
+    data::{load_axis, AxisData, Prep},
+    diagnose::{diagnose, DiagOptions, Diagnosis},
+    effects::{base_class, class_of, EffectId, WbModel},
+    fit::{fit_with, Errors},
+    window::window_sim,
+};
+use feedloop_trace::Trace;
+use heldout::*;
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("feedloop-unseen-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn noise(v: f64, seed: u64) -> Noise {
+    Noise {
+        vel_noise_rad_per_s: v,
+        seed,
+    }
+}
+
+/// Generates, reads and diagnoses one trace.
+fn case(
+    name: &str,
+    h: &Hidden,
+    nz: Noise,
+    smooth: bool,
+) -> (WbModel, AxisData, Diagnosis, Run, PathBuf) {
+    let dir = tmp(name);
+    let mv = Moves {
+        smooth,
+        ..Moves::default()
+    };
+    let (trace, model, run) = generate(&dir, name, &Axis::default(), h, &nz, &mv).unwrap();
+    let tr = Trace::read(&trace).unwrap();
+    let m = WbModel::load(&model).unwrap();
+    let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    (m, d, dg, run, trace)
+}
+
+fn table(dg: &Diagnosis) -> String {
+    dg.candidates
+        .iter()
+        .filter(|c| c.significant)
+        .map(|c| {
+            format!(
+                "{} ({}, {}) {:.1} %",
+                c.effect, c.class, c.channel, c.error_reduction_pct
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+        + " | "
+        + &dg.verdict
+}
+
+/// The class of a guided-loop step label (`refit KEY`, `ID`, `ID (replaces ...)`).
+fn step_class(label: &str) -> String {
+    match label.strip_prefix("refit ") {
+        Some(k) => base_class(k).to_string(),
+        None => {
+            let id = label.split_whitespace().next().unwrap();
+            class_of(EffectId::parse(id).unwrap()).to_string()
+        }
+    }
+}
+
+fn err_of(e: &Errors, channel: &str) -> f64 {
+    match channel {
+        "controller" => e.controller_nrmse_pct,
+        "deflection" => e.window_sim_nrmse_pct,
+        _ => e.equation_nrmse_pct,
+    }
+    .unwrap()
+}
+
+/// The checks of the module doc for a trace whose hidden effects have the classes `expect`
+/// (the first significant candidate is in `expect[0]`'s class or, for two hidden effects, in
+/// either).
+fn check(name: &str, h: Hidden, nz: Noise, smooth: bool, expect: &[&str]) {
+    let (m, d, dg, _, _) = case(name, &h, nz, smooth);
+    let first = dg.candidates.iter().find(|c| c.significant);
+    let Some(top) = first else {
+        panic!("{name}: nothing significant; {}", table(&dg));
+    };
+    assert!(
+        expect.contains(&top.class.as_str()),
+        "{name}: first significant is {} (class {}), hidden {expect:?}; {}",
+        top.effect,
+        top.class,
+        table(&dg)
+    );
+    // adding the first candidate cuts its channel's error and raises no other
+    let free = top.is_param.then(|| vec![top.effect.clone()]);
+    let r = fit_with(&m, &d, top.add.clone(), free.as_deref(), 0.05).unwrap();
+    let (b, a) = (
+        err_of(&r.before, top.channel),
+        err_of(&r.after, top.channel),
+    );
+    println!(
+        "{name}: {} on {}: {b:.3} -> {a:.3} %; before {:?}; after {:?}",
+        top.effect, top.channel, r.before, r.after
+    );
+    assert!(
+        a <= 0.3 * b,
+        "{name}: adding {} cuts its channel ({}) only from {b:.3} to {a:.3} %",
+        top.effect,
+        top.channel
+    );
+    for (what, x, y) in [
+        (
+            "equation",
+            r.before.equation_nrmse_pct,
+            r.after.equation_nrmse_pct,
+        ),
+        (
+            "windowed simulation",
+            r.before.window_sim_nrmse_pct,
+            r.after.window_sim_nrmse_pct,
+        ),
+        (
+            "controller",
+            r.before.controller_nrmse_pct,
+            r.after.controller_nrmse_pct,
+        ),
+    ] {
+        let (x, y) = (x.unwrap(), y.unwrap());
+        assert!(
+            y <= 1.1 * x + 0.5,
+            "{name}: adding {} raises the {what} error from {x:.3} to {y:.3} %",
+            top.effect
+        );
+    }
+    // the guided loop ends with exactly the hidden classes
+    let a = auto(&m, &d, 0.05, 5).unwrap();
+    let added: Vec<String> = a
+        .steps
+        .iter()
+        .skip(1)
+        .flat_map(|s| s.added.clone())
+        .collect();
+    let classes: BTreeSet<String> = added.iter().map(|l| step_class(l)).collect();
+    let want: BTreeSet<String> = expect.iter().map(|s| s.to_string()).collect();
+    assert_eq!(
+        classes, want,
+        "{name}: the guided loop added {added:?}; {}",
+        a.last.verdict
+    );
+}
+
+/// Nothing significant, and the verdict does not claim an effect.
+fn check_right(name: &str, nz: Noise) {
+    let (_, _, dg, _, _) = case(name, &Hidden::default(), nz, true);
+    assert!(
+        dg.candidates.iter().all(|c| !c.significant),
+        "{name}: {}",
+        table(&dg)
+    );
+    assert!(
+        dg.verdict.starts_with("no missing effect found"),
+        "{name}: {}",
+        dg.verdict
+    );
+}
+
+#[test]
+fn a_right_model_at_three_noise_levels_has_no_significant_candidate() {
+    check_right("right-quiet", noise(5e-4, 41));
+    check_right("right-mid", noise(0.02, 42));
+    check_right("right-loud", noise(0.1, 43));
+}
+
+#[test]
+fn a_drive_clamp_recorded_after_clamping_is_named_from_the_controller_channel() {
+    let sat = |l: f64| Hidden {
+        saturation: Some(Saturation {
+            limit_nm: l,
+            record: Record::Clamped,
+        }),
+        ..Hidden::default()
+    };
+    check(
+        "clamped-6",
+        sat(6.0),
+        noise(0.02, 51),
+        true,
+        &["saturation"],
+    );
+    check(
+        "clamped-4",
+        sat(4.0),
+        noise(0.005, 52),
+        false,
+        &["saturation"],
+    );
+    // the limit is the one the drive had
+    let (_, _, dg, _, _) = case("clamped-4b", &sat(4.0), noise(0.005, 53), true);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    let l = top.params["limit_nm"];
+    assert!((l - 4.0).abs() < 0.04, "limit {l}; {}", table(&dg));
+    assert_eq!(top.channel, "controller");
+}
+
+#[test]
+fn a_drive_clamp_recorded_before_clamping_is_named_from_the_torque_balance() {
+    let h = Hidden {
+        saturation: Some(Saturation {
+            limit_nm: 6.5,
+            record: Record::Unclamped,
+        }),
+        ..Hidden::default()
+    };
+    check("unclamped-6.5", h, noise(0.01, 54), true, &["saturation"]);
+}
+
+#[test]
+fn a_constant_force_without_a_friction_step_is_named_constant_force() {
+    let f = |n: f64| Hidden {
+        constant_force_n: n,
+        ..Hidden::default()
+    };
+    check("force+250", f(250.0), noise(0.01, 61), true, &["offset"]);
+    check("force-60", f(-60.0), noise(0.08, 62), false, &["offset"]);
+}
+
+#[test]
+fn smooth_dry_friction_and_extra_damping_are_named_in_their_classes() {
+    let fric = Hidden {
+        friction: Some(Friction {
+            fc_n: 60.0,
+            v_eps_m_per_s: 2e-4,
+        }),
+        ..Hidden::default()
+    };
+    check("tanh-60", fric, noise(0.03, 71), true, &["friction"]);
+    let visc = Hidden {
+        viscous_ns_per_m: 800.0,
+        ..Hidden::default()
+    };
+    check("viscous-800", visc, noise(0.01, 72), true, &["damping"]);
+}
+
+#[test]
+fn a_strongly_excited_mass_behind_the_table_is_named_a_mode() {
+    let h = Hidden {
+        third_mass: Some(ThirdMass {
+            mass_kg: 250.0,
+            freq_hz: 90.0,
+            zeta: 0.03,
+        }),
+        ..Hidden::default()
+    };
+    check("mode-250-90", h, noise(0.02, 81), false, &["mode"]);
+}
+
+#[test]
+fn a_one_period_drive_delay_with_friction_gives_both_classes_and_nothing_else() {
+    let h = Hidden {
+        delay_cycles: 1,
+        friction: Some(Friction {
+            fc_n: 50.0,
+            v_eps_m_per_s: 1e-4,
+        }),
+        ..Hidden::default()
+    };
+    check(
+        "delay+friction",
+        h,
+        noise(0.02, 91),
+        true,
+        &["friction", "delay"],
+    );
+}
+
+fn pulses() -> Pulses {
+    Pulses {
+        amplitude_nm: 1.2,
+        start_s: 0.45,
+        period_s: 0.7,
+        width_s: 0.2,
+    }
+}
+
+#[test]
+fn an_input_added_after_the_controller_is_named_and_dated_and_declaring_it_closes_the_loop() {
+    let h = Hidden {
+        pulses: Some(pulses()),
+        ..Hidden::default()
+    };
+    let (m, d, dg, run, trace) = case("pulses", &h, noise(0.02, 101), true);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert_eq!(top.effect, "added_input", "{}", table(&dg));
+    assert_eq!(top.channel, "controller");
+    // the events are the pulses: their count, first start, period and size
+    let p = pulses();
+    let t_end = *run.t.last().unwrap();
+    let expected = ((t_end - p.start_s) / p.period_s).ceil() as f64;
+    assert!(
+        (top.params["events"] - expected).abs() <= 1.0,
+        "{:?} (expected about {expected} events)",
+        top.params
+    );
+    assert!(
+        (top.params["first_start_s"] - p.start_s).abs() <= 2.0 * PERIOD_S,
+        "{:?}",
+        top.params
+    );
+    assert!(
+        (top.params["period_s"] - p.period_s).abs() <= 2.0 * PERIOD_S,
+        "{:?}",
+        top.params
+    );
+    assert!(
+        (top.params["median_size"] - p.amplitude_nm).abs() < 0.02 * p.amplitude_nm,
+        "{:?}",
+        top.params
+    );
+    // the guided loop adds nothing for it and says what to do
+    let a = auto(&m, &d, 0.05, 3).unwrap();
+    assert_eq!(a.steps.len(), 1, "{}", a.last.verdict);
+    assert!(a.last.verdict.contains("torque_add"), "{}", a.last.verdict);
+    // declared as a known input (a column `x.torque_add`), the controller channel closes and
+    // the windowed closed-loop simulation falls by 70 % or more
+    let tr = Trace::read(&trace).unwrap();
+    let mut names = tr.columns.clone();
+    let mut cols: Vec<Vec<f64>> = names
+        .iter()
+        .map(|c| tr.column(c).unwrap().to_vec())
+        .collect();
+    names.push("x.torque_add".into());
+    cols.push(tr.t().iter().map(|t| p.at(*t)).collect());
+    let tr2 = Trace::from_columns(Path::new("pulses-declared.csv"), vec![], names, cols).unwrap();
+    let d2 = load_axis(&tr2, &m.file, "x", &Prep::default()).unwrap();
+    let (w1, w2) = (
+        window_sim(&m, &d, 0.05).headline_nrmse_pct().unwrap(),
+        window_sim(&m, &d2, 0.05).headline_nrmse_pct().unwrap(),
+    );
+    // the windowed simulation of the right model on the same moves, seed and noise without
+    // pulses: the floor that noise leaves
+    let (m0, d0, _, _, _) = case("pulses-none", &Hidden::default(), noise(0.02, 101), true);
+    let w0 = window_sim(&m0, &d0, 0.05).headline_nrmse_pct().unwrap();
+    println!(
+        "windowed simulation: {w1:.3} % undeclared, {w2:.3} % declared, {w0:.3} % without pulses"
+    );
+    // (the issue's measure for the EMPS pulses record: within 2x of the figure without the
+    // added input; the pulses' steps ring the screw's spring mode, which windows restarted from
+    // the measured state cannot know)
+    assert!(
+        w2 <= 2.0 * w0 && w2 < w1,
+        "windowed simulation {w1:.2} -> {w2:.2} % (without pulses {w0:.2} %)"
+    );
+    let dg2 = diagnose(&m, &d2, &DiagOptions::default());
+    assert!(
+        dg2.candidates.iter().all(|c| !c.significant),
+        "{}",
+        table(&dg2)
+    );
+    let c = dg2.controller.as_ref().unwrap();
+    assert_eq!(c["fails"], false, "{c}");
+    assert!(
+        (c["added_input_gain"].as_f64().unwrap() - 1.0).abs() < 0.01,
+        "{c}"
+    );
+}
