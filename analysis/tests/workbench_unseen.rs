@@ -316,7 +316,7 @@ fn an_input_added_after_the_controller_is_named_and_dated_and_declaring_it_close
     // the events are the pulses: their count, first start, period and size
     let p = pulses();
     let t_end = *run.t.last().unwrap();
-    let expected = ((t_end - p.start_s) / p.period_s).ceil() as f64;
+    let expected = ((t_end - p.start_s) / p.period_s).ceil();
     assert!(
         (top.params["events"] - expected).abs() <= 1.0,
         "{:?} (expected about {expected} events)",
