@@ -135,3 +135,71 @@ fn emps_fit_with_coulomb_and_offset_reproduces_the_published_estimates() {
     println!("EMPS windowed simulation NRMSE {wb:.2} % -> {wa:.2} %, relative force error {before:.2} % -> {e:.2} %");
     assert!(wa < 0.4 * wb, "windowed simulation NRMSE {wb} -> {wa}");
 }
+
+/// The validation record with its added pulses (`x.pulses`), read with `added_input` as given.
+fn pulses_record(
+    added_input: Option<&str>,
+) -> Option<feedloop_analysis::workbench::data::AxisData> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_pulses.csv");
+    if !p.exists() {
+        eprintln!("skipped: {} is absent", p.display());
+        return None;
+    }
+    let tr = Trace::read(&p).unwrap();
+    let model_path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/emps-nominal.toml");
+    let m = WbModel::load(&model_path).unwrap();
+    let prep = Prep {
+        added_input: added_input.map(String::from),
+        ..Prep::default()
+    };
+    Some(load_axis(&tr, &m.file, "x", &prep).unwrap())
+}
+
+#[test]
+fn emps_pulses_are_seen_undeclared_as_an_input_after_the_controller_with_their_switching_times() {
+    let Some((m, d_est)) = setup() else { return };
+    let Some(d) = pulses_record(None) else { return };
+    // the model `fit` makes from the estimation record
+    let add = [EffectId::CoulombFriction, EffectId::ConstantForce];
+    let fitted = fit(&m, &d_est, &add, None, 0.05).unwrap().model;
+    let dg = diagnose(&fitted, &d, &DiagOptions::default());
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert_eq!(top.effect, "added_input", "{}", dg.verdict);
+    // 25 pulses of 0.5 s from 0.344 s every second, about 178 N (the README's own check)
+    assert_eq!(top.params["events"], 25.0, "{:?}", top.params);
+    assert!((top.params["first_start_s"] - 0.344).abs() < 0.002);
+    assert!((top.params["period_s"] - 1.0).abs() < 0.002);
+    assert!((top.params["median_size"] - 178.2).abs() < 1.0);
+    let c = compare(&fitted, &d, 0.05);
+    let cc = c.controller.as_ref().unwrap();
+    assert!(cc.fails());
+    assert_eq!(cc.events(&d).len(), 25);
+}
+
+#[test]
+fn emps_pulses_declared_bring_the_closed_loop_simulation_within_2x_of_the_estimation_record() {
+    let Some((m, d_est)) = setup() else { return };
+    let Some(d) = pulses_record(Some("x.pulses")) else {
+        return;
+    };
+    let add = [EffectId::CoulombFriction, EffectId::ConstantForce];
+    let fitted = fit(&m, &d_est, &add, None, 0.05).unwrap().model;
+    let est = compare(&fitted, &d_est, 0.05)
+        .sim
+        .headline_nrmse_pct()
+        .unwrap();
+    let undeclared = pulses_record(None).unwrap();
+    let before = compare(&fitted, &undeclared, 0.05)
+        .sim
+        .headline_nrmse_pct()
+        .unwrap();
+    let c = compare(&fitted, &d, 0.05);
+    let w = c.sim.headline_nrmse_pct().unwrap();
+    println!("EMPS windowed simulation NRMSE: estimation {est:.2} %, pulses undeclared {before:.2} %, declared {w:.2} %");
+    assert!(w <= 2.0 * est, "{w} vs {est} on the estimation record");
+    assert!(w < 0.2 * before, "{before} -> {w}");
+    // the record holds the pulses at their own scale (1.4 % above the nominal 5 V)
+    let g = c.controller.as_ref().unwrap().added_gain.unwrap();
+    assert!((g - 1.014).abs() < 0.005, "{g}");
+}
