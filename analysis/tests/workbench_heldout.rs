@@ -6,8 +6,9 @@
 //!
 //! Baseline, 2026-11-24 (release build, `cargo test --release -p feedloop-analysis --test
 //! workbench_heldout -- --ignored --nocapture`; velocity noise low 0.002 / high 0.05 rad/s;
-//! `match`: the first significant candidate's class is the hidden effect's (for `none` and for
-//! the pulses, which the torque column carries: nothing significant); `partial`: another class
+//! `match`: the first significant candidate's class is the hidden effect's (for `none`:
+//! nothing significant; for the pulses, at the baseline, nothing significant, since then: the
+//! class `input`); `partial`: another class
 //! whose effects include the hidden one; 26 of 36 match):
 //!
 //! | kind | level | noise | first significant: class / ids (reduction) | match | other significant | peak u N m | gen+diag |
@@ -55,6 +56,16 @@
 //! mass's 80 kg r^2 exactly); constant force -> offset 100 / 500 N with fc ~ 1e-3 N;
 //! delay + Coulomb 30 / 100 N -> fc 34.0 / 104.1 N, the delay itself never named (a current lag
 //! at 30 N); tanh Coulomb -> Stribeck with fc within 0.1 %, fs about 9 % above.
+//!
+//! After issue 14's work (same command; the report now also prints the first candidate's fit,
+//! equation / windowed / controller NRMSE before and after, and the guided loop's additions):
+//! 34 of 36 match. The clamped records are named `torque_saturation` from the controller channel
+//! (its NRMSE 157-203 % -> 0, windowed simulation 20-115 % -> 0.4-1.8 %); the pulses are named
+//! `added_input` with their times; the constant force is `constant_force` (offset); delay +
+//! Coulomb: friction first, then a delay-class candidate beside it (`current_lag` or `delay`),
+//! and the guided loop ends with friction and delay; the unclamped 5 N m limit is found at
+//! 5.0 N m (the fit keeps the inertias physical). Not named: the 80 kg mass on a 120 Hz mode under
+//! smooth ramps (load inertia +6.8 %, twice), which those moves do not excite.
 
 #![allow(clippy::needless_range_loop)]
 
@@ -521,8 +532,33 @@ fn cases() -> Vec<Case> {
 #[test]
 #[ignore]
 fn heldout_baseline_report() {
-    let dir = tmp("baseline");
-    let ax = Axis::default();
+    report("baseline", &Axis::default(), 11);
+}
+
+/// The same cases on another axis: lighter motor, heavier table, stiffer and longer-lead screw,
+/// other gains and limit, other seeds.
+#[test]
+#[ignore]
+fn heldout_other_axis_report() {
+    let ax = Axis {
+        jm: 1.2e-3,
+        dm: 5e-4,
+        kl: 8000.0,
+        cl: 0.05,
+        jl: 5.0e-3,
+        dl: 3e-3,
+        lead_m: 0.02,
+        kp: 60.0,
+        kv: 5.0,
+        tv: 0.006,
+        limit_nm: 25.0,
+    };
+    report("other-axis", &ax, 211);
+}
+
+fn report(label: &str, ax: &Axis, seed0: u64) {
+    let dir = tmp(label);
+    let ax = ax.clone();
     let mut rows = Vec::new();
     let mut hits = 0;
     let mut total = 0;
@@ -530,7 +566,7 @@ fn heldout_baseline_report() {
     let mut false_claims = Vec::new();
     for (ci, c) in cases().iter().enumerate() {
         for (nl, nv) in [("low", LOW_NOISE), ("high", HIGH_NOISE)] {
-            let seed = 11 + ci as u64 % 2;
+            let seed = seed0 + ci as u64 % 2;
             let name = format!("case{ci:02}-{nl}");
             let mv = Moves {
                 smooth: !c.steps,

@@ -38,6 +38,12 @@ pub const FOLDS: usize = 5;
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
 pub const MIN_FOLD_WINS: usize = 4;
+/// Smallest error reduction that counts on the torque channel, as a fraction of the applied
+/// torque's RMS (0.1 %: below it, a change of the model changes nothing a servo engineer sees,
+/// and on an exact or noise-free record the remaining misfit is the numerics of the
+/// derivatives, which a parameter refit can always shave).
+pub const MATERIAL_FRACTION: f64 = 1e-3;
+
 /// Smallest deflection effect that counts, m at the load (the finest linear scales of feed
 /// drives resolve about 1 nm).
 pub const DEFLECTION_FLOOR_M: f64 = 1e-9;
@@ -417,6 +423,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
     let now = inertias_now(model, &ch.free_keys);
     let tf = TorqueFit {
+        min_pct: ch.min_pct,
         base_cols: &ch.base_cols,
         now: &now,
         res: &ch.res,
@@ -460,6 +467,10 @@ struct TorqueChannel<'d> {
     e0: f64,
     /// Cross-validation with every base parameter refitted.
     cvb: Cv,
+    /// Smallest reduction that counts on this channel, % of the model's error:
+    /// [`MIN_REDUCTION_PCT`], or [`MATERIAL_FRACTION`] of the applied torque's RMS when that is
+    /// more (a model whose error is already far below the torque has nothing left to name).
+    min_pct: f64,
 }
 
 impl<'d> TorqueChannel<'d> {
@@ -483,7 +494,11 @@ impl<'d> TorqueChannel<'d> {
         let cv0 = cv_cols_masked(&[], &[], &res, &bl, mask.as_deref());
         let e0 = cv0.rms.max(1e-300);
         let cvb = cv_cols_masked(&base_cols, &[], &res, &bl, mask.as_deref());
+        let (a, b) = d.range;
+        let material = MATERIAL_FRACTION * rms(&y_app[a..b]);
+        let min_pct = MIN_REDUCTION_PCT.max(100.0 * material / e0);
         Self {
+            min_pct,
             y_app,
             res,
             bl,
@@ -522,7 +537,7 @@ fn base_parameter_candidates(
             effect: k.to_string(),
             is_param: true,
             class: base_class(k).to_string(),
-            significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && outside,
+            significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && outside,
             error_reduction_pct: red.min(100.0),
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({:+.1} %, +-{} at {CI_SIGMAS} standard errors{})",
@@ -680,7 +695,7 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
         effect: id.to_string(),
         is_param: false,
         class: "damping".into(),
-        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS,
+        significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS,
         error_reduction_pct: red.min(100.0),
         evidence: evidence(&e, d, &params),
         params,
@@ -792,7 +807,7 @@ fn torque_effect_candidate(
     }
     let extra = 100.0 * (ch.cvb.rms - cv.rms) / ch.e0;
     let wins = fold_wins(&cv, &ch.cvb.fold_mse);
-    let mut significant = extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS;
+    let mut significant = extra >= ch.min_pct && wins >= MIN_FOLD_WINS;
     let mut extra = extra;
     // its leading coefficient must lie outside its own confidence interval around zero
     let nb = ch.base_cols.len();
@@ -809,7 +824,7 @@ fn torque_effect_candidate(
         let one = vec![1.0; d.len()];
         let cv_off = cv_cols_masked(&ch.base_cols, &[&one], &ch.res, &ch.bl, mk);
         let beyond = 100.0 * (cv_off.rms - cv.rms) / ch.e0;
-        if beyond < MIN_REDUCTION_PCT || fold_wins(&cv, &cv_off.fold_mse) < MIN_FOLD_WINS {
+        if beyond < ch.min_pct || fold_wins(&cv, &cv_off.fold_mse) < MIN_FOLD_WINS {
             significant = false;
             extra = beyond;
             ev = format!(
@@ -1035,6 +1050,8 @@ fn verdict(
 /// What the torque channel's candidates are scored with: the base columns, the residual, the
 /// cross-validation blocks and the rows used (see [`moving_mask`]).
 struct TorqueFit<'a> {
+    /// Smallest reduction that counts, % of the model's error (see [`TorqueChannel`]).
+    min_pct: f64,
     base_cols: &'a [&'a [f64]],
     /// Current values of the inertias among the base parameters (see [`inertias_now`]).
     now: &'a [f64],
@@ -1131,7 +1148,7 @@ fn condition_on_top(
                 && cv.theta.len() > nb
                 && cv.theta[nb].abs() <= CI_SIGMAS * cv.theta_se[nb]
         });
-        if extra >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && !inside_ci {
+        if extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci {
             if let Some((e, _)) = rescored {
                 c.params = flat(&e.to_table(d.kind, d.r));
                 c.evidence = evidence(&e, d, &c.params);
