@@ -164,13 +164,37 @@ pub enum ModelCmd {
     },
 }
 
+/// Reads the model and the trace's axis it describes; `need_torque` names what needs the torque
+/// column when one does. The trace itself is dropped once its axis is prepared.
 fn load(
     trace: &Path,
     model: &Path,
     c: &Common,
-) -> Result<(Trace, WbModel, AxisData), WorkbenchError> {
-    let tr = Trace::read(trace)?;
+    need_torque: Option<&str>,
+) -> Result<(WbModel, AxisData), WorkbenchError> {
     let m = WbModel::load(model)?;
+    // read only the columns of the axis the model describes (and the declared added input):
+    // a long multi-axis trace then takes one axis' memory
+    let header = Trace::read_header(trace)?;
+    let cmd_axes: Vec<&str> = header
+        .iter()
+        .filter_map(|h| h.strip_suffix(".cmd"))
+        .collect();
+    let chosen = match (&c.axis, cmd_axes.as_slice()) {
+        (Some(a), _) => Some(a.clone()),
+        (None, [one]) => Some(one.to_string()),
+        _ => None,
+    };
+    let tr = match &chosen {
+        Some(a) => {
+            let prefix = format!("{a}.");
+            let added = c.added_input.clone();
+            Trace::read_columns(trace, &|name: &str| {
+                name.starts_with(&prefix) || added.as_deref() == Some(name)
+            })?
+        }
+        None => Trace::read(trace)?,
+    };
     let axis = pick_axis(&tr, model, c.axis.as_deref())?;
     let d = load_axis(
         &tr,
@@ -182,7 +206,11 @@ fn load(
             added_input: c.added_input.clone(),
         },
     )?;
-    Ok((tr, m, d))
+    if let Some(why) = need_torque {
+        d.require_torque(why, &tr)?;
+    }
+    drop(tr);
+    Ok((m, d))
 }
 
 fn mkdir(dir: &Path) -> anyhow::Result<()> {
@@ -252,8 +280,12 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             max_steps,
             common,
         } => {
-            let (tr, m, d) = load(&trace, &model, &common)?;
-            d.require_torque("diagnose (the equation error is measured on it)", &tr)?;
+            let (m, d) = load(
+                &trace,
+                &model,
+                &common,
+                Some("diagnose (the equation error is measured on it)"),
+            )?;
             if guided {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
                 diagnose_auto(&m, &d, &out, max_steps, &common)?;
@@ -337,7 +369,7 @@ fn init_model(
 
 /// `feedloop compare`.
 fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyhow::Result<()> {
-    let (_tr, m, d) = load(trace, model, common)?;
+    let (m, d) = load(trace, model, common, None)?;
     let c = compare(&m, &d, common.window_s);
     mkdir(out)?;
     let mut j = c.to_json(&d);
@@ -467,7 +499,7 @@ fn fit_cmd(
     out: &Path,
     common: &Common,
 ) -> anyhow::Result<()> {
-    let (_tr, m, d) = load(trace, model, common)?;
+    let (m, d) = load(trace, model, common, None)?;
     let add = parse_effects(add)?;
     let r = fit(&m, &d, &add, free, common.window_s)?;
     r.model.write(out)?;

@@ -3,7 +3,7 @@
 
 use serde_json::{json, Value};
 
-use super::controller::ControllerChannel;
+use super::controller::{event_shares, torque_events, ControllerChannel};
 use super::data::AxisData;
 use super::effects::WbModel;
 use super::signal::{nrmse_pct, quantile, relative_error_pct, rms};
@@ -314,6 +314,8 @@ impl Comparison {
             .collect();
         let mut channels = serde_json::Map::new();
         if let Some(e) = &self.eq {
+            let ev = torque_events(&e.residual, &e.measured, d);
+            let (share, time) = event_shares(&e.residual, d.range, &ev);
             channels.insert(
                 "torque".into(),
                 json!({
@@ -321,6 +323,12 @@ impl Comparison {
                     "equation_fit_pct": 100.0 - e.nrmse_pct,
                     "equation_rms": e.rms,
                     "relative_error_pct": e.relative_error_pct,
+                    "events": ev.iter().take(50).map(|e| json!({
+                        "t_start_s": e.start_s, "t_end_s": e.end_s, "mean": e.mean, "peak": e.peak,
+                    })).collect::<Vec<_>>(),
+                    "event_count": ev.len(),
+                    "event_energy_share_pct": share,
+                    "event_time_share_pct": time,
                 }),
             );
         }

@@ -337,59 +337,17 @@ impl ControllerChannel {
     }
 
     /// Stretches where the residual stands out of its noise (above six times the noise floor
-    /// and 1 % of the recorded torque's RMS), gaps shorter than 2 ms merged, single samples
-    /// dropped.
+    /// and 1 % of the recorded torque's RMS); see [`find_events`].
     pub fn events(&self, d: &AxisData) -> Vec<Event> {
         let (a, b) = self.range;
         let thr = (6.0 * self.noise_rms).max(0.01 * rms(&self.recorded[a..b]));
-        let gap = ((2e-3 / d.dt).ceil() as usize).max(2);
-        let mut out = Vec::new();
-        let mut k = a;
-        while k < b {
-            if self.residual[k].abs() <= thr {
-                k += 1;
-                continue;
-            }
-            let s = k;
-            let mut last = k;
-            while k < b && k - last <= gap {
-                if self.residual[k].abs() > thr {
-                    last = k;
-                }
-                k += 1;
-            }
-            let e = last + 1;
-            if e - s >= 2 {
-                let r = &self.residual[s..e];
-                out.push(Event {
-                    start: s,
-                    end: e,
-                    start_s: d.t[s],
-                    end_s: d.t[e - 1],
-                    mean: r.iter().sum::<f64>() / r.len() as f64,
-                    peak: r.iter().fold(0.0f64, |m, x| m.max(x.abs())),
-                });
-            }
-        }
-        out
+        find_events(&self.residual, self.range, thr, d)
     }
 
     /// Share of the residual's energy inside `events`, and the share of the time they cover, %.
     pub fn event_shares(&self, d: &AxisData, events: &[Event]) -> (f64, f64) {
-        let (a, b) = self.range;
-        let total: f64 = self.residual[a..b].iter().map(|x| x * x).sum::<f64>();
         let _ = d;
-        let (mut inside, mut cnt) = (0.0, 0usize);
-        for e in events {
-            for k in e.start.max(a)..e.end.min(b) {
-                inside += self.residual[k] * self.residual[k];
-                cnt += 1;
-            }
-        }
-        (
-            100.0 * inside / total.max(1e-300),
-            100.0 * cnt as f64 / (b - a).max(1) as f64,
-        )
+        event_shares(&self.residual, self.range, events)
     }
 
     /// JSON of the channel (without the series).
@@ -413,4 +371,68 @@ impl ControllerChannel {
             "event_time_share_pct": time,
         })
     }
+}
+
+/// Stretches of `residual` (within `range`) whose magnitude exceeds `thr`, gaps shorter than
+/// 2 ms merged, single samples dropped: what happened at a time rather than all along (an
+/// input switched on, a collision, a clamp hitting).
+pub fn find_events(residual: &[f64], range: (usize, usize), thr: f64, d: &AxisData) -> Vec<Event> {
+    let (a, b) = range;
+    let gap = ((2e-3 / d.dt).ceil() as usize).max(2);
+    let mut out = Vec::new();
+    let mut k = a;
+    while k < b {
+        if residual[k].abs() <= thr {
+            k += 1;
+            continue;
+        }
+        let s = k;
+        let mut last = k;
+        while k < b && k - last <= gap {
+            if residual[k].abs() > thr {
+                last = k;
+            }
+            k += 1;
+        }
+        let e = last + 1;
+        if e - s >= 2 {
+            let r = &residual[s..e];
+            out.push(Event {
+                start: s,
+                end: e,
+                start_s: d.t[s],
+                end_s: d.t[e - 1],
+                mean: r.iter().sum::<f64>() / r.len() as f64,
+                peak: r.iter().fold(0.0f64, |m, x| m.max(x.abs())),
+            });
+        }
+    }
+    out
+}
+
+/// Share of `residual`'s energy (within `range`) inside `events`, and the share of the time
+/// they cover, %.
+pub fn event_shares(residual: &[f64], range: (usize, usize), events: &[Event]) -> (f64, f64) {
+    let (a, b) = range;
+    let total: f64 = residual[a..b].iter().map(|x| x * x).sum::<f64>();
+    let (mut inside, mut cnt) = (0.0, 0usize);
+    for e in events {
+        let (s, t) = (e.start.max(a), e.end.min(b));
+        if s < t {
+            inside += residual[s..t].iter().map(|x| x * x).sum::<f64>();
+            cnt += t - s;
+        }
+    }
+    (
+        100.0 * inside / total.max(1e-300),
+        100.0 * cnt as f64 / (b - a).max(1) as f64,
+    )
+}
+
+/// Events of the torque balance's residual: where it stands out of its own noise floor (six
+/// times, and 1 % of the measured torque's RMS).
+pub fn torque_events(residual: &[f64], measured: &[f64], d: &AxisData) -> Vec<Event> {
+    let (a, b) = d.range;
+    let thr = (6.0 * noise_floor(&residual[a..b])).max(0.01 * rms(&measured[a..b]));
+    find_events(residual, d.range, thr, d)
 }

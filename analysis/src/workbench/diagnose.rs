@@ -20,6 +20,8 @@
 
 use std::collections::BTreeMap;
 
+use rayon::prelude::*;
+
 use serde_json::{json, Value};
 
 use super::controller::ControllerChannel;
@@ -342,10 +344,13 @@ pub fn best_effect(
         }
         Some((e, cv))
     };
+    // the grid's points are independent: scored in parallel, the best kept (the first on a tie,
+    // so the result does not depend on the thread count)
+    let scored: Vec<Option<(Effect, Cv)>> = grid.par_iter().map(|h| eval(h.clone())).collect();
     let mut best: Option<(Effect, Cv)> = None;
     let mut best_i = 0;
-    for (i, h) in grid.iter().enumerate() {
-        if let Some((e, cv)) = eval(h.clone()) {
+    for (i, r) in scored.into_iter().enumerate() {
+        if let Some((e, cv)) = r {
             if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
                 best = Some((e, cv));
                 best_i = i;

@@ -58,6 +58,34 @@ impl Trace {
         Self::from_reader_sized(path, BufReader::with_capacity(1 << 16, f), size)
     }
 
+    /// Reads and validates the trace file at `path` like [`Trace::read`] (every cell of every
+    /// column is checked), but keeps only the time column and the columns for which `keep`
+    /// is true: a long trace of many axes read for one of them takes that axis' memory only.
+    pub fn read_columns(path: &Path, keep: &dyn Fn(&str) -> bool) -> Result<Trace, TraceError> {
+        let f = File::open(path).map_err(|source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let size = f.metadata().map(|m| m.len()).ok();
+        Self::from_reader_kept(path, BufReader::with_capacity(1 << 16, f), size, Some(keep))
+    }
+
+    /// The column names of the trace file at `path` (its header only is read and checked).
+    pub fn read_header(path: &Path) -> Result<Vec<String>, TraceError> {
+        let f = File::open(path).map_err(|source| TraceError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut lines = Lines {
+            r: BufReader::new(f),
+            buf: Vec::with_capacity(256),
+            number: 0,
+        };
+        let head = read_head(path, &mut lines)?;
+        time_column(path, head.header_line, &head.columns)?;
+        Ok(head.columns)
+    }
+
     /// Parses trace text; `path` is only used in messages.
     pub fn parse(path: &Path, text: &str) -> Result<Trace, TraceError> {
         Self::from_reader(path, text.as_bytes())
@@ -75,6 +103,17 @@ impl Trace {
         r: R,
         size_bytes: Option<u64>,
     ) -> Result<Trace, TraceError> {
+        Self::from_reader_kept(path, r, size_bytes, None)
+    }
+
+    /// `from_reader_sized` keeping the time column and the columns `keep` accepts (all when
+    /// `None`).
+    fn from_reader_kept<R: BufRead>(
+        path: &Path,
+        r: R,
+        size_bytes: Option<u64>,
+        keep: Option<&dyn Fn(&str) -> bool>,
+    ) -> Result<Trace, TraceError> {
         let p = || path.to_path_buf();
         let mut lines = Lines {
             r,
@@ -89,7 +128,23 @@ impl Trace {
             columns,
         } = read_head(path, &mut lines)?;
         let t_index = time_column(path, header_line, &columns)?;
-        let (mut data, rows) = read_rows(path, &mut lines, &columns, t_index, size_bytes)?;
+        let kept: Vec<bool> = columns
+            .iter()
+            .enumerate()
+            .map(|(i, c)| i == t_index || keep.is_none_or(|k| k(c)))
+            .collect();
+        let (data, rows) = read_rows(path, &mut lines, &columns, t_index, size_bytes, &kept)?;
+        let mut data: Vec<Vec<f64>> = data
+            .into_iter()
+            .zip(&kept)
+            .filter_map(|(c, k)| k.then_some(c))
+            .collect();
+        let t_index = kept[..t_index].iter().filter(|k| **k).count();
+        let columns: Vec<String> = columns
+            .into_iter()
+            .zip(&kept)
+            .filter_map(|(c, k)| k.then_some(c))
+            .collect();
         if rows == 0 {
             return Err(TraceError::Empty { path: p() });
         }
@@ -302,6 +357,7 @@ fn read_rows<R: BufRead>(
     columns: &[String],
     t_index: usize,
     size_bytes: Option<u64>,
+    kept: &[bool],
 ) -> Result<(Vec<Vec<f64>>, usize), TraceError> {
     let p = || path.to_path_buf();
     let ncol = columns.len();
@@ -342,7 +398,9 @@ fn read_rows<R: BufRead>(
                     cell: quote(cell),
                 });
             }
-            data[i].push(v);
+            if kept[i] {
+                data[i].push(v);
+            }
         }
         if found != ncol {
             return Err(TraceError::CellCount {
@@ -368,8 +426,10 @@ fn read_rows<R: BufRead>(
                 // Rows of a trace have similar lengths; 10 % spare, capped at 2^27 rows.
                 let est = (size as f64 / (line.len() + 1) as f64 * 1.1) as usize;
                 let est = est.min(1 << 27);
-                for c in &mut data {
-                    c.reserve(est);
+                for (c, k) in data.iter_mut().zip(kept) {
+                    if *k {
+                        c.reserve(est);
+                    }
                 }
             }
         }
@@ -453,6 +513,39 @@ mod tests {
             assert!(matches!(e, TraceError::$variant $($fields)*), "{e}");
             e
         }};
+    }
+
+    #[test]
+    fn reading_selected_columns_keeps_time_and_those_and_still_checks_every_cell() {
+        let dir = std::env::temp_dir().join(format!("feedloop-trace-sel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("two.csv");
+        std::fs::write(
+            &p,
+            "x.cmd,t,x.load,y.cmd,y.load\n0,0,1,2,3\n0.5,0.001,1.5,2.5,3.5\n1,0.002,2,3,4\n",
+        )
+        .unwrap();
+        assert_eq!(
+            Trace::read_header(&p).unwrap(),
+            vec!["x.cmd", "t", "x.load", "y.cmd", "y.load"]
+        );
+        let tr = Trace::read_columns(&p, &|c: &str| c.starts_with("y.")).unwrap();
+        assert_eq!(tr.columns, vec!["t", "y.cmd", "y.load"]);
+        assert_eq!(tr.t(), &[0.0, 0.001, 0.002]);
+        assert_eq!(tr.column("y.load").unwrap(), &[3.0, 3.5, 4.0]);
+        assert!(tr.column("x.cmd").is_none());
+        // a bad cell in a column that is not kept is still refused, with its line and column
+        std::fs::write(
+            &p,
+            "t,x.cmd,x.load,y.cmd,y.load\n0,0,1,2,3\n0.001,oops,1.5,2.5,3.5\n",
+        )
+        .unwrap();
+        let e = Trace::read_columns(&p, &|c: &str| c.starts_with("y.")).unwrap_err();
+        assert!(
+            matches!(&e, TraceError::NotANumber { line: 3, column, .. } if column == "x.cmd"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
