@@ -552,6 +552,7 @@ fn heldout_other_axis_report() {
         kv: 5.0,
         tv: 0.006,
         limit_nm: 25.0,
+        ..Axis::default()
     };
     report("other-axis", &ax, 211);
 }

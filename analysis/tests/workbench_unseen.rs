@@ -47,12 +47,23 @@ fn case(
     nz: Noise,
     smooth: bool,
 ) -> (WbModel, AxisData, Diagnosis, Run, PathBuf) {
+    case_on(&Axis::default(), name, h, nz, smooth)
+}
+
+/// [`case`] on axis `ax`.
+fn case_on(
+    ax: &Axis,
+    name: &str,
+    h: &Hidden,
+    nz: Noise,
+    smooth: bool,
+) -> (WbModel, AxisData, Diagnosis, Run, PathBuf) {
     let dir = tmp(name);
     let mv = Moves {
         smooth,
         ..Moves::default()
     };
-    let (trace, model, run) = generate(&dir, name, &Axis::default(), h, &nz, &mv).unwrap();
+    let (trace, model, run) = generate(&dir, name, ax, h, &nz, &mv).unwrap();
     let tr = Trace::read(&trace).unwrap();
     let m = WbModel::load(&model).unwrap();
     let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
@@ -382,5 +393,50 @@ fn an_input_added_after_the_controller_is_named_and_dated_and_declaring_it_close
     assert!(
         (c["added_input_gain"].as_f64().unwrap() - 1.0).abs() < 0.01,
         "{c}"
+    );
+}
+
+#[test]
+fn a_drive_that_discretises_its_loop_otherwise_is_read_right() {
+    // the integrator updated after the output, the velocity from the encoder's backward
+    // difference (the motor_vel column is the velocity sensor): a right model stays right,
+    // and a clamp recorded after clamping is still named from the controller channel
+    let ax = Axis {
+        integrate_after_output: true,
+        velocity_from_encoder: true,
+        ..Axis::default()
+    };
+    let (_, _, dg, _, _) = case_on(
+        &ax,
+        "drive-right",
+        &Hidden::default(),
+        noise(0.02, 111),
+        true,
+    );
+    assert!(
+        dg.candidates.iter().all(|c| !c.significant),
+        "{}",
+        table(&dg)
+    );
+    let c = dg.controller.as_ref().unwrap();
+    assert_eq!(c["fails"], false, "{c}");
+    assert_eq!(
+        c["discretisation"], "integrator updated after the output",
+        "{c}"
+    );
+    let h = Hidden {
+        saturation: Some(Saturation {
+            limit_nm: 5.5,
+            record: Record::Clamped,
+        }),
+        ..Hidden::default()
+    };
+    let (_, _, dg, _, _) = case_on(&ax, "drive-clamped", &h, noise(0.02, 112), false);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert_eq!(top.class, "saturation", "{}", table(&dg));
+    assert!(
+        (top.params["limit_nm"] - 5.5).abs() < 0.06,
+        "{:?}",
+        top.params
     );
 }

@@ -10,9 +10,11 @@
 //! added after the controller (a disturbance test, a feed-forward the model does not know)
 //! show there directly, while the torque balance still closes.
 //!
-//! The law's discretisation follows the velocity loop of feedloop and of common drives: the
+//! The law's discretisation is the one the record agrees with best among feedloop's (the
 //! integrator by the rectangle rule, `I += e dt` then `u = clamp(Kv (e + I / Tv))`, conditional
-//! anti-windup at the law's own limit. The velocity the drive used is not always recorded: the
+//! anti-windup at the law's own limit), the integrator updated after the output, and either of
+//! them with the output one period late (a drive that computes in one period what it applies in
+//! the next). The velocity the drive used is not always recorded: the
 //! `A.motor_vel` column, a backward difference, a two-sample average and a central difference
 //! of the position (for a drive with an observer) are tried, and the one the record agrees
 //! with best is used (and named). The integrator starts so
@@ -55,6 +57,19 @@ impl Law {
     /// The law's output at every sample, for the recorded position `x` (motor units), command
     /// `cmd` and velocity `vel`; the integrator starts so that the first output is `first`.
     pub fn run(&self, cmd: &[f64], x: &[f64], vel: &[f64], dt: f64, first: f64) -> Vec<f64> {
+        self.run_as(cmd, x, vel, dt, first, Discretisation::FEEDLOOP)
+    }
+
+    /// [`Law::run`] in discretisation `disc`.
+    pub fn run_as(
+        &self,
+        cmd: &[f64],
+        x: &[f64],
+        vel: &[f64],
+        dt: f64,
+        first: f64,
+        disc: Discretisation,
+    ) -> Vec<f64> {
         let n = cmd.len();
         let mut out = vec![0.0; n];
         let use_i = self.tv > 0.0;
@@ -63,24 +78,75 @@ impl Law {
             let e = self.kp * (cmd[k] - x[k]) - vel[k];
             let e = if e.is_finite() { e } else { 0.0 };
             let prev = integ;
-            if use_i {
-                if k == 0 {
-                    integ = (first / self.kv - e) * self.tv;
-                    if !integ.is_finite() {
-                        integ = 0.0;
-                    }
-                } else {
-                    integ += dt * e;
+            if use_i && k == 0 {
+                // bumpless: the first output is the first recorded one
+                integ = (first / self.kv - e) * self.tv;
+                if !integ.is_finite() {
+                    integ = 0.0;
                 }
+            } else if use_i && !disc.integrate_after_output {
+                integ += dt * e;
             }
             let raw = self.kv * (e + if use_i { integ / self.tv } else { 0.0 });
             let u = raw.clamp(-self.lim, self.lim);
+            if use_i && k > 0 && disc.integrate_after_output {
+                integ += dt * e;
+            }
             if k > 0 && u != raw && e * raw > 0.0 {
                 integ = prev;
             }
             out[k] = u;
         }
+        if disc.output_delay && n > 1 {
+            out.rotate_right(1);
+            out[0] = out[1];
+        }
         out
+    }
+}
+
+/// How a drive may discretise the same law: where the integrator is updated and whether the
+/// output computed from a sample is applied (and recorded) one period later.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Discretisation {
+    /// The integrator is updated after the output is formed (`u_k` uses `I_(k-1)`).
+    pub integrate_after_output: bool,
+    /// The output formed from sample `k` is recorded at sample `k + 1`.
+    pub output_delay: bool,
+}
+
+impl Discretisation {
+    /// feedloop's velocity loop: integrate, then form the output, in the same period.
+    pub const FEEDLOOP: Self = Self {
+        integrate_after_output: false,
+        output_delay: false,
+    };
+
+    /// All the variants tried.
+    pub const ALL: [Self; 4] = [
+        Self::FEEDLOOP,
+        Self {
+            integrate_after_output: true,
+            output_delay: false,
+        },
+        Self {
+            integrate_after_output: false,
+            output_delay: true,
+        },
+        Self {
+            integrate_after_output: true,
+            output_delay: true,
+        },
+    ];
+
+    /// Name in reports.
+    pub fn name(self) -> &'static str {
+        match (self.integrate_after_output, self.output_delay) {
+            (false, false) => "integrator updated before the output",
+            (true, false) => "integrator updated after the output",
+            (false, true) => "integrator before the output, output one period late",
+            (true, true) => "integrator after the output, output one period late",
+        }
     }
 }
 
@@ -121,6 +187,8 @@ pub struct ControllerChannel {
     pub noise_rms: f64,
     /// Which velocity the law was evaluated with.
     pub velocity: &'static str,
+    /// Which discretisation of the law the record agrees with.
+    pub discretisation: Discretisation,
     /// When the drive's velocity lags (positive) or leads the chosen estimate: by how much, s
     /// (taken into the law; `None` when it explains too little to count).
     pub velocity_lag_s: Option<f64>,
@@ -233,18 +301,24 @@ impl ControllerChannel {
         let add = d.added_input.as_ref().map(|(_, a)| a.as_slice());
         let first = rec[0] - add.map_or(0.0, |a| a[0]);
         let (a, b) = (2.min(d.len()), d.len());
-        let mut best: Option<(f64, &'static str, Vec<f64>)> = None;
+        // the velocity and the discretisation the record agrees with best (scored on at most
+        // 200,000 evenly spread samples, so a long trace costs no more than a sort of those)
+        let step = ((b - a) / 200_000).max(1);
+        let mut best: Option<(f64, &'static str, Discretisation, Vec<f64>)> = None;
         for (name, v) in velocity_sources(d) {
-            let law = law_p.run(&d.cmd, &x, &v, d.dt, first);
-            let dev: Vec<f64> = (a..b)
-                .map(|k| rec[k] - law[k] - add.map_or(0.0, |x| x[k]))
-                .collect();
-            let score = densest_quarter(&dev).1;
-            if best.as_ref().is_none_or(|(s, _, _)| score < *s) {
-                best = Some((score, name, law));
+            for disc in Discretisation::ALL {
+                let law = law_p.run_as(&d.cmd, &x, &v, d.dt, first, disc);
+                let dev: Vec<f64> = (a..b)
+                    .step_by(step)
+                    .map(|k| rec[k] - law[k] - add.map_or(0.0, |x| x[k]))
+                    .collect();
+                let score = densest_quarter(&dev).1;
+                if best.as_ref().is_none_or(|(s, ..)| score < *s) {
+                    best = Some((score, name, disc, law));
+                }
             }
         }
-        let (_, velocity, law) = best?;
+        let (_, velocity, discretisation, law) = best?;
         let added_gain = add.map(|ad| {
             let (mut num, mut den) = (0.0, 0.0);
             for k in a..b {
@@ -297,6 +371,7 @@ impl ControllerChannel {
             predicted,
             residual,
             velocity,
+            discretisation,
             added_gain,
             range: (fa, fb),
         })
@@ -360,6 +435,7 @@ impl ControllerChannel {
             "noise_rms": self.noise_rms,
             "fails": self.fails(),
             "velocity": self.velocity,
+            "discretisation": self.discretisation.name(),
             "velocity_lag_s": self.velocity_lag_s,
             "added_input": d.added_input.as_ref().map(|(n, _)| n.clone()),
             "added_input_gain": self.added_gain,

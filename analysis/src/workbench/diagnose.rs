@@ -1322,7 +1322,16 @@ fn controller_candidates(
     }
     let events = rest.events(d);
     let (share, time) = rest.event_shares(d, &events);
-    if !events.is_empty() && share >= 50.0 && time <= 75.0 {
+    // a departure that follows the acceleration (by which a velocity estimate other than the
+    // drive's lags or leads) is a law that differs, not an input added after it (the law's
+    // output itself is no test: in a closed loop it reacts to any added input)
+    let one = vec![1.0; d.len()];
+    let kv = model.file.controller.kv.unwrap_or(1.0);
+    let acc: Vec<f64> = d.am.iter().map(|x| kv * x).collect();
+    let bl = blocks(rest.range, FOLDS);
+    let follows = cv_cols(&[&acc], &[], &rest.residual, &bl);
+    let law_like = follows.rms < (0.5f64).sqrt() * rest.rms;
+    if !law_like && !events.is_empty() && share >= 50.0 && time <= 75.0 {
         let red = 100.0 * (1.0 - (1.0 - share / 100.0).max(0.0).sqrt());
         let starts: Vec<f64> = events.iter().map(|e| e.start_s).collect();
         let mut gaps: Vec<f64> = starts.windows(2).map(|w| w[1] - w[0]).collect();
@@ -1375,8 +1384,6 @@ fn controller_candidates(
         return;
     }
     // a law that differs: the record as a gain on the law plus an offset
-    let one = vec![1.0; d.len()];
-    let bl = blocks(rest.range, FOLDS);
     let cv = cv_cols(&[&rest.law, &one], &[], &rest.residual, &bl);
     let red = 100.0 * (rest.rms - cv.rms) / rest.rms;
     let mut params = BTreeMap::new();

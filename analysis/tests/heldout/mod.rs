@@ -50,7 +50,10 @@
 //! P position loop on the table scale, PI velocity loop on the motor, per period `dt`:
 //! `V = Kp (x_cmd - x_scale) / r` [rad/s]; `e = V - w_meas`; `I += e dt` (rectangle rule; not
 //! while the output is at the controller's limit and `e` drives it further);
-//! `u = clamp(Kv (e + I / Tv), -Lc, Lc)` [N m]. The loop starts in equilibrium (the integrator
+//! `u = clamp(Kv (e + I / Tv), -Lc, Lc)` [N m] (or, with [`Axis::integrate_after_output`], the
+//! output from the integrator before this period's update; with
+//! [`Axis::velocity_from_encoder`], the velocity is the backward difference of the quantised
+//! motor encoder instead of the velocity sensor). The loop starts in equilibrium (the integrator
 //! holds the constant load force).
 //!
 //! # Sensors
@@ -91,6 +94,12 @@ pub struct Axis {
     pub kv: f64,
     pub tv: f64,
     pub limit_nm: f64,
+    /// The drive's velocity loop updates its integrator after forming the output (`u_k` uses
+    /// `I_(k-1)`); default false (before, as feedloop's).
+    pub integrate_after_output: bool,
+    /// The drive's velocity loop uses the backward difference of the quantised motor encoder
+    /// (the `motor_vel` column still records the noisy velocity sensor); default false.
+    pub velocity_from_encoder: bool,
 }
 
 impl Default for Axis {
@@ -107,6 +116,8 @@ impl Default for Axis {
             kv: 3.0,
             tv: 0.008,
             limit_nm: 30.0,
+            integrate_after_output: false,
+            velocity_from_encoder: false,
         }
     }
 }
@@ -494,6 +505,7 @@ pub fn run(ax: &Axis, h: &Hidden, noise: &Noise, moves: &Moves) -> Run {
     let qm = 2.0 * PI / MOTOR_COUNTS as f64;
     let mut rng = Rng::new(noise.seed);
     let mut line = vec![u0; h.delay_cycles + 1];
+    let mut th_prev = 0.0;
     let mut out = Run {
         t: Vec::with_capacity(n),
         cmd: cmd.clone(),
@@ -519,14 +531,35 @@ pub fn run(ax: &Axis, h: &Hidden, noise: &Noise, moves: &Moves) -> Run {
         let th_meas = (s[0] / qm).floor() * qm;
         let w_meas = s[1] + noise.vel_noise_rad_per_s * rng.normal();
         // controller
-        let e = ax.kp * (c - x_meas) / r - w_meas;
-        let mut i_new = integ + e * dt;
-        let raw = ax.kv * (e + i_new / ax.tv);
-        if raw.abs() > ax.limit_nm && raw * e > 0.0 {
-            i_new = integ;
-        }
-        integ = i_new;
-        let u = (ax.kv * (e + integ / ax.tv)).clamp(-ax.limit_nm, ax.limit_nm);
+        let w_loop = if ax.velocity_from_encoder {
+            let v = if k == 0 {
+                0.0
+            } else {
+                (th_meas - th_prev) / dt
+            };
+            th_prev = th_meas;
+            v
+        } else {
+            w_meas
+        };
+        let e = ax.kp * (c - x_meas) / r - w_loop;
+        let u = if ax.integrate_after_output {
+            let u = (ax.kv * (e + integ / ax.tv)).clamp(-ax.limit_nm, ax.limit_nm);
+            let i_new = integ + e * dt;
+            let raw = ax.kv * (e + i_new / ax.tv);
+            if !(raw.abs() > ax.limit_nm && raw * e > 0.0) {
+                integ = i_new;
+            }
+            u
+        } else {
+            let mut i_new = integ + e * dt;
+            let raw = ax.kv * (e + i_new / ax.tv);
+            if raw.abs() > ax.limit_nm && raw * e > 0.0 {
+                i_new = integ;
+            }
+            integ = i_new;
+            (ax.kv * (e + integ / ax.tv)).clamp(-ax.limit_nm, ax.limit_nm)
+        };
         // drive: pulses, delay, clamp
         let p = h.pulses.map_or(0.0, |p| p.at(t));
         let cmd_drive = u + p;
