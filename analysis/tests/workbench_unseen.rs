@@ -440,3 +440,69 @@ fn a_drive_that_discretises_its_loop_otherwise_is_read_right() {
         top.params
     );
 }
+
+#[test]
+fn two_hidden_effects_give_both_classes_and_nothing_else() {
+    let h = Hidden {
+        delay_cycles: 1,
+        constant_force_n: -300.0,
+        ..Hidden::default()
+    };
+    check(
+        "delay+force",
+        h,
+        noise(0.01, 121),
+        true,
+        &["delay", "offset"],
+    );
+    // a damping is a base parameter: the guided loop refits it with the effect it adds (here
+    // the delay class), so the final model's load damping must be the true one
+    let h = Hidden {
+        delay_cycles: 1,
+        viscous_ns_per_m: 900.0,
+        ..Hidden::default()
+    };
+    let (m, d, dg, _, _) = case("delay+viscous", &h, noise(0.03, 122), true);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert!(
+        ["delay", "damping"].contains(&top.class.as_str()),
+        "{}",
+        table(&dg)
+    );
+    let a = auto(&m, &d, 0.05, 5).unwrap();
+    let added: Vec<String> = a
+        .steps
+        .iter()
+        .skip(1)
+        .flat_map(|s| s.added.clone())
+        .collect();
+    let classes: BTreeSet<String> = added.iter().map(|l| step_class(l)).collect();
+    assert!(classes.contains("delay"), "{added:?}");
+    assert!(
+        classes.iter().all(|c| c == "delay" || c == "damping"),
+        "{added:?}"
+    );
+    // motor and load move together through the stiff screw: the data see their sum
+    let ax = Axis::default();
+    let d_true = ax.dm + ax.dl + 900.0 * ax.r() * ax.r();
+    let d_fit = a.model.base_value("dm_nms_per_rad") + a.model.base_value("dl_nms_per_rad");
+    assert!(
+        (d_fit / d_true - 1.0).abs() < 0.1,
+        "dm + dl {d_fit} for {d_true} after {added:?}"
+    );
+    let h = Hidden {
+        saturation: Some(Saturation {
+            limit_nm: 6.0,
+            record: Record::Clamped,
+        }),
+        constant_force_n: 200.0,
+        ..Hidden::default()
+    };
+    check(
+        "clamp+force",
+        h,
+        noise(0.02, 123),
+        false,
+        &["saturation", "offset"],
+    );
+}
