@@ -506,3 +506,40 @@ fn two_hidden_effects_give_both_classes_and_nothing_else() {
         &["saturation", "offset"],
     );
 }
+
+#[test]
+fn a_weakly_excited_mode_is_inertia_on_these_moves_and_the_verdict_says_how_to_tell() {
+    // smooth ramps barely excite a 130 Hz mode: what the data show is its mass moving with the
+    // table; the verdict names the load inertia (the mass's m r^2 on top of JL) and says which
+    // moves would tell a mode from it
+    let h = Hidden {
+        third_mass: Some(ThirdMass {
+            mass_kg: 60.0,
+            freq_hz: 130.0,
+            zeta: 0.02,
+        }),
+        ..Hidden::default()
+    };
+    let (m, _, dg, _, _) = case("weak-mode", &h, noise(0.01, 131), true);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert!(
+        ["inertia", "mode"].contains(&top.class.as_str()),
+        "{}",
+        table(&dg)
+    );
+    if top.class == "inertia" {
+        assert!(
+            dg.verdict.contains("acceleration steps or a sweep"),
+            "{}",
+            dg.verdict
+        );
+        let ax = Axis::default();
+        let extra = 60.0 * ax.r() * ax.r();
+        let k = top.effect.as_str();
+        let moved = top.params[k] - m.base_value(k);
+        assert!(
+            (moved / extra - 1.0).abs() < 0.05,
+            "{k} moves by {moved}, the mass adds {extra}"
+        );
+    }
+}

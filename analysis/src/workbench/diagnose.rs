@@ -1041,7 +1041,15 @@ fn verdict(
                 top.class,
                 top.error_reduction_pct,
                 top.evidence,
-                if top.is_param {
+                if top.is_param && top.class == "inertia" {
+                    format!(
+                        "refit it with `feedloop fit --free {}`{}",
+                        top.effect,
+                        excitation_99_hz(d)
+                            .map(|f| format!("; an inertia refit and a mass on its own spring whose mode these moves barely excite look the same (99 % of the commanded acceleration lies below {} Hz): to tell them apart, move with acceleration steps or a sweep", fmt(f)))
+                            .unwrap_or_default()
+                    )
+                } else if top.is_param {
                     format!("refit it with `feedloop fit --free {}`", top.effect)
                 } else {
                     let ids: Vec<&str> = top.add.iter().map(|e| e.id.id()).collect();
@@ -1236,6 +1244,32 @@ pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f6
     }
     let one = vec![1.0; d.len()];
     Some((rd, vec![transmitted, one]))
+}
+
+/// The frequency below which 99 % of the commanded acceleration's energy lies, Hz: what the
+/// moves excite (a mode they barely excite looks like inertia).
+pub fn excitation_99_hz(d: &AxisData) -> Option<f64> {
+    let n = d.cmd.len();
+    if n < 64 {
+        return None;
+    }
+    let dt2 = d.dt * d.dt;
+    let acc: Vec<f64> = (1..n - 1)
+        .map(|k| (d.cmd[k + 1] - 2.0 * d.cmd[k] + d.cmd[k - 1]) / dt2)
+        .collect();
+    let (f, a) = super::report::spectrum(&acc, d.dt);
+    let total: f64 = a.iter().map(|x| x * x).sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let mut cum = 0.0;
+    for (fi, ai) in f.iter().zip(&a) {
+        cum += ai * ai;
+        if cum >= 0.99 * total {
+            return Some(*fi);
+        }
+    }
+    f.last().copied()
 }
 
 /// Time of the controller residual's largest magnitude, s.
