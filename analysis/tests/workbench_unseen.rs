@@ -543,3 +543,33 @@ fn a_weakly_excited_mode_is_inertia_on_these_moves_and_the_verdict_says_how_to_t
         );
     }
 }
+
+#[test]
+fn a_long_trace_is_searched_on_a_decimated_copy_and_named_the_same() {
+    // 125 s at 4 kHz (500,000 samples, a long trace): the grids of column effects are searched
+    // every 4th sample and only their best point is scored on all samples
+    let h = Hidden {
+        friction: Some(Friction {
+            fc_n: 45.0,
+            v_eps_m_per_s: 1e-4,
+        }),
+        ..Hidden::default()
+    };
+    let dir = tmp("long");
+    let mv = Moves {
+        sine: (0.004, 2.0, 240),
+        ..Moves::default()
+    };
+    let (trace, model, _) =
+        generate(&dir, "long", &Axis::default(), &h, &noise(0.02, 141), &mv).unwrap();
+    let tr = Trace::read(&trace).unwrap();
+    assert!(tr.len() >= feedloop_analysis::workbench::diagnose::LONG_TRACE);
+    let m = WbModel::load(&model).unwrap();
+    let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert_eq!(top.class, "friction", "{}", table(&dg));
+    let fc = top.params["fc_n"];
+    assert!((fc / 45.0 - 1.0).abs() < 0.1, "fc {fc}; {}", table(&dg));
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -143,6 +143,43 @@ impl AxisData {
         }
     }
 
+    /// Every `q`-th sample of every series (the filtered ones are band-limited to the cut-off,
+    /// so `q` up to `fs / (10 cut-off)` loses nothing of them).
+    pub fn decimated(&self, q: usize) -> AxisData {
+        let q = q.max(1);
+        let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
+        let opt = |x: &Option<Vec<f64>>| x.as_deref().map(dec);
+        let (a, b) = self.range;
+        let n = self.len().div_ceil(q);
+        AxisData {
+            path: self.path.clone(),
+            axis: self.axis.clone(),
+            kind: self.kind,
+            r: self.r,
+            dt: self.dt * q as f64,
+            t: dec(&self.t),
+            cmd: dec(&self.cmd),
+            load_raw: dec(&self.load_raw),
+            motor_raw: opt(&self.motor_raw),
+            torque: opt(&self.torque),
+            torque_raw: opt(&self.torque_raw),
+            motor_vel_raw: opt(&self.motor_vel_raw),
+            added_input: self
+                .added_input
+                .as_ref()
+                .map(|(name, x)| (name.clone(), dec(x))),
+            qm: dec(&self.qm),
+            vm: dec(&self.vm),
+            am: dec(&self.am),
+            ql: dec(&self.ql),
+            vl: dec(&self.vl),
+            al: dec(&self.al),
+            cutoff_hz: self.cutoff_hz,
+            torque_filtered: self.torque_filtered,
+            range: (a.div_ceil(q).min(n), (b / q).min(n)),
+        }
+    }
+
     /// The torque column or an error naming it and the method that needs it.
     pub fn require_torque(
         &self,

@@ -46,6 +46,10 @@ pub const MIN_FOLD_WINS: usize = 4;
 /// derivatives, which a parameter refit can always shave).
 pub const MATERIAL_FRACTION: f64 = 1e-3;
 
+/// Samples from which a trace counts as long: the grids of column effects are then searched on
+/// a decimated copy (see [`best_effect`]).
+pub const LONG_TRACE: usize = 500_000;
+
 /// Smallest deflection effect that counts, m at the load (the finest linear scales of feed
 /// drives resolve about 1 nm).
 pub const DEFLECTION_FLOOR_M: f64 = 1e-9;
@@ -303,6 +307,31 @@ pub fn best_effect(
     if id == EffectId::Backlash {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
+        }
+    }
+    // on a long trace, the grid of an effect with regressor columns is searched on a decimated
+    // copy (the filtered signals are band-limited to the cut-off) and only its best point is
+    // scored on all samples
+    let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
+    if channel(id) == Channel::Torque && grid.len() > 1 && q > 1 && d.len() >= LONG_TRACE {
+        let dd = d.decimated(q);
+        let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
+        let base_d: Vec<Vec<f64>> = base.iter().map(|c| dec(c)).collect();
+        let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
+        let y_d = dec(y);
+        let mask_d = mask.map(dec);
+        let bl_d = blocks(dd.range, bl.len());
+        if let Some((e, _)) = best_effect(
+            id,
+            model,
+            &dd,
+            &base_r,
+            base_now,
+            &y_d,
+            &bl_d,
+            mask_d.as_deref(),
+        ) {
+            grid = vec![e.hyper];
         }
     }
     let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
