@@ -573,3 +573,28 @@ fn a_long_trace_is_searched_on_a_decimated_copy_and_named_the_same() {
     assert!((fc / 45.0 - 1.0).abs() < 0.1, "fc {fc}; {}", table(&dg));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_feed_forward_the_model_does_not_know_is_a_law_that_differs_not_an_added_input() {
+    let ax = Axis {
+        velocity_ff_nms_per_rad: 0.004,
+        ..Axis::default()
+    };
+    let (_, _, dg, _, _) = case_on(
+        &ax,
+        "velocity-ff",
+        &Hidden::default(),
+        noise(0.01, 151),
+        true,
+    );
+    let c = dg.controller.as_ref().unwrap();
+    assert_eq!(c["fails"], true, "{c}");
+    assert!(
+        dg.candidates
+            .iter()
+            .all(|c| !(c.significant && c.effect == "added_input")),
+        "{}",
+        table(&dg)
+    );
+    assert!(dg.verdict.contains("controller"), "{}", dg.verdict);
+}

@@ -1385,14 +1385,15 @@ fn controller_candidates(
     }
     let events = rest.events(d);
     let (share, time) = rest.event_shares(d, &events);
-    // a departure that follows the acceleration (by which a velocity estimate other than the
-    // drive's lags or leads) is a law that differs, not an input added after it (the law's
-    // output itself is no test: in a closed loop it reacts to any added input)
+    // a departure that follows the motion (the acceleration by which a velocity estimate other
+    // than the drive's lags or leads, or a feed-forward of velocity or acceleration the model's
+    // [controller] does not have) is a law that differs, not an input added after it (the
+    // law's output itself is no test: in a closed loop it reacts to any added input)
     let one = vec![1.0; d.len()];
     let kv = model.file.controller.kv.unwrap_or(1.0);
     let acc: Vec<f64> = d.am.iter().map(|x| kv * x).collect();
     let bl = blocks(rest.range, FOLDS);
-    let follows = cv_cols(&[&acc], &[], &rest.residual, &bl);
+    let follows = cv_cols(&[&acc, &d.vm], &[], &rest.residual, &bl);
     let law_like = follows.rms < (0.5f64).sqrt() * rest.rms;
     if !law_like && !events.is_empty() && share >= 50.0 && time <= 75.0 {
         let red = 100.0 * (1.0 - (1.0 - share / 100.0).max(0.0).sqrt());

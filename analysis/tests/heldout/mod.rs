@@ -100,6 +100,10 @@ pub struct Axis {
     /// The drive's velocity loop uses the backward difference of the quantised motor encoder
     /// (the `motor_vel` column still records the noisy velocity sensor); default false.
     pub velocity_from_encoder: bool,
+    /// A velocity feed-forward the nominal model's `[controller]` does not have: this many
+    /// N m per rad/s of commanded motor velocity added to the controller's output (inside its
+    /// limit); default 0.
+    pub velocity_ff_nms_per_rad: f64,
 }
 
 impl Default for Axis {
@@ -118,6 +122,7 @@ impl Default for Axis {
             limit_nm: 30.0,
             integrate_after_output: false,
             velocity_from_encoder: false,
+            velocity_ff_nms_per_rad: 0.0,
         }
     }
 }
@@ -559,6 +564,16 @@ pub fn run(ax: &Axis, h: &Hidden, noise: &Noise, moves: &Moves) -> Run {
             }
             integ = i_new;
             (ax.kv * (e + integ / ax.tv)).clamp(-ax.limit_nm, ax.limit_nm)
+        };
+        let u = if ax.velocity_ff_nms_per_rad != 0.0 {
+            let v_cmd = if k == 0 {
+                0.0
+            } else {
+                (c - cmd[k - 1]) / (r * dt)
+            };
+            (u + ax.velocity_ff_nms_per_rad * v_cmd).clamp(-ax.limit_nm, ax.limit_nm)
+        } else {
+            u
         };
         // drive: pulses, delay, clamp
         let p = h.pulses.map_or(0.0, |p| p.at(t));
