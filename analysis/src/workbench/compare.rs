@@ -3,7 +3,7 @@
 
 use serde_json::{json, Value};
 
-use super::controller::{event_shares, torque_events, ControllerChannel};
+use super::controller::{event_shares, events_json, torque_events, ControllerChannel};
 use super::data::AxisData;
 use super::effects::WbModel;
 use super::signal::{nrmse_pct, quantile, relative_error_pct, rms};
@@ -316,21 +316,13 @@ impl Comparison {
         if let Some(e) = &self.eq {
             let ev = torque_events(&e.residual, &e.measured, d);
             let (share, time) = event_shares(&e.residual, d.range, &ev);
-            channels.insert(
-                "torque".into(),
-                json!({
-                    "equation_nrmse_pct": e.nrmse_pct,
-                    "equation_fit_pct": 100.0 - e.nrmse_pct,
-                    "equation_rms": e.rms,
-                    "relative_error_pct": e.relative_error_pct,
-                    "events": ev.iter().take(50).map(|e| json!({
-                        "t_start_s": e.start_s, "t_end_s": e.end_s, "mean": e.mean, "peak": e.peak,
-                    })).collect::<Vec<_>>(),
-                    "event_count": ev.len(),
-                    "event_energy_share_pct": share,
-                    "event_time_share_pct": time,
-                }),
-            );
+            let mut torque = serde_json::Map::new();
+            torque.insert("equation_nrmse_pct".into(), json!(e.nrmse_pct));
+            torque.insert("equation_fit_pct".into(), json!(100.0 - e.nrmse_pct));
+            torque.insert("equation_rms".into(), json!(e.rms));
+            torque.insert("relative_error_pct".into(), json!(e.relative_error_pct));
+            torque.extend(events_json(&ev, share, time));
+            channels.insert("torque".into(), Value::Object(torque));
         }
         if let Some(c) = &self.controller {
             channels.insert("controller".into(), c.to_json(d));

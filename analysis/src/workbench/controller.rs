@@ -439,14 +439,34 @@ impl ControllerChannel {
             "velocity_lag_s": self.velocity_lag_s,
             "added_input": d.added_input.as_ref().map(|(n, _)| n.clone()),
             "added_input_gain": self.added_gain,
-            "events": ev.iter().take(50).map(|e| json!({
-                "t_start_s": e.start_s, "t_end_s": e.end_s, "mean": e.mean, "peak": e.peak,
-            })).collect::<Vec<_>>(),
-            "event_count": ev.len(),
-            "event_energy_share_pct": share,
-            "event_time_share_pct": time,
         })
+        .as_object_mut()
+        .map(|o| {
+            o.extend(events_json(&ev, share, time));
+            Value::Object(o.clone())
+        })
+        .unwrap_or_default()
     }
+}
+
+/// The JSON entries of a list of events (the first 50), their count and shares.
+pub fn events_json(ev: &[Event], share: f64, time: f64) -> serde_json::Map<String, Value> {
+    let mut m = serde_json::Map::new();
+    m.insert(
+        "events".into(),
+        ev.iter()
+            .take(50)
+            .map(|e| {
+                json!({
+                    "t_start_s": e.start_s, "t_end_s": e.end_s, "mean": e.mean, "peak": e.peak,
+                })
+            })
+            .collect(),
+    );
+    m.insert("event_count".into(), json!(ev.len()));
+    m.insert("event_energy_share_pct".into(), json!(share));
+    m.insert("event_time_share_pct".into(), json!(time));
+    m
 }
 
 /// Stretches of `residual` (within `range`) whose magnitude exceeds `thr`, gaps shorter than

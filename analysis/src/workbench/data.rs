@@ -112,16 +112,9 @@ impl AxisData {
         let fs = 1.0 / self.dt;
         let n = self.len();
         let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
-        let ql = filtfilt_butter4(&load_m, cutoff_hz, fs);
-        let vl = derivative(&ql, self.dt);
-        let al = derivative(&vl, self.dt);
+        let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt);
         let (qm, vm, am) = match &self.motor_raw {
-            Some(m) => {
-                let q = filtfilt_butter4(m, cutoff_hz, fs);
-                let v = derivative(&q, self.dt);
-                let a = derivative(&v, self.dt);
-                (q, v, a)
-            }
+            Some(m) => filtered_derivatives(m, cutoff_hz, self.dt),
             None => (ql.clone(), vl.clone(), al.clone()),
         };
         let torque = match &self.torque_raw {
@@ -199,6 +192,14 @@ fn missing(trace: &Trace, column: &str, needed_for: &str) -> WorkbenchError {
         needed_for: needed_for.to_string(),
         present: trace.columns.join(", "),
     }
+}
+
+/// A position filtered zero-phase at `cutoff` and its first two derivatives.
+fn filtered_derivatives(x: &[f64], cutoff: f64, dt: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let q = filtfilt_butter4(x, cutoff, 1.0 / dt);
+    let v = derivative(&q, dt);
+    let a = derivative(&v, dt);
+    (q, v, a)
 }
 
 /// Chooses the axis of `trace` the model applies to: `axis` when given (it must exist), else the
@@ -304,16 +305,9 @@ pub fn load_axis(
     }
     let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
     let load_m: Vec<f64> = load_raw.iter().map(|x| x * r).collect();
-    let ql = filtfilt_butter4(&load_m, cutoff, fs);
-    let vl = derivative(&ql, dt);
-    let al = derivative(&vl, dt);
+    let (ql, vl, al) = filtered_derivatives(&load_m, cutoff, dt);
     let (qm, vm, am) = match &motor_raw {
-        Some(m) => {
-            let q = filtfilt_butter4(m, cutoff, fs);
-            let v = derivative(&q, dt);
-            let a = derivative(&v, dt);
-            (q, v, a)
-        }
+        Some(m) => filtered_derivatives(m, cutoff, dt),
         None => (ql.clone(), vl.clone(), al.clone()),
     };
     let torque_raw = torque.clone();
