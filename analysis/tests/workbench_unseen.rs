@@ -98,6 +98,26 @@ fn step_class(label: &str) -> String {
     }
 }
 
+/// The guided loop (at most 5 additions): its result, the step labels and their classes.
+fn guided(
+    m: &WbModel,
+    d: &AxisData,
+) -> (
+    feedloop_analysis::workbench::auto::AutoResult,
+    Vec<String>,
+    BTreeSet<String>,
+) {
+    let a = auto(m, d, 0.05, 5).unwrap();
+    let added: Vec<String> = a
+        .steps
+        .iter()
+        .skip(1)
+        .flat_map(|s| s.added.clone())
+        .collect();
+    let classes = added.iter().map(|l| step_class(l)).collect();
+    (a, added, classes)
+}
+
 fn err_of(e: &Errors, channel: &str) -> f64 {
     match channel {
         "controller" => e.controller_nrmse_pct,
@@ -165,14 +185,7 @@ fn check(name: &str, h: Hidden, nz: Noise, smooth: bool, expect: &[&str]) {
         );
     }
     // the guided loop ends with exactly the hidden classes
-    let a = auto(&m, &d, 0.05, 5).unwrap();
-    let added: Vec<String> = a
-        .steps
-        .iter()
-        .skip(1)
-        .flat_map(|s| s.added.clone())
-        .collect();
-    let classes: BTreeSet<String> = added.iter().map(|l| step_class(l)).collect();
+    let (a, added, classes) = guided(&m, &d);
     let want: BTreeSet<String> = expect.iter().map(|s| s.to_string()).collect();
     assert_eq!(
         classes, want,
@@ -469,14 +482,7 @@ fn two_hidden_effects_give_both_classes_and_nothing_else() {
         "{}",
         table(&dg)
     );
-    let a = auto(&m, &d, 0.05, 5).unwrap();
-    let added: Vec<String> = a
-        .steps
-        .iter()
-        .skip(1)
-        .flat_map(|s| s.added.clone())
-        .collect();
-    let classes: BTreeSet<String> = added.iter().map(|l| step_class(l)).collect();
+    let (a, added, classes) = guided(&m, &d);
     assert!(classes.contains("delay"), "{added:?}");
     assert!(
         classes.iter().all(|c| c == "delay" || c == "damping"),
