@@ -109,6 +109,12 @@ impl AxisData {
     /// The same data prepared with another filter cut-off (derivatives, filtered torque and
     /// the fit range recomputed from the recorded columns).
     pub fn with_cutoff(&self, cutoff_hz: f64) -> AxisData {
+        self.clone().prepared(cutoff_hz)
+    }
+
+    /// Fills the filtered positions, their derivatives, the filtered torque (when
+    /// `torque_filtered`) and the fit range (filter edges left out) from the recorded columns.
+    fn prepared(self, cutoff_hz: f64) -> AxisData {
         let fs = 1.0 / self.dt;
         let n = self.len();
         let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
@@ -132,7 +138,7 @@ impl AxisData {
             torque,
             cutoff_hz,
             range: (edge, n - edge),
-            ..self.clone()
+            ..self
         }
     }
 
@@ -304,18 +310,6 @@ pub fn load_axis(
         }
     }
     let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
-    let load_m: Vec<f64> = load_raw.iter().map(|x| x * r).collect();
-    let (ql, vl, al) = filtered_derivatives(&load_m, cutoff, dt);
-    let (qm, vm, am) = match &motor_raw {
-        Some(m) => filtered_derivatives(m, cutoff, dt),
-        None => (ql.clone(), vl.clone(), al.clone()),
-    };
-    let torque_raw = torque.clone();
-    let torque = match torque {
-        Some(y) if prep.filter_torque => Some(filtfilt_butter4(&y, cutoff, fs)),
-        other => other,
-    };
-    let edge = ((fs / cutoff).ceil() as usize * 2).min(n / 10);
     Ok(AxisData {
         path: trace.path.clone(),
         axis: axis.to_string(),
@@ -326,18 +320,19 @@ pub fn load_axis(
         cmd: cmd_raw.iter().map(|x| x * r).collect(),
         load_raw,
         motor_raw,
-        torque,
-        torque_raw,
+        torque: None,
+        torque_raw: torque,
         motor_vel_raw,
         added_input,
-        qm,
-        vm,
-        am,
-        ql,
-        vl,
-        al,
+        qm: vec![],
+        vm: vec![],
+        am: vec![],
+        ql: vec![],
+        vl: vec![],
+        al: vec![],
         cutoff_hz: cutoff,
         torque_filtered: prep.filter_torque,
-        range: (edge, n - edge),
-    })
+        range: (0, n),
+    }
+    .prepared(cutoff))
 }
