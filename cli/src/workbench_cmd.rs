@@ -176,13 +176,10 @@ fn load(
     // read only the columns of the axis the model describes (and the declared added input):
     // a long multi-axis trace then takes one axis' memory
     let header = Trace::read_header(trace)?;
-    let cmd_axes: Vec<&str> = header
-        .iter()
-        .filter_map(|h| h.strip_suffix(".cmd"))
-        .collect();
-    let chosen = match (&c.axis, cmd_axes.as_slice()) {
+    let axes = feedloop_trace::axes_of(&header);
+    let chosen = match (&c.axis, axes.as_slice()) {
         (Some(a), _) => Some(a.clone()),
-        (None, [one]) => Some(one.to_string()),
+        (None, [one]) => Some(one.clone()),
         _ => None,
     };
     let tr = match &chosen {

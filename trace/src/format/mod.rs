@@ -217,16 +217,7 @@ impl Trace {
 
     /// Axis names `A` that have both `A.cmd` and `A.load`, in column order.
     pub fn axes(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        for c in &self.columns {
-            if let Some(a) = c.strip_suffix(".cmd") {
-                if is_axis_name(a) && self.has(&format!("{a}.load")) && !out.iter().any(|o| o == a)
-                {
-                    out.push(a.to_string());
-                }
-            }
-        }
-        out
+        axes_of(&self.columns)
     }
 
     /// The value of metadata key `key`.
@@ -249,6 +240,23 @@ impl fmt::Display for Trace {
             self.period_s
         )
     }
+}
+
+/// Axis names `A` among trace column names `columns` that have both `A.cmd` and `A.load`, in
+/// column order (what [`Trace::axes`] gives, from a header alone).
+pub fn axes_of(columns: &[String]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for c in columns {
+        if let Some(a) = c.strip_suffix(".cmd") {
+            if is_axis_name(a)
+                && columns.iter().any(|x| *x == format!("{a}.load"))
+                && !out.iter().any(|o| o == a)
+            {
+                out.push(a.to_string());
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

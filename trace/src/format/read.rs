@@ -50,40 +50,33 @@ impl<R: BufRead> Lines<R> {
 impl Trace {
     /// Reads and validates the trace file at `path`.
     pub fn read(path: &Path) -> Result<Trace, TraceError> {
-        let f = File::open(path).map_err(|source| TraceError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let size = f.metadata().map(|m| m.len()).ok();
-        Self::from_reader_sized(path, BufReader::with_capacity(1 << 16, f), size)
+        Self::read_kept(path, None)
     }
 
     /// Reads and validates the trace file at `path` like [`Trace::read`] (every cell of every
     /// column is checked), but keeps only the time column and the columns for which `keep`
     /// is true: a long trace of many axes read for one of them takes that axis' memory only.
     pub fn read_columns(path: &Path, keep: &dyn Fn(&str) -> bool) -> Result<Trace, TraceError> {
-        let f = File::open(path).map_err(|source| TraceError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let size = f.metadata().map(|m| m.len()).ok();
-        Self::from_reader_kept(path, BufReader::with_capacity(1 << 16, f), size, Some(keep))
+        Self::read_kept(path, Some(keep))
     }
 
     /// The column names of the trace file at `path` (its header only is read and checked).
     pub fn read_header(path: &Path) -> Result<Vec<String>, TraceError> {
-        let f = File::open(path).map_err(|source| TraceError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
         let mut lines = Lines {
-            r: BufReader::new(f),
+            r: BufReader::new(open(path)?),
             buf: Vec::with_capacity(256),
             number: 0,
         };
         let head = read_head(path, &mut lines)?;
         time_column(path, head.header_line, &head.columns)?;
         Ok(head.columns)
+    }
+
+    /// The file at `path`, keeping the columns `keep` accepts (all when `None`).
+    fn read_kept(path: &Path, keep: Option<&dyn Fn(&str) -> bool>) -> Result<Trace, TraceError> {
+        let f = open(path)?;
+        let size = f.metadata().map(|m| m.len()).ok();
+        Self::from_reader_kept(path, BufReader::with_capacity(1 << 16, f), size, keep)
     }
 
     /// Parses trace text; `path` is only used in messages.
@@ -93,21 +86,13 @@ impl Trace {
 
     /// Parses a trace streamed from `r`, line by line; `path` is only used in messages.
     pub fn from_reader<R: BufRead>(path: &Path, r: R) -> Result<Trace, TraceError> {
-        Self::from_reader_sized(path, r, None)
+        Self::from_reader_kept(path, r, None, None)
     }
 
-    /// `from_reader` with the total size in bytes when known: after the first row the columns
-    /// reserve about `size / row length` values, so a large file is not copied while growing.
-    fn from_reader_sized<R: BufRead>(
-        path: &Path,
-        r: R,
-        size_bytes: Option<u64>,
-    ) -> Result<Trace, TraceError> {
-        Self::from_reader_kept(path, r, size_bytes, None)
-    }
-
-    /// `from_reader_sized` keeping the time column and the columns `keep` accepts (all when
-    /// `None`).
+    /// Parses a trace streamed from `r`, keeping the time column and the columns `keep`
+    /// accepts (all when `None`). With the total size in bytes when known, after the first row
+    /// the columns reserve about `size / row length` values, so a large file is not copied
+    /// while growing.
     fn from_reader_kept<R: BufRead>(
         path: &Path,
         r: R,
@@ -346,6 +331,14 @@ fn read_head<R: BufRead>(path: &Path, lines: &mut Lines<R>) -> Result<Head, Trac
         comments,
         header_line,
         columns,
+    })
+}
+
+/// Opens the file at `path`, the error naming it.
+fn open(path: &Path) -> Result<File, TraceError> {
+    File::open(path).map_err(|source| TraceError::Io {
+        path: path.to_path_buf(),
+        source,
     })
 }
 
