@@ -26,7 +26,7 @@
 use serde_json::{json, Value};
 
 use super::data::AxisData;
-use super::effects::{EffectId, WbModel};
+use super::effects::WbModel;
 use super::signal::{densest_quarter, nrmse_pct, quantile, rms};
 
 /// The model's controller law.
@@ -261,14 +261,12 @@ fn velocity_sources(d: &AxisData) -> Vec<(&'static str, Vec<f64>)> {
     v
 }
 
-/// The model's torque limit (a `torque_saturation` effect), torque units.
-fn model_limit(model: &WbModel) -> Option<f64> {
-    model
-        .effects
-        .iter()
-        .filter(|e| e.id == EffectId::TorqueSaturation)
-        .map(|e| e.hyper[0])
-        .fold(None, |a: Option<f64>, l| Some(a.map_or(l, |x| x.min(l))))
+/// Relative tolerance within which a recorded torque counts as sitting at a limit.
+pub const AT_LIMIT_TOL: f64 = 5e-3;
+
+/// Whether the recorded torque `u` sits at the limit `l` (within [`AT_LIMIT_TOL`]).
+pub fn at_limit(u: f64, l: f64) -> bool {
+    (u.abs() - l).abs() <= AT_LIMIT_TOL * l
 }
 
 /// What the record holds by the model: `law + add`, clamped to `limit` where the recorded
@@ -279,7 +277,7 @@ fn predict(law: &[f64], add: Option<&[f64]>, rec: &[f64], limit: Option<f64>) ->
         .map(|k| {
             let p = law[k] + add.map_or(0.0, |a| a[k]);
             match limit {
-                Some(l) if (rec[k].abs() - l).abs() <= 5e-3 * l && p.abs() > l => p.clamp(-l, l),
+                Some(l) if at_limit(rec[k], l) && p.abs() > l => p.clamp(-l, l),
                 _ => p,
             }
         })
@@ -290,11 +288,7 @@ impl ControllerChannel {
     /// The channel of `model` on `d`: `None` without a torque column or without a controller
     /// law in the model.
     pub fn new(model: &WbModel, d: &AxisData) -> Option<Self> {
-        Self::with_limit(model, d, model_limit(model))
-    }
-
-    /// The channel with the drive's torque limit `limit` (instead of the model's).
-    pub fn with_limit(model: &WbModel, d: &AxisData, limit: Option<f64>) -> Option<Self> {
+        let limit = model.drive_limit();
         let law_p = Law::of(model)?;
         let rec = d.torque_raw.clone()?;
         let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
@@ -395,7 +389,7 @@ impl ControllerChannel {
     /// A clamp of the drive that the record shows: the limit (the largest recorded magnitude,
     /// where a clamped record sits) and the residual's RMS with it. `None` when it does not
     /// lower the residual.
-    pub fn clamp_fit(&self, model: &WbModel, d: &AxisData) -> Option<(f64, f64)> {
+    pub fn clamp_fit(&self, d: &AxisData) -> Option<(f64, f64)> {
         let (a, b) = self.range;
         let l = self.recorded[a..b]
             .iter()
@@ -403,7 +397,6 @@ impl ControllerChannel {
         if l <= 0.0 {
             return None;
         }
-        let _ = model;
         let add = self.scaled_input(d);
         let p = predict(&self.law, add.as_deref(), &self.recorded, Some(l));
         let r: Vec<f64> = (a..b).map(|k| self.recorded[k] - p[k]).collect();
@@ -420,15 +413,14 @@ impl ControllerChannel {
     }
 
     /// Share of the residual's energy inside `events`, and the share of the time they cover, %.
-    pub fn event_shares(&self, d: &AxisData, events: &[Event]) -> (f64, f64) {
-        let _ = d;
+    pub fn event_shares(&self, events: &[Event]) -> (f64, f64) {
         event_shares(&self.residual, self.range, events)
     }
 
     /// JSON of the channel (without the series).
     pub fn to_json(&self, d: &AxisData) -> Value {
         let ev = self.events(d);
-        let (share, time) = self.event_shares(d, &ev);
+        let (share, time) = self.event_shares(&ev);
         json!({
             "controller_nrmse_pct": self.nrmse_pct,
             "controller_rms": self.rms,

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 
 use serde_json::{json, Value};
 
-use super::controller::ControllerChannel;
+use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
 use super::effects::{
     base_class, base_column, base_keys, channel, class_of, evidence, fmt, Channel, Effect,
@@ -1338,14 +1338,12 @@ fn controller_candidates(
     let (a, b) = cc.range;
     let mut rest = cc.clone();
     let noise2 = 9.0 * cc.noise_rms * cc.noise_rms;
-    if let Some((l, after)) = cc.clamp_fit(model, d) {
+    if let Some((l, after)) = cc.clamp_fit(d) {
         let red = 100.0 * (cc.rms - after) / cc.rms;
         if red >= MIN_REDUCTION_PCT && cc.rms * cc.rms - after * after > noise2 {
             let mut e = Effect::new(EffectId::TorqueSaturation, Side::Motor, vec![l]);
             e.coef.clear();
-            let at_limit = (a..b)
-                .filter(|&k| (cc.recorded[k].abs() - l).abs() <= 5e-3 * l)
-                .count();
+            let at_limit = (a..b).filter(|&k| at_limit(cc.recorded[k], l)).count();
             let lc = model.file.controller.torque_limit;
             let params = flat(&e.to_table(d.kind, d.r));
             cands.retain(|c| c.effect != "torque_saturation" || c.significant);
@@ -1384,7 +1382,7 @@ fn controller_candidates(
         return;
     }
     let events = rest.events(d);
-    let (share, time) = rest.event_shares(d, &events);
+    let (share, time) = rest.event_shares(&events);
     // a departure that follows the motion (the acceleration by which a velocity estimate other
     // than the drive's lags or leads, or a feed-forward of velocity or acceleration the model's
     // [controller] does not have) is a law that differs, not an input added after it (the

@@ -615,6 +615,16 @@ impl WbModel {
             .unwrap_or(0.0)
     }
 
+    /// The drive's torque limit: the lowest of the model's `torque_saturation` effects, torque
+    /// units (`None` without one).
+    pub fn drive_limit(&self) -> Option<f64> {
+        self.effects
+            .iter()
+            .filter(|e| e.id == EffectId::TorqueSaturation)
+            .map(|e| e.hyper[0])
+            .reduce(f64::min)
+    }
+
     /// The applied torque: the recorded torque through the model's torque-path effects.
     ///
     /// A command recorded at sample k is held over the following period (zero-order hold), so

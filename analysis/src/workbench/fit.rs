@@ -187,7 +187,7 @@ fn controller_clamp(model: &WbModel, d: &AxisData) -> Option<f64> {
     if !cc.fails() {
         return None;
     }
-    let (l, after) = cc.clamp_fit(model, d)?;
+    let (l, after) = cc.clamp_fit(d)?;
     (after < 0.5 * cc.rms).then_some(l)
 }
 

@@ -19,6 +19,7 @@
 
 use feedloop_plant::AxisPlant;
 
+use super::controller::AT_LIMIT_TOL;
 use super::data::AxisData;
 use super::effects::{dead_band, third_mass_track, EffectId, WbModel};
 use super::signal::{filtfilt_butter4, nrmse_pct, rms};
@@ -436,7 +437,7 @@ fn integrator_track(
         return out;
     }
     // a recorded output within 0.5 % of the limit it was recorded at counts as clamped
-    let clamped = |u: f64| rec_lim.is_finite() && u.abs() >= 0.995 * rec_lim;
+    let clamped = |u: f64| rec_lim.is_finite() && u.abs() >= (1.0 - AT_LIMIT_TOL) * rec_lim;
     let mut integ = 0.0;
     let mut known = false;
     for k in 0..n {
@@ -507,13 +508,11 @@ fn run_closed(
     let raw_law: Vec<f64> = past.iter().zip(&add).map(|(a, b)| a - b).collect();
     // a drive limit below the controller's (the model's torque_saturation): a record that
     // never exceeds it was recorded after the clamp, and the simulated record is clamped too
-    let drive_lim = model
-        .effects
-        .iter()
-        .filter(|e| e.id == EffectId::TorqueSaturation)
-        .map(|e| e.hyper[0])
-        .fold(f64::INFINITY, f64::min);
-    let rec_clamped = drive_lim < lim && past.iter().all(|x| x.abs() <= 1.005 * drive_lim);
+    let drive_lim = model.drive_limit().unwrap_or(f64::INFINITY);
+    let rec_clamped = drive_lim < lim
+        && past
+            .iter()
+            .all(|x| x.abs() <= (1.0 + AT_LIMIT_TOL) * drive_lim);
     let rec_lim = if rec_clamped { drive_lim } else { lim };
     let integ_meas = y_law
         .as_ref()
