@@ -85,6 +85,15 @@ impl EffectId {
         )
     }
 
+    /// The effect it contains and so replaces on the same body instead of adding to it:
+    /// Stribeck friction is Coulomb friction with a hump at low speed.
+    pub fn supersedes(self) -> Option<EffectId> {
+        match self {
+            EffectId::StribeckFriction => Some(EffectId::CoulombFriction),
+            _ => None,
+        }
+    }
+
     /// Whether it acts on a [`Side`] chosen by its `side` key (the friction effects).
     pub fn has_side(self) -> bool {
         matches!(

@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 
 use super::data::AxisData;
 use super::diagnose::{diagnose, DiagOptions, Diagnosis};
-use super::effects::{EffectId, WbModel};
+use super::effects::WbModel;
 use super::fit::{fit_with, Errors};
 use super::WorkbenchError;
 
@@ -65,18 +65,18 @@ pub fn auto(
         {
             break;
         }
-        // Stribeck friction is Coulomb friction with a hump: it replaces a Coulomb friction of
-        // the same body instead of adding a second friction step
+        // an effect that contains another (Stribeck friction contains Coulomb friction)
+        // replaces it on the same body instead of adding a second one
         let mut base_m = m.clone();
         let mut replaced = Vec::new();
         for e in &top.add {
-            if e.id == EffectId::StribeckFriction {
+            if let Some(old) = e.id.supersedes() {
                 let before = base_m.effects.len();
                 base_m
                     .effects
-                    .retain(|x| !(x.id == EffectId::CoulombFriction && x.side == e.side));
+                    .retain(|x| !(x.id == old && x.side == e.side));
                 if base_m.effects.len() < before {
-                    replaced.push(EffectId::CoulombFriction.to_string());
+                    replaced.push(old.to_string());
                 }
             }
         }
