@@ -109,7 +109,27 @@ impl AxisData {
     /// The same data prepared with another filter cut-off (derivatives, filtered torque and
     /// the fit range recomputed from the recorded columns).
     pub fn with_cutoff(&self, cutoff_hz: f64) -> AxisData {
-        self.clone().prepared(cutoff_hz)
+        // the recorded columns only: the derived ones are made anew
+        AxisData {
+            path: self.path.clone(),
+            axis: self.axis.clone(),
+            t: self.t.clone(),
+            cmd: self.cmd.clone(),
+            load_raw: self.load_raw.clone(),
+            motor_raw: self.motor_raw.clone(),
+            torque: None,
+            torque_raw: self.torque_raw.clone(),
+            motor_vel_raw: self.motor_vel_raw.clone(),
+            added_input: self.added_input.clone(),
+            qm: vec![],
+            vm: vec![],
+            am: vec![],
+            ql: vec![],
+            vl: vec![],
+            al: vec![],
+            ..*self
+        }
+        .prepared(cutoff_hz)
     }
 
     /// Fills the filtered positions, their derivatives, the filtered torque (when

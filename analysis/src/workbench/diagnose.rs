@@ -758,14 +758,13 @@ fn mode_candidate(model: &WbModel, d: &AxisData, ch: &TorqueChannel<'_>) -> Opti
     let dw = d.with_cutoff(wide_hz);
     let chw = TorqueChannel::new(model, &dw);
     let wide = torque_effect_candidate(id, model, &dw, &chw)?;
-    let narrow = torque_effect_candidate(id, model, d, ch);
     // a structure's mode is a resonance: lightly damped (a damping ratio of 0.3 or more is a
     // broad-band correction of the high frequencies, not a peak the spectrum shows)
     let resonant = wide.add[0].hyper.get(1).is_some_and(|z| *z < 0.3);
     if !wide.significant || !resonant {
         // not a mode in the wide band: the narrow candidate may still say something, but it
         // cannot be significant
-        return narrow.map(|mut c| {
+        return torque_effect_candidate(id, model, d, ch).map(|mut c| {
             if c.significant {
                 c.significant = false;
                 c.evidence = format!(
