@@ -227,6 +227,7 @@ fn plant_loop_config(
         cycles: a.cycles.unwrap_or(cycle.cycles()),
         watchdog_cycles: job.run.watchdog_cycles,
         peer_timeout_s: job.run.peer_timeout_s,
+        startup_grace_s: job.run.startup_grace_s,
         safety: job.safety.clone(),
         brake_gain: job
             .axes
@@ -261,7 +262,14 @@ fn plant_end_json(outcome: &PlantOutcome, job: &Job) -> Value {
             match cause {
                 StopCause::SchedulerLost {
                     detected_after_cycles,
-                } => e["detected_after_cycles"] = json!(detected_after_cycles),
+                } => {
+                    e["detected_after_cycles"] = json!(detected_after_cycles);
+                    if outcome.loop_closed_after_s.is_none() {
+                        // never closed: lost in the handshake or the start-up grace
+                        e["during_startup"] = json!(true);
+                        e["startup_grace_s"] = json!(job.run.startup_grace_s);
+                    }
+                }
                 StopCause::FollowingError { axis }
                 | StopCause::TorqueSaturation { axis }
                 | StopCause::SoftLimit { axis } => e["axis"] = json!(job.axes[axis].name),
@@ -301,6 +309,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 cycles: 0,
                 dropped_records: 0,
                 sequence: Default::default(),
+                loop_closed_after_s: None,
             }
         }
         Err(e) => return Err(e.into()),
@@ -313,6 +322,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 "cycles": outcome.cycles, "planned_cycles": cfg.cycles, "dropped_records": outcome.dropped_records, "end": end,
                 "commands": {"bad_sequence": outcome.sequence.bad_sequence, "duplicates": outcome.sequence.duplicates,
                              "late": outcome.sequence.late, "missing": outcome.sequence.missing},
+                "startup": {"loop_closed_after_s": outcome.loop_closed_after_s, "grace_s": cfg.startup_grace_s},
                 "realtime": rt, "peak_rss_bytes": feedloop_runtime::shared::rt::peak_resident_bytes()}),
     )?;
     if export {
@@ -701,6 +711,11 @@ fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     extra.insert("late_commands".into(), json!(t.late_commands));
     extra.insert("duplicate_commands".into(), json!(t.duplicate_commands));
     extra.insert("torn_log_bytes".into(), json!(plant_recs.torn_bytes));
+    if let Some(s) = plant_info.as_ref().map(|p| &p["startup"]) {
+        if !s.is_null() {
+            extra.insert("startup".into(), s.clone());
+        }
+    }
     if let Some(s) = &sched_info {
         scheduler_extra(s, &plant_recs.records, &mut extra);
     }

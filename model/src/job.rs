@@ -96,10 +96,13 @@ pub struct RunOptions {
     /// spinning when the loop keeps its period, and to block when the peer is away.
     pub spin_us: f64,
     /// Plant watchdog: commands missing for this many on-time cycles means the scheduler is lost.
-    /// Default 100.
+    /// Default: 100 cycles or [`DEFAULT_WATCHDOG_S`], whichever is longer.
     pub watchdog_cycles: u64,
     /// Lockstep: how long a process waits for its peer before declaring it lost, s. Default 5.
     pub peer_timeout_s: f64,
+    /// Realtime start-up: how long the plant waits, holding the axes, for the first command
+    /// before the loop counts as closed, s. The watchdog runs only after that. Default 2.
+    pub startup_grace_s: f64,
 }
 
 /// How the plant brings the axes to rest when a run must stop early.
@@ -237,8 +240,8 @@ impl Job {
         }
         let duration_s = f.opt_f64("duration_s", Range::Positive)?;
         let run = match f.opt_table("run")? {
-            Some(t) => run_options(t, path)?,
-            None => run_options(&toml::Table::new(), path)?,
+            Some(t) => run_options(t, path, period_s)?,
+            None => run_options(&toml::Table::new(), path, period_s)?,
         };
 
         let axes_table = f
@@ -478,7 +481,11 @@ fn safety_options(
     })
 }
 
-fn run_options(t: &toml::Table, path: &Path) -> Result<RunOptions, ConfigError> {
+/// Default watchdog: 100 cycles, and at least this long (a fieldbus drive's usual command
+/// watchdog is 50-100 ms; a few ms is what a busy, non-realtime host can take from a process).
+pub const DEFAULT_WATCHDOG_S: f64 = 0.05;
+
+fn run_options(t: &toml::Table, path: &Path, period_s: f64) -> Result<RunOptions, ConfigError> {
     let mut f = Fields::new(t, path, "run");
     let mode = match f.opt_str("mode")? {
         None => Mode::Lockstep,
@@ -491,8 +498,12 @@ fn run_options(t: &toml::Table, path: &Path) -> Result<RunOptions, ConfigError> 
             .ok_or_else(|| f.error("wait", format!("unknown wait `{s}` (busy, block, hybrid)")))?,
     };
     let spin_us = f.f64_or("spin_us", Range::Within(0.0, 100_000.0), 0.0)?;
-    let watchdog_cycles = f.opt_i64("watchdog_cycles", 1, 1_000_000)?.unwrap_or(100) as u64;
+    let default_watchdog = ((DEFAULT_WATCHDOG_S / period_s).ceil() as u64).max(100);
+    let watchdog_cycles = f
+        .opt_i64("watchdog_cycles", 1, 1_000_000)?
+        .map_or(default_watchdog, |c| c as u64);
     let peer_timeout_s = f.f64_or("peer_timeout_s", Range::Within(0.01, 3600.0), 5.0)?;
+    let startup_grace_s = f.f64_or("startup_grace_s", Range::Within(0.001, 3600.0), 2.0)?;
     f.finish()?;
     Ok(RunOptions {
         mode,
@@ -500,6 +511,7 @@ fn run_options(t: &toml::Table, path: &Path) -> Result<RunOptions, ConfigError> 
         spin_us,
         watchdog_cycles,
         peer_timeout_s,
+        startup_grace_s,
     })
 }
 
@@ -530,6 +542,25 @@ mod tests {
         let p = write(&dir, "j.toml", job);
         let r = Job::load(&p);
         (dir, r)
+    }
+
+    #[test]
+    fn the_default_watchdog_is_100_cycles_or_50_ms_and_a_given_one_is_kept() {
+        let job = |period: &str, run: &str| {
+            setup(&format!(
+                "period_s = {period}\n[run]\n{run}\n[axes.x]\nmodel = \"m.toml\"\n[trajectory]\nkind = \"dwell\"\n"
+            ))
+            .1
+            .unwrap()
+            .run
+        };
+        assert_eq!(job("1.0e-4", "").watchdog_cycles, 500);
+        assert_eq!(job("1.0e-3", "").watchdog_cycles, 100);
+        assert_eq!(job("2.0e-2", "").watchdog_cycles, 100);
+        assert_eq!(job("1.0e-4", "watchdog_cycles = 20").watchdog_cycles, 20);
+        let r = job("1.0e-4", "startup_grace_s = 0.5");
+        assert_eq!(r.startup_grace_s, 0.5);
+        assert_eq!(job("1.0e-4", "").startup_grace_s, 2.0);
     }
 
     #[test]

@@ -343,6 +343,8 @@ pub struct PlantThread {
     pub period_s: f64,
     pub cycles: u64,
     pub watchdog_cycles: u64,
+    /// Realtime: how long cycle 0 waits for the first command, s.
+    pub startup_grace_s: f64,
     pub cycle_hook: Option<fn(u64)>,
 }
 
@@ -383,6 +385,7 @@ pub fn spawn_plant_loop(
             cycles: how.cycles,
             watchdog_cycles: how.watchdog_cycles,
             peer_timeout_s: 10.0,
+            startup_grace_s: how.startup_grace_s,
             safety: job.safety.clone(),
             brake_gain: vec![5.0; job.axes.len()],
             torque_limit: vec![30.0; job.axes.len()],

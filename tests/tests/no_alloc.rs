@@ -86,6 +86,7 @@ fn ten_thousand_cycles_of_both_loops_allocate_nothing_outside_iceoryx2_send() {
             period_s: job.period_s,
             cycles: TOTAL,
             watchdog_cycles: 100,
+            startup_grace_s: 2.0,
             cycle_hook: Some(hook),
         },
     );

@@ -4,7 +4,8 @@
 use std::path::Path;
 
 use feedloop_tests::{
-    describe, feedloop, process_lock, read_json, repo_file, scratch, write_xy_circle_job, Circle,
+    describe, feedloop, process_lock, read_json, repo_file, scratch, trace_rows,
+    write_xy_circle_job, Circle,
 };
 
 fn run_ok(args: &[&str]) -> std::process::Output {
@@ -262,6 +263,42 @@ fn realtime_run_reports_timing_figures() {
     let text = std::fs::read_to_string(out.join("trace.csv")).unwrap();
     let rows = text.lines().filter(|l| !l.starts_with('#')).count() - 1;
     assert_eq!(rows as u64, sum["cycles"].as_u64().unwrap());
+}
+
+/// The realtime run of the shipped circle starts on the scheduler's first command, not on a
+/// command nobody sent: its first trace row and its following error agree with the lockstep run
+/// (a false start recorded cmd = 0 with the table at the circle's start, 10 mm of "error").
+#[test]
+fn realtime_run_starts_when_the_loop_closes_and_reports_the_lockstep_following_error() {
+    let _g = process_lock();
+    let dir = scratch("rtstart");
+    let job = repo_file("examples/jobs/xy-circle.toml");
+    let (rt, ls) = (dir.join("rt"), dir.join("ls"));
+    run_ok(&["run", s(&job), "--out", s(&rt), "--mode", "realtime"]);
+    run_ok(&["run", s(&job), "--out", s(&ls), "--mode", "lockstep"]);
+    let (a, b) = (
+        read_json(&rt.join("summary.json")),
+        read_json(&ls.join("summary.json")),
+    );
+    let closed = a["startup"]["loop_closed_after_s"].as_f64();
+    assert!(closed.is_some_and(|c| c > 0.0), "{}", a["startup"]);
+    let first = |dir: &Path| trace_rows(&dir.join("trace.csv"))[0].clone();
+    assert_eq!(first(&rt), first(&ls), "first rows differ");
+    for axis in ["x", "y"] {
+        let e = |v: &serde_json::Value| v["axes"][axis]["max_following_error"].as_f64().unwrap();
+        let (e_rt, e_ls) = (e(&a), e(&b));
+        eprintln!(
+            "axis {axis}: max following error realtime {e_rt:.6e} m, lockstep {e_ls:.6e} m, \
+             deadline misses {}",
+            a["deadline_misses"]
+        );
+        // Deadline misses on a busy host hold commands and really do add error; a false start
+        // adds the whole start position (15 times the lockstep figure here).
+        assert!(
+            e_rt >= 0.99 * e_ls && e_rt < 1.5 * e_ls,
+            "axis {axis}: realtime {e_rt} m against lockstep {e_ls} m"
+        );
+    }
 }
 
 #[test]

@@ -188,12 +188,69 @@ pub fn human_summary(v: &Value) -> String {
         "  compute {:.4} s (physics + control)\n",
         f(&v["compute_s"])
     ));
+    if let Some(closed) = v["startup"]["loop_closed_after_s"].as_f64() {
+        out.push_str(&format!(
+            "  loop closed {:.1} ms after the first sample (start-up grace {} s)\n",
+            closed * 1e3,
+            f(&v["startup"]["grace_s"])
+        ));
+    }
+    if let Some(advice) = end_advice(v) {
+        out.push_str(&advice);
+    }
     out
+}
+
+/// What an early end means and what to change, for the ends a user can act on.
+pub fn end_advice(v: &Value) -> Option<String> {
+    let end = &v["end"];
+    if end["reason"] != "scheduler_lost" {
+        return None;
+    }
+    let sched_alive = v["scheduler"]["end"]["reason"] == "plant_ended";
+    let alive = if sched_alive {
+        "The scheduler process was still running (it ended when the plant stopped): "
+    } else {
+        "If the scheduler process was still running (see scheduler.json), "
+    };
+    if end["during_startup"] == true {
+        let grace = end["startup_grace_s"].as_f64().unwrap_or(f64::NAN);
+        return Some(format!(
+            "  the scheduler sent no first command within the start-up grace ({grace} s).\n  \
+             {alive}the machine was too busy to start it in time: raise [run] startup_grace_s.\n"
+        ));
+    }
+    let n = end["detected_after_cycles"].as_u64().unwrap_or(0);
+    let period = v["period_s"].as_f64().unwrap_or(f64::NAN);
+    Some(format!(
+        "  no command for {n} consecutive cycles ({:.3} ms) while the plant kept its schedule.\n  \
+         {alive}the machine was too busy for this period: raise [run] watchdog_cycles (now {n}), \
+         pin the two processes (--pin 0,1), lengthen period_s, or stop other work.\n",
+        n as f64 * period * 1e3
+    ))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lost_scheduler_gets_advice_naming_the_key_to_change() {
+        let mut v = json!({"period_s": 1e-4, "end": {"reason": "scheduler_lost",
+            "detected_after_cycles": 500}, "scheduler": {"end": {"reason": "plant_ended"}}});
+        let a = end_advice(&v).unwrap();
+        assert!(
+            a.contains("watchdog_cycles (now 500)") && a.contains("50.000 ms"),
+            "{a}"
+        );
+        assert!(a.contains("still running"), "{a}");
+        v["end"]["during_startup"] = json!(true);
+        v["end"]["startup_grace_s"] = json!(2.0);
+        let a = end_advice(&v).unwrap();
+        assert!(a.contains("startup_grace_s") && a.contains("(2 s)"), "{a}");
+        v["end"] = json!({"reason": "completed"});
+        assert!(end_advice(&v).is_none());
+    }
     use crate::log::AxisRecord;
     use crate::summary::Tracking;
 

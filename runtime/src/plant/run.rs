@@ -5,6 +5,9 @@
 //!   itself was late), then steps the physics with it. A command that has not arrived by then,
 //!   while the plant woke on time, is a deadline miss: the last command is held. Waking more
 //!   than half a period late is a plant overrun; more than 1 ms, a stall (the machine stopped).
+//!   Start-up: sample 0 waits up to `startup_grace_s` for its command, the axes held (nothing is
+//!   stepped); its arrival closes the loop and starts the schedule (t0) and the watchdog, so
+//!   no cycle runs or is judged on a command the scheduler never sent.
 //! - `lockstep`: the plant steps as soon as the command for the cycle arrives.
 //!
 //! Every cycle is logged (what was measured and applied, how late) through a [`Recorder`].
@@ -45,6 +48,9 @@ pub struct PlantLoopConfig {
     pub watchdog_cycles: u64,
     /// Lockstep and handshake: how long to wait for the scheduler, s.
     pub peer_timeout_s: f64,
+    /// Realtime: how long cycle 0 waits for the first command (the loop closing), s. The axes
+    /// are held meanwhile (the physics is not stepped) and the watchdog starts after it.
+    pub startup_grace_s: f64,
     /// Drive-side limits and the safe-stop behaviour.
     pub safety: SafetyOptions,
     /// Per axis: braking gain on motor velocity for `brake_ramp` (N m s/rad or N s/m).
@@ -125,6 +131,9 @@ pub struct PlantOutcome {
     pub dropped_records: u64,
     /// Sequence checks on the command service (messages, not cycles).
     pub sequence: CommandSequence,
+    /// Time from publishing the first sample to receiving its command, s: when the loop closed.
+    /// None when no command ever came (the scheduler was lost during start-up).
+    pub loop_closed_after_s: Option<f64>,
 }
 
 /// What the plant saw on the command service besides the one expected command per cycle.
@@ -208,6 +217,8 @@ pub fn run_plant<P: PlantDevice>(
         SafeStop::TorqueOff => 1,
         SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
     };
+    let grace_ns = (cfg.startup_grace_s * 1e9) as u64;
+    let mut loop_closed_after_s = None;
     let mut t0 = now_ns() + 5_000_000;
     if cfg.mode == Mode::Realtime {
         rec.set_phase(t0, period_ns);
@@ -244,7 +255,12 @@ pub fn run_plant<P: PlantDevice>(
                     flags |= REC_STALL;
                 }
             }
-            cmd_deadline = (deadline + period_ns).max(now_ns() + period_ns);
+            cmd_deadline = if k == 0 {
+                // start-up: cycle 0 waits for the loop to close, the axes held meanwhile
+                now_ns() + grace_ns.max(period_ns)
+            } else {
+                (deadline + period_ns).max(now_ns() + period_ns)
+            };
         } else {
             cmd_deadline = now_ns() + timeout_ns;
         }
@@ -289,6 +305,14 @@ pub fn run_plant<P: PlantDevice>(
                 }
                 answered |= 1;
                 latency_ns = now_ns() - published;
+                if k == 0 {
+                    loop_closed_after_s = Some(latency_ns as f64 * 1e-9);
+                    if cfg.mode == Mode::Realtime {
+                        // The schedule starts when the loop has closed.
+                        t0 = now_ns();
+                        rec.set_phase(t0, period_ns);
+                    }
+                }
                 if c.flags & FLAG_FAULT != 0 {
                     cause = cause.or(Some(StopCause::PluginFault));
                 } else if c.flags & FLAG_STOP != 0 {
@@ -313,6 +337,12 @@ pub fn run_plant<P: PlantDevice>(
                     silent_cycles = 1;
                     cause = cause.or(Some(StopCause::SchedulerLost {
                         detected_after_cycles: 1,
+                    }));
+                } else if k == 0 {
+                    // No command within the start-up grace: the scheduler never closed the loop.
+                    silent_cycles = 1;
+                    cause = cause.or(Some(StopCause::SchedulerLost {
+                        detected_after_cycles: 0,
                     }));
                 } else if on_time {
                     silent_cycles += 1;
@@ -403,6 +433,7 @@ pub fn run_plant<P: PlantDevice>(
         cycles: k,
         dropped_records: dropped,
         sequence: seqs,
+        loop_closed_after_s,
     })
 }
 
