@@ -142,6 +142,13 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if !matches!(
+        cli.command,
+        Command::Plant { .. } | Command::Scheduler { .. }
+    ) {
+        // The loop's own processes keep their signals: nothing but a stop request ends them.
+        signals::quiet_broken_pipe();
+    }
     let result = match cli.command {
         Command::Run {
             job,

@@ -315,7 +315,18 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
         Err(e) => return Err(e.into()),
     };
     drop(ep);
-    let end = plant_end_json(&outcome, &job);
+    let mut end = plant_end_json(&outcome, &job);
+    if !export && signals::HANGUP.load(std::sync::atomic::Ordering::Relaxed) {
+        // started by `feedloop run`, which died: the axes were stopped, nobody merges the logs
+        end["reason"] = json!("launcher_lost");
+        eprintln!(
+            "feedloop plant: the launcher died; axes stopped ({}). Export the trace with: \
+             feedloop merge {} --job {}",
+            cfg.safety.safe_stop.id(),
+            out.display(),
+            a.job.display()
+        );
+    }
     write_json(
         &out.join("plant.json"),
         &json!({"pid": std::process::id(), "mode": mode.id(), "wait": wait.id(),
@@ -433,6 +444,8 @@ pub fn spawn(
         cmd.arg("--no-export");
     }
     cmd.args(extra);
+    // a launcher killed outright must not leave the loop running with nobody in charge
+    signals::die_with_parent(&mut cmd);
     cmd.spawn()
         .with_context(|| format!("starting the {role} process"))
 }

@@ -126,6 +126,74 @@ fn killed_scheduler_is_detected_within_the_watchdog_and_the_axes_are_stopped() {
     assert!(st.status.success(), "{}", describe(&st));
 }
 
+/// `kill -9` of `feedloop run` (realtime): its children get the parent-death signal, brake to a
+/// stop and exit within 1 s; their logs merge into a trace that says `launcher_lost`; the same
+/// instance name starts again at once.
+#[test]
+fn a_killed_launcher_leaves_no_loop_running_and_its_logs_merge() {
+    let _g = process_lock();
+    let dir = scratch("killrun");
+    let job = feedloop_tests::write_long_circle_job(&dir, "killrun");
+    let inst = format!("killrun-{}", std::process::id());
+    let out = dir.join("out");
+    let mut run = start_run(&job, &out, "realtime", &inst);
+    wait_for_process(&["scheduler", "--instance", &inst]);
+    std::thread::sleep(Duration::from_millis(400));
+    signal(run.id(), "KILL");
+    let _ = run.wait();
+    let t = std::time::Instant::now();
+    while find_loop(&inst) && t.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let gone = t.elapsed();
+    assert!(
+        !find_loop(&inst),
+        "plant or scheduler still running 3 s after the kill"
+    );
+    assert!(
+        gone < Duration::from_secs(1),
+        "the loop outlived its launcher by {gone:?}"
+    );
+    eprintln!("loop gone {gone:?} after the launcher's kill");
+    let m = Command::new(feedloop_bin())
+        .arg("merge")
+        .arg(&out)
+        .arg("--job")
+        .arg(&job)
+        .args(["--json"])
+        .output()
+        .unwrap();
+    let sum: serde_json::Value =
+        serde_json::from_slice(&m.stdout).unwrap_or_else(|_| panic!("{}", describe(&m)));
+    assert_eq!(sum["end"]["reason"], "launcher_lost", "{sum}");
+    assert_eq!(sum["end"]["safe_stop"], "brake_ramp", "{sum}");
+    assert!(!m.status.success(), "a launcher's death is not a clean end");
+    let rows = trace_rows(&out.join("trace.csv")).len() as u64;
+    assert_eq!(rows, sum["cycles"].as_u64().unwrap());
+    assert!(rows > sum["end"]["cycle"].as_u64().unwrap(), "{sum}");
+    // The instance is free again.
+    let again = Command::new(feedloop_bin())
+        .args(["run"])
+        .arg(repo_file("examples/jobs/xy-circle.toml"))
+        .arg("--out")
+        .arg(dir.join("again"))
+        .args(["--mode", "lockstep", "--wait", "block", "--instance", &inst])
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", describe(&again));
+}
+
+/// Whether a plant or scheduler process of `inst` is still there (zombies are gone processes).
+fn find_loop(inst: &str) -> bool {
+    ["plant", "scheduler"].iter().any(|role| {
+        feedloop_tests::find_process(&[role, "--instance", inst]).is_some_and(|pid| {
+            std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .map(|s| !s.contains(") Z "))
+                .unwrap_or(false)
+        })
+    })
+}
+
 #[test]
 fn killed_plant_is_reported_as_plant_lost_with_the_trace_kept() {
     let _g = process_lock();

@@ -194,7 +194,24 @@ pub fn run_plant<P: PlantDevice>(
             source: e,
         })?;
 
-    handshake(ep, tag, n as u32, timeout_ns, &cfg.instance)?;
+    if !handshake(ep, tag, n as u32, timeout_ns, &cfg.instance, stop)? {
+        // stopped before the loop started: nothing moved
+        rec.finish().map_err(|e| PlantLoopError::Log {
+            path: log_path.display().to_string(),
+            source: e,
+        })?;
+        return Ok(PlantOutcome {
+            end: PlantEnd::Stopped {
+                cause: StopCause::OperatorStop,
+                cycle: 0,
+                safe_stop: cfg.safety.safe_stop,
+            },
+            cycles: 0,
+            dropped_records: 0,
+            sequence: CommandSequence::default(),
+            loop_closed_after_s: None,
+        });
+    }
 
     let mut sample = SensorSample::empty(n as u32, tag);
     let mut applied = ActuatorCommand::empty(n as u32, tag);
@@ -281,7 +298,12 @@ pub fn run_plant<P: PlantDevice>(
         let mut latency_ns = u64::MAX;
         if stopping.is_none() {
             ep.send(sample)?;
-            while let WaitOutcome::Got(c) = ep.receive_until(cmd_deadline)? {
+            while let WaitOutcome::Got(c) = if k == 0 {
+                // the start-up wait can be long: an operator stop ends it
+                ep.receive_until_or_stop(cmd_deadline, stop)?
+            } else {
+                ep.receive_until(cmd_deadline)?
+            } {
                 if c.flags & FLAG_HELLO != 0 {
                     continue;
                 }
@@ -339,10 +361,15 @@ pub fn run_plant<P: PlantDevice>(
                         detected_after_cycles: 1,
                     }));
                 } else if k == 0 {
-                    // No command within the start-up grace: the scheduler never closed the loop.
+                    // No command within the start-up grace: the scheduler never closed the loop
+                    // (unless an operator stop ended the wait).
                     silent_cycles = 1;
-                    cause = cause.or(Some(StopCause::SchedulerLost {
-                        detected_after_cycles: 0,
+                    cause = cause.or(Some(if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        StopCause::OperatorStop
+                    } else {
+                        StopCause::SchedulerLost {
+                            detected_after_cycles: 0,
+                        }
                     }));
                 } else if on_time {
                     silent_cycles += 1;
@@ -473,17 +500,22 @@ fn check_limits(
     None
 }
 
+/// The hello exchange with the scheduler; `Ok(false)` when `stop` was set before it completed.
 fn handshake(
     ep: &PlantEndpoint,
     tag: u64,
     n: u32,
     timeout_ns: u64,
     instance: &str,
-) -> Result<(), IpcError> {
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<bool, IpcError> {
     let start = now_ns();
     let mut hello = SensorSample::empty(n, tag);
     hello.flags = FLAG_HELLO;
     loop {
+        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(false);
+        }
         if now_ns() - start > timeout_ns {
             return Err(IpcError::PeerTimeout {
                 peer: "scheduler",
@@ -516,7 +548,7 @@ fn handshake(
                 // Let stale hello replies arrive, then discard them.
                 std::thread::sleep(Duration::from_millis(2));
                 ep.drain()?;
-                return Ok(());
+                return Ok(true);
             }
         }
     }

@@ -136,10 +136,20 @@ pub fn run_scheduler(
             break;
         }
         let wait = if started { silence_ns } else { start_timeout };
-        let got = ep.receive_until(now_ns() + wait.max(1))?;
+        let deadline = now_ns() + wait.max(1);
+        // before the start an operator stop (or the launcher's death) ends the wait at once
+        let got = if started {
+            ep.receive_until(deadline)?
+        } else {
+            ep.receive_until_or_stop(deadline, stop)?
+        };
         let mut s = match got {
             WaitOutcome::Got(s) => s,
             WaitOutcome::TimedOut => {
+                if !started && stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    out.end = SchedulerEnd::OperatorStop { cycle: 0 };
+                    break;
+                }
                 if !started {
                     return Err(IpcError::PeerTimeout {
                         peer: "plant",

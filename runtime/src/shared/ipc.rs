@@ -344,6 +344,24 @@ where
         }
     }
 
+    /// [`Endpoint::receive_until`] for long waits (start-up, handshake): gives up early, with
+    /// `TimedOut`, once `stop` is set (looked at every 50 ms at least).
+    pub fn receive_until_or_stop(
+        &self,
+        deadline_ns: u64,
+        stop: &std::sync::atomic::AtomicBool,
+    ) -> Result<WaitOutcome<In>, IpcError> {
+        loop {
+            let chunk_end = deadline_ns.min(now_ns().saturating_add(50_000_000));
+            match self.receive_until(chunk_end)? {
+                WaitOutcome::TimedOut
+                    if now_ns() < deadline_ns
+                        && !stop.load(std::sync::atomic::Ordering::Relaxed) => {}
+                other => return Ok(other),
+            }
+        }
+    }
+
     /// The longest time between two polls of the last [`Endpoint::receive_until`] while it
     /// spun, ns (time blocked in a wait excluded). Together with [`Endpoint::last_poll_ns`] it
     /// tells whether the process lost its core while waiting.
