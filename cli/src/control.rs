@@ -1,6 +1,6 @@
 //! `feedloop swap` and `feedloop status`: clients of a running loop's control service.
 
-use std::path::Path;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -8,16 +8,39 @@ use anyhow::{Context, Result};
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, SwapRequest};
 use feedloop_runtime::scheduler::control::request;
 
+/// Options of `feedloop swap`.
+#[derive(clap::Args, Debug)]
+pub struct SwapArgs {
+    /// Instance of the running loop.
+    #[arg(long)]
+    pub instance: String,
+    /// Axis name.
+    #[arg(long)]
+    pub axis: String,
+    /// position | feedforward | compensator | velocity.
+    #[arg(long)]
+    pub stage: String,
+    /// Plugin id (the same id with --params is a retune).
+    #[arg(long)]
+    pub plugin: String,
+    /// TOML file with the plugin's own parameter keys (omitted keys keep their values).
+    #[arg(long)]
+    pub params: Option<PathBuf>,
+    /// Shared-library plugin to load.
+    #[arg(long)]
+    pub lib: Option<PathBuf>,
+    /// Apply a set the loop model finds unstable or marginal, and keep a swap whose first
+    /// torque step exceeds the bumpless bound (both flagged in the answer and the summary).
+    #[arg(long)]
+    pub force: bool,
+    /// Seconds to wait for the answer.
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout_s: f64,
+}
+
 /// `feedloop swap`.
-pub fn swap(
-    instance: &str,
-    axis: &str,
-    stage: &str,
-    plugin: &str,
-    params: Option<&Path>,
-    lib: Option<&Path>,
-    timeout_s: f64,
-) -> Result<ExitCode> {
+pub fn swap(a: &SwapArgs) -> Result<ExitCode> {
+    let (params, lib) = (a.params.as_deref(), a.lib.as_deref());
     let params_text = match params {
         Some(p) => {
             let text =
@@ -38,13 +61,14 @@ pub fn swap(
         None => None,
     };
     let req = Request::Swap(SwapRequest {
-        axis: axis.to_string(),
-        stage: stage.to_string(),
-        plugin: plugin.to_string(),
+        axis: a.axis.clone(),
+        stage: a.stage.clone(),
+        plugin: a.plugin.clone(),
         params: params_text,
         lib: lib_path,
+        force: a.force,
     });
-    let answer = request(instance, &req, Duration::from_secs_f64(timeout_s))?;
+    let answer = request(&a.instance, &req, Duration::from_secs_f64(a.timeout_s))?;
     print_answer(&answer)
 }
 

@@ -79,29 +79,7 @@ enum Command {
         args: processes::ProcArgs,
     },
     /// Swap (or retune) a controller of a running loop.
-    Swap {
-        /// Instance of the running loop.
-        #[arg(long)]
-        instance: String,
-        /// Axis name.
-        #[arg(long)]
-        axis: String,
-        /// position | feedforward | compensator | velocity.
-        #[arg(long)]
-        stage: String,
-        /// Plugin id (the same id with --params is a retune).
-        #[arg(long)]
-        plugin: String,
-        /// TOML file with the plugin's own parameter keys (omitted keys keep their values).
-        #[arg(long)]
-        params: Option<PathBuf>,
-        /// Shared-library plugin to load.
-        #[arg(long)]
-        lib: Option<PathBuf>,
-        /// Seconds to wait for the answer.
-        #[arg(long, default_value_t = 5.0)]
-        timeout_s: f64,
-    },
+    Swap(control::SwapArgs),
     /// Status of a running loop (cycle, plugins per axis and stage, swaps).
     Status {
         /// Instance of the running loop.
@@ -172,23 +150,7 @@ fn main() -> ExitCode {
         Command::Identify(c) => identify_cmd::identify(c),
         Command::Tune(a) => identify_cmd::tune(a),
         Command::Excite(a) => identify_cmd::excite(a),
-        Command::Swap {
-            instance,
-            axis,
-            stage,
-            plugin,
-            params,
-            lib,
-            timeout_s,
-        } => control::swap(
-            &instance,
-            &axis,
-            &stage,
-            &plugin,
-            params.as_deref(),
-            lib.as_deref(),
-            timeout_s,
-        ),
+        Command::Swap(a) => control::swap(&a),
         Command::Status {
             instance,
             timeout_s,

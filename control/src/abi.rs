@@ -14,6 +14,11 @@
 //! void feedloop_plugin_destroy(void *state);
 //! ```
 //!
+//! Optional: `uint32_t feedloop_plugin_stages(void);` the stages the plugin can fill, one bit per
+//! stage in [`feedloop_model::Stage::ALL`] order (1 position, 2 feedforward, 4 compensator,
+//! 8 velocity). A swap into another stage is refused; a library without the symbol is taken
+//! for any stage (its torque is still checked against the bumpless bound).
+//!
 //! A step with `ctx->cycle == UINT64_MAX` is the bumpless initialisation: `io` holds the last
 //! cycle's signals, whose `torque` the previous controller produced; the plugin sets its state so
 //! that its next output continues from it.
@@ -58,5 +63,7 @@ pub type CreateFn =
     unsafe extern "C" fn(*const u8, usize, *const FlAxis, *mut u8, usize) -> *mut c_void;
 /// `feedloop_plugin_step`.
 pub type StepFn = unsafe extern "C" fn(*mut c_void, *const CycleContext, *mut AxisSignals) -> i32;
+/// `feedloop_plugin_stages` (optional).
+pub type StagesFn = unsafe extern "C" fn() -> u32;
 /// `feedloop_plugin_destroy`.
 pub type DestroyFn = unsafe extern "C" fn(*mut c_void);

@@ -154,6 +154,12 @@ pub trait Controller: Send {
     fn gain(&self) -> Option<f64> {
         None
     }
+    /// The gains this controller puts into the loop model
+    /// ([`crate::loop_model::margins`]), checked before a swap or a retune is applied. The
+    /// default: none known (the margin check then cannot be made and the answer says so).
+    fn loop_gains(&self) -> crate::loop_model::LoopGains {
+        crate::loop_model::LoopGains::default()
+    }
 }
 
 /// A multi-axis law that runs after the pre-velocity stages of all axes (e.g. a contour coupler).
@@ -171,6 +177,16 @@ pub trait Coupler: Send {
 pub trait PluginRegistry: Send + Sync {
     /// Ids of the available per-axis plugins and the stage each belongs to by default.
     fn ids(&self) -> Vec<(&'static str, Stage)>;
+    /// The stages plugin `id` can fill (empty for an unknown id). The default: the one stage
+    /// [`PluginRegistry::ids`] gives it. A plugin in another stage would compute the wrong
+    /// signal (a torque where a velocity command is expected), so jobs and swaps refuse it.
+    fn stages(&self, id: &str) -> Vec<Stage> {
+        self.ids()
+            .into_iter()
+            .filter(|(i, _)| *i == id)
+            .map(|(_, s)| s)
+            .collect()
+    }
     /// Builds plugin `id` for `axis` from `params` (keys of the plugin; keys left out default
     /// to the axis model's `[controller]` values). `file` names where the params came from.
     fn create(

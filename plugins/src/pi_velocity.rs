@@ -374,6 +374,14 @@ impl Controller for PiVelocity {
         Some(self.params.kv)
     }
 
+    fn loop_gains(&self) -> feedloop_control::loop_model::LoopGains {
+        feedloop_control::loop_model::LoopGains {
+            kp_per_s: None,
+            kv: Some(self.params.kv),
+            tv_s: Some(self.params.tv_s),
+        }
+    }
+
     fn initialize_from(&mut self, last: &AxisSignals) {
         // Choose the integrator so that last cycle's inputs would have produced last cycle's
         // torque: then the first output of this controller continues from it.

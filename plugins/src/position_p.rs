@@ -80,6 +80,13 @@ impl Controller for PositionP {
         Self::ID
     }
 
+    fn loop_gains(&self) -> feedloop_control::loop_model::LoopGains {
+        feedloop_control::loop_model::LoopGains {
+            kp_per_s: Some(self.params.kp_per_s),
+            ..Default::default()
+        }
+    }
+
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let v = self.params.kp_per_s * (io.reference[0] - io.load_pos);
         let v = match &mut self.filter {

@@ -4,16 +4,16 @@
 //! the control period's delay and zero-order hold) have less than 30 deg phase margin or 6 dB
 //! gain margin.
 
-use std::f64::consts::PI;
-
 use feedloop_model::job::Job;
-use feedloop_model::model::PlantParams;
 use rayon::prelude::*;
-use rustfft::num_complex::Complex64;
 use serde::Serialize;
 
 use super::inertia::run_axis;
 use super::IdentifyError;
+
+pub use feedloop_control::loop_model::{
+    loop_delay_s, margins, model_delay_cycles, Gains, MIN_GAIN_MARGIN_DB, MIN_PHASE_MARGIN_DEG,
+};
 
 /// Tunable parameters, in grid order.
 pub const PARAMS: [&str; 3] = ["kp_per_s", "kv_nms_per_rad", "tv_s"];
@@ -78,27 +78,6 @@ pub fn parse_grid(s: &str) -> Result<Vec<GridAxis>, IdentifyError> {
     Ok(out)
 }
 
-/// Controller parameters of one evaluation.
-#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
-pub struct Gains {
-    /// Position gain, 1/s.
-    pub kp_per_s: f64,
-    /// Velocity gain, N m s/rad.
-    pub kv_nms_per_rad: f64,
-    /// Integral time, s.
-    pub tv_s: f64,
-}
-
-impl Gains {
-    fn set(&mut self, name: &str, v: f64) {
-        match name {
-            "kp_per_s" => self.kp_per_s = v,
-            "kv_nms_per_rad" => self.kv_nms_per_rad = v,
-            _ => self.tv_s = v,
-        }
-    }
-}
-
 /// The job's gains for axis `i` (chain params first, then the model's controller).
 pub fn job_gains(job: &Job, i: usize) -> Gains {
     let c = &job.axes[i].model.controller;
@@ -136,95 +115,6 @@ pub fn job_with_gains(job: &Job, i: usize, g: Gains) -> Job {
         }
     }
     j
-}
-
-/// Phase and gain margins (deg, dB) of the velocity loop and of the position loop around it,
-/// from the 2-mass model; the worse of the two loops. The phase margin is the smallest
-/// distance of the phase from -180 deg at any gain crossover; the gain margin the smallest
-/// -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
-///
-/// The digital controller is in the loop with its sampling: both loops are computed from
-/// samples taken at the start of a cycle and the torque is held for a period. With
-/// `period_s = T > 0` the torque path carries the zero-order hold `(1 - e^{-sT}) / (sT)` (about
-/// T/2 of delay) and the frequency grid stops at the Nyquist frequency; `delay_s` adds a
-/// transport delay `e^{-s delay_s}` (computation, fieldbus: one period when the drive applies
-/// the command at the next cycle; 1.5 T in all is 8.6 deg at 160 Hz for T = 1e-4 s).
-/// `period_s = 0, delay_s = 0` is the continuous-time loop.
-pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Option<(f64, f64)> {
-    let t = plant.two_mass()?;
-    let (jm, dm, kl, cl, jl, dl) = (
-        t.jm_kgm2,
-        t.dm_nms_per_rad,
-        t.kl_nm_per_rad,
-        t.cl_nms_per_rad,
-        t.jl_kgm2,
-        t.dl_nms_per_rad,
-    );
-    let n = 4000;
-    let f_max = if period_s > 0.0 {
-        (0.5 / period_s).min(1e4)
-    } else {
-        1e4
-    };
-    let mut lv = Vec::with_capacity(n);
-    let mut lp = Vec::with_capacity(n);
-    for k in 0..n {
-        let f = 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64);
-        let s = Complex64::new(0.0, 2.0 * PI * f);
-        let zoh = if period_s > 0.0 {
-            (1.0 - (-s * period_s).exp()) / (s * period_s)
-        } else {
-            Complex64::new(1.0, 0.0)
-        };
-        let delay = zoh * (-s * delay_s).exp();
-        let ks = kl + cl * s;
-        let a = jm * s * s + dm * s + ks;
-        let b = jl * s * s + dl * s + ks;
-        let d = a * b - ks * ks;
-        let cv = delay
-            * if g.tv_s > 0.0 {
-                g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
-            } else {
-                Complex64::new(g.kv_nms_per_rad, 0.0)
-            };
-        let l_v = cv * s * b / d;
-        lv.push((f, l_v));
-        let th_l_over_v = cv * ks / (d + cv * s * b);
-        lp.push((f, g.kp_per_s * th_l_over_v));
-    }
-    let m = |l: &[(f64, Complex64)]| -> (f64, f64) {
-        let mut pm = f64::INFINITY;
-        let mut gm = f64::INFINITY;
-        let mut prev_phase = l[0].1.arg();
-        let mut phase = prev_phase;
-        for w in l.windows(2) {
-            let p = w[1].1.arg();
-            let mut dp = p - prev_phase;
-            while dp > PI {
-                dp -= 2.0 * PI;
-            }
-            while dp < -PI {
-                dp += 2.0 * PI;
-            }
-            let ph0 = phase;
-            phase += dp;
-            prev_phase = p;
-            let (m0, m1) = (w[0].1.norm(), w[1].1.norm());
-            if (m0 - 1.0) * (m1 - 1.0) <= 0.0 {
-                let p = w[1].1.arg().to_degrees();
-                pm = pm.min(180.0 - p.abs());
-            }
-            let c0 = ((ph0 + PI) / (2.0 * PI)).floor();
-            let c1 = ((phase + PI) / (2.0 * PI)).floor();
-            if c0 != c1 {
-                gm = gm.min(-20.0 * m1.log10());
-            }
-        }
-        (pm, gm)
-    };
-    let (pv, gv) = m(&lv);
-    let (pp, gp) = m(&lp);
-    Some((pv.min(pp), gv.min(gp)))
 }
 
 /// Score of one evaluation.
@@ -282,23 +172,6 @@ pub fn ramp_error(job: &Job, i: usize, weights: [f64; 3]) -> Result<(f64, f64), 
     Ok((e, tmax))
 }
 
-/// The plant's own transport delay of axis `i` (`[effects.delay] delay_cycles`), cycles.
-pub fn model_delay_cycles(job: &Job, i: usize) -> u32 {
-    job.axes[i]
-        .model
-        .effects
-        .get("delay")
-        .and_then(|d| d.get("delay_cycles"))
-        .and_then(|v| v.as_integer())
-        .map_or(0, |n| n.clamp(0, 10_000) as u32)
-}
-
-/// Transport delay of the margin check, s: `delay_cycles` (the drive's computation / output
-/// delay) plus the model's own `[effects.delay]`, in periods.
-pub fn loop_delay_s(job: &Job, i: usize, delay_cycles: u32) -> f64 {
-    job.period_s * f64::from(delay_cycles + model_delay_cycles(job, i))
-}
-
 /// Evaluates one gain set; the margins include the zero-order hold and `delay_cycles` periods
 /// of transport delay on top of the model's own.
 pub fn evaluate(job: &Job, i: usize, g: Gains, weights: [f64; 3], delay_cycles: u32) -> Evaluation {
@@ -309,7 +182,7 @@ pub fn evaluate(job: &Job, i: usize, g: Gains, weights: [f64; 3], delay_cycles: 
     };
     let delay_s = loop_delay_s(job, i, delay_cycles);
     if let Some((pm, gm)) = margins(&job.axes[i].model.plant, g, job.period_s, delay_s) {
-        if pm < 30.0 || gm < 6.0 {
+        if pm < MIN_PHASE_MARGIN_DEG || gm < MIN_GAIN_MARGIN_DB {
             return reject(format!(
                 "margins {pm:.1} deg / {gm:.1} dB (with the {:.0} us sampling hold and {:.0} us delay)",
                 0.5e6 * job.period_s,

@@ -44,6 +44,17 @@ pub const DEFAULT_CHAIN: [(Stage, &str); 2] = [
     (Stage::Velocity, "pi_velocity"),
 ];
 
+/// Why plugin `id` cannot fill `stage`, naming the stages it can fill.
+pub fn wrong_stage(id: &str, stage: Stage, fits: &[Stage]) -> String {
+    let names: Vec<&str> = fits.iter().map(|s| s.id()).collect();
+    format!(
+        "plugin `{id}` cannot fill the {} stage (it fills: {}); a stage's plugin must compute \
+         that stage's signal",
+        stage.id(),
+        names.join(", ")
+    )
+}
+
 impl Chain {
     /// Builds the chain of `job` from `registry` (validates every plugin's parameters).
     pub fn build(job: &Job, registry: &dyn PluginRegistry) -> Result<Self, ConfigError> {
@@ -62,6 +73,14 @@ impl Chain {
             let mut stages: [Option<Box<dyn Controller>>; 4] = [None, None, None, None];
             let explicit: Vec<_> = job.chain.iter().filter(|c| c.axis == i).collect();
             for e in &explicit {
+                let fits = registry.stages(&e.plugin);
+                if !fits.is_empty() && !fits.contains(&e.stage) {
+                    return Err(ConfigError::new(
+                        &job.path,
+                        format!("{}.stage", e.key),
+                        wrong_stage(&e.plugin, e.stage, &fits),
+                    ));
+                }
                 let c = registry
                     .create(&e.plugin, &e.params, ctx, &job.path)
                     .map_err(|err| prefix_key(err, &e.key))?;

@@ -6,7 +6,10 @@
 //! the server in the cycle's slack (non-blocking), hands swap requests to a builder thread that
 //! parses and validates the new plugin outside the cycle, and switches the built controller in
 //! at a cycle boundary, initialised from the old one's signals (bumpless). The first cycles after
-//! a swap are a probation: a non-finite or out-of-limit torque rolls the swap back.
+//! a swap are a probation: a non-finite or out-of-limit torque rolls the swap back, and so does
+//! a first cycle whose torque step exceeds the bumpless bound (unless the request says `force`).
+//! Before that, the builder refuses a plugin in a stage it does not fill, and a gain set the loop
+//! model (the one `feedloop tune` uses) finds unstable or marginal, unless `force`.
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -18,6 +21,7 @@ use crate::shared::clock::now_ns;
 use crate::shared::ipc::{create_node, IpcError};
 use crate::shared::wire::{ActuatorCommand, MAX_AXES};
 use feedloop_control::controller::{AxisContext, Controller, PluginRegistry, Stage};
+use feedloop_control::loop_model::{self, LoopGains};
 use feedloop_model::job::Job;
 use feedloop_model::params::ConfigError;
 use iceoryx2::active_request::ActiveRequest;
@@ -220,6 +224,7 @@ struct BuildJob {
     plugin: String,
     params: Option<String>,
     lib: Option<String>,
+    force: bool,
 }
 
 /// A stage's plugin id and the parameters it was built from.
@@ -236,6 +241,7 @@ enum ToBuilder {
         axis: usize,
         stage: Stage,
         entry: (String, toml::Table),
+        gains: LoopGains,
     },
     /// A controller taken out of the chain: dropped here, not in the cycle.
     Retire(Box<dyn Controller>),
@@ -256,20 +262,39 @@ enum SwapError {
     /// The parameters, or the plugin built from them, were refused.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The plugin does not fill the stage asked for.
+    #[error("{0}")]
+    WrongStage(String),
+    /// The loop model finds the axis unstable or marginal with the new controller.
+    #[error("refused before it was applied: {0}; check the gains, or send it with --force to apply it anyway")]
+    Unsafe(String),
 }
 
 struct Built {
-    axis: usize,
-    stage: Stage,
     controller: Result<Box<dyn Controller>, SwapError>,
     /// The stage's current (plugin, parameters) once this controller is confirmed.
     entry: (String, toml::Table),
+    /// What the builder found out about it.
+    check: Checked,
+}
+
+/// The builder's findings on a new controller, carried into its [`SwapEvent`].
+#[derive(Default)]
+struct Checked {
+    gains: LoopGains,
+    margins: Option<(f64, f64)>,
+    force: bool,
+    warnings: Vec<String>,
 }
 
 struct Probation {
     axis: usize,
     stage: Stage,
     entry: Option<(String, toml::Table)>,
+    gains: LoopGains,
+    force: bool,
+    /// The first cycle's torque step exceeded the bound: that cycle held the previous torque.
+    vetoed: bool,
     old: Option<Box<dyn Controller>>,
     left: u32,
     event: usize,
@@ -335,11 +360,14 @@ impl ControlPlane {
             .collect();
         let mut current: Vec<[(String, toml::Table); 4]> = Vec::new();
         let mut plugin_ids = Vec::new();
+        let mut gains: Vec<[LoopGains; 4]> = Vec::new();
         for (i, a) in cycle.chain().axes().iter().enumerate() {
             let mut cur: [(String, toml::Table); 4] = Default::default();
             let mut ids = StagePlugins::default();
+            let mut g = [LoopGains::default(); 4];
             for st in Stage::ALL {
                 if let Some(c) = &a.stages[st.index()] {
+                    g[st.index()] = c.loop_gains();
                     let params = job
                         .chain
                         .iter()
@@ -352,14 +380,23 @@ impl ControlPlane {
             }
             current.push(cur);
             plugin_ids.push(ids);
+            gains.push(g);
         }
+        let model = LoopCheck {
+            gains,
+            delays_s: (0..job.axes.len())
+                // this runtime applies a command within the period of its sample: the hold
+                // and the model's own [effects.delay] are the loop's delay
+                .map(|i| loop_model::loop_delay_s(job, i, 0))
+                .collect(),
+        };
         let (to_builder, jobs) = mpsc::channel::<ToBuilder>();
         let (done_tx, from_builder) = mpsc::channel::<Built>();
         let graveyard = to_builder.clone();
         let job_path: PathBuf = job.path.clone();
         std::thread::Builder::new()
             .name("feedloop-builder".into())
-            .spawn(move || builder(jobs, done_tx, registry, contexts, current, job_path))
+            .spawn(move || builder(jobs, done_tx, registry, contexts, current, model, job_path))
             .map_err(|e| IpcError::Setup {
                 what: "start the plugin builder thread".into(),
                 detail: e.to_string(),
@@ -413,7 +450,7 @@ impl ControlPlane {
                 self.refuse(&req, seq, "swap", reason.to_string());
             }
             Ok(new) => {
-                let _ = (built.axis, built.stage);
+                let check = built.check;
                 let new_id = new.id().to_string();
                 let new_gain = new.gain();
                 let old = cycle.chain_mut().replace(axis, stage, new);
@@ -435,12 +472,19 @@ impl ControlPlane {
                     allowed_step: allowed,
                     rolled_back: false,
                     reason: None,
+                    phase_margin_deg: check.margins.map(|m| m.0),
+                    gain_margin_db: check.margins.map(|m| m.1),
+                    forced: check.force,
+                    warnings: check.warnings,
                 });
                 self.plugin_ids[axis].set(stage, Some(new_id));
                 self.probation = Some(Probation {
                     axis,
                     stage,
                     entry: Some(built.entry),
+                    gains: check.gains,
+                    force: check.force,
+                    vetoed: false,
                     old,
                     left: PROBATION_CYCLES,
                     event: self.swaps.len() - 1,
@@ -448,6 +492,33 @@ impl ControlPlane {
                 });
                 self.pending = Some((req, axis, stage));
             }
+        }
+    }
+
+    /// Between the cycle's chain and the command's publication: in the first cycle of a swap,
+    /// measures the torque step of the new controller (`torque_step`) and, when it exceeds the
+    /// bumpless bound and the request did not say `force`, holds the previous torque in `cmd`
+    /// instead (the swap is then rolled back after the cycle). No allocation.
+    #[inline]
+    pub fn vet(&mut self, cmd: &mut ActuatorCommand) {
+        let Some(p) = self.probation.as_mut() else {
+            return;
+        };
+        if p.left != PROBATION_CYCLES {
+            return;
+        }
+        let torque = cmd.axes[p.axis].torque;
+        let prev = if self.hist_len > 0 {
+            self.history[p.axis][(self.hist_pos + HISTORY - 1) % HISTORY]
+        } else {
+            torque
+        };
+        let ev = &mut self.swaps[p.event];
+        ev.torque_step = (torque - prev).abs();
+        // a NaN step is the non-finite check's
+        if ev.torque_step > ev.allowed_step && !p.force {
+            cmd.axes[p.axis].torque = prev;
+            p.vetoed = true;
         }
     }
 
@@ -468,21 +539,22 @@ impl ControlPlane {
     /// it (probation checks, commit or rollback, the one answer) reads in the order it happens.
     pub fn after_cycle(&mut self, cycle: &mut ControlCycle, cmd: &ActuatorCommand, seq: u64) {
         let n = self.history.len().min(MAX_AXES);
-        let prev_pos = (self.hist_pos + HISTORY - 1) % HISTORY;
         if let Some(p) = self.probation.as_mut() {
             let torque = cmd.axes[p.axis].torque;
-            if p.left == PROBATION_CYCLES {
-                let prev = if self.hist_len > 0 {
-                    self.history[p.axis][prev_pos]
-                } else {
-                    torque
-                };
-                self.swaps[p.event].torque_step = (torque - prev).abs();
+            if p.left == PROBATION_CYCLES && p.force {
+                let ev = &mut self.swaps[p.event];
+                if ev.torque_step > ev.allowed_step {
+                    ev.warnings
+                        .push("torque step above the bumpless bound: kept (force)".to_string());
+                }
             }
+            let step_too_large = p.vetoed;
             let bad = if cycle.chain().nonfinite_faults > p.faults_before {
                 Some("the new controller produced a non-finite torque")
             } else if torque.abs() > self.limits[p.axis] * 1.000_001 {
                 Some("the new controller exceeded the torque limit")
+            } else if step_too_large {
+                Some("its first torque step would have exceeded the bumpless bound (allowed_step): that cycle held the previous torque; send it with --force to keep such a swap")
             } else {
                 None
             };
@@ -521,6 +593,7 @@ impl ControlPlane {
                         axis: p.axis,
                         stage: p.stage,
                         entry,
+                        gains: p.gains,
                     });
                 }
                 if let Some((req, _, _)) = self.pending.take() {
@@ -622,6 +695,7 @@ impl ControlPlane {
             plugin: msg.plugin,
             params: msg.params,
             lib: msg.lib,
+            force: msg.force,
         })
     }
 }
@@ -638,12 +712,21 @@ fn respond(req: &CtlActive, answer: &Answer) {
     let _ = req.send_copy(ControlResponse::new(answer));
 }
 
+/// What the builder needs to judge a new controller with the loop model.
+struct LoopCheck {
+    /// Per axis, what each stage's current controller contributes.
+    gains: Vec<[LoopGains; 4]>,
+    /// Per axis, the transport delay of the margin check (the model's own), s.
+    delays_s: Vec<f64>,
+}
+
 fn builder(
     jobs: mpsc::Receiver<ToBuilder>,
     done: mpsc::Sender<Built>,
     registry: Arc<dyn PluginRegistry>,
     contexts: Vec<AxisContext>,
     mut current: Vec<[(String, toml::Table); 4]>,
+    mut model: LoopCheck,
     job_path: PathBuf,
 ) {
     // Blocks until there is work: no periodic wake-ups to preempt a spinning loop.
@@ -654,31 +737,94 @@ fn builder(
                 drop(old);
                 continue;
             }
-            Ok(ToBuilder::Settled { axis, stage, entry }) => {
+            Ok(ToBuilder::Settled {
+                axis,
+                stage,
+                entry,
+                gains,
+            }) => {
                 if let Some(slot) = current.get_mut(axis) {
                     slot[stage.index()] = entry;
+                }
+                if let Some(slot) = model.gains.get_mut(axis) {
+                    slot[stage.index()] = gains;
                 }
                 continue;
             }
             Err(mpsc::RecvError) => return,
         };
-        let (result, entry) =
-            match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
-                Ok((c, entry)) => (Ok(c), entry),
-                Err(e) => (Err(e), Default::default()),
-            };
-        if done
-            .send(Built {
-                axis: job.axis,
-                stage: job.stage,
-                controller: result,
-                entry,
-            })
-            .is_err()
-        {
+        let built = match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
+            Ok((c, entry)) => match judge(&job, c.as_ref(), &contexts, &model) {
+                Ok(check) => Built {
+                    controller: Ok(c),
+                    entry,
+                    check,
+                },
+                Err(e) => {
+                    drop(c);
+                    Built {
+                        controller: Err(e),
+                        entry: Default::default(),
+                        check: Checked::default(),
+                    }
+                }
+            },
+            Err(e) => Built {
+                controller: Err(e),
+                entry: Default::default(),
+                check: Checked::default(),
+            },
+        };
+        if done.send(built).is_err() {
             return;
         }
     }
+}
+
+/// The loop model's verdict on the axis with `new` in the stage of `job`: its margins, or the
+/// refusal of an unstable or marginal set (a warning when the request says `force`).
+fn judge(
+    job: &BuildJob,
+    new: &dyn Controller,
+    contexts: &[AxisContext],
+    model: &LoopCheck,
+) -> Result<Checked, SwapError> {
+    let mut stages = model.gains[job.axis];
+    let gains = new.loop_gains();
+    stages[job.stage.index()] = gains;
+    // Kp from the position stage first, Kv and Tv from the velocity stage first.
+    let order = [
+        stages[Stage::Position.index()],
+        stages[Stage::Velocity.index()],
+        stages[Stage::Feedforward.index()],
+        stages[Stage::Compensator.index()],
+    ];
+    let mut check = Checked {
+        gains,
+        force: job.force,
+        ..Default::default()
+    };
+    let ctx = &contexts[job.axis];
+    let margins = LoopGains::combine(&order)
+        .and_then(|g| loop_model::margins(&ctx.plant, g, ctx.period_s, model.delays_s[job.axis]));
+    match margins {
+        None => check.warnings.push(
+            "margins not checked: the loop's gains are not all known (a plugin that reports none)"
+                .into(),
+        ),
+        Some((pm, gm)) => {
+            check.margins = Some((pm, gm));
+            if let Some(why) = loop_model::margin_failure(pm, gm) {
+                if !job.force {
+                    return Err(SwapError::Unsafe(why));
+                }
+                check
+                    .warnings
+                    .push(format!("{why}: applied anyway (force)"));
+            }
+        }
+    }
+    Ok(check)
 }
 
 fn build_one(
@@ -695,11 +841,28 @@ fn build_one(
             job.params.as_deref().unwrap_or(""),
             &contexts[job.axis],
         )?;
+        if let Some(fits) = c.stages() {
+            if !fits.contains(&job.stage) {
+                return Err(SwapError::WrongStage(crate::scheduler::chain::wrong_stage(
+                    &job.plugin,
+                    job.stage,
+                    &fits,
+                )));
+            }
+        }
         // A library's parameters are its own text: a later built-in retune starts afresh.
         return Ok((
             Box::new(c),
             (format!("{}@{lib}", job.plugin), toml::Table::new()),
         ));
+    }
+    let fits = registry.stages(&job.plugin);
+    if !fits.is_empty() && !fits.contains(&job.stage) {
+        return Err(SwapError::WrongStage(crate::scheduler::chain::wrong_stage(
+            &job.plugin,
+            job.stage,
+            &fits,
+        )));
     }
     let src = Path::new("<swap --params>");
     let (cur_id, cur_params) = &current[job.axis][job.stage.index()];

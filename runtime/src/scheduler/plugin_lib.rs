@@ -5,7 +5,9 @@ use std::ffi::c_void;
 use std::path::Path;
 use std::sync::Arc;
 
-use feedloop_control::abi::{AbiVersionFn, CreateFn, DestroyFn, FlAxis, StepFn, ABI_VERSION};
+use feedloop_control::abi::{
+    AbiVersionFn, CreateFn, DestroyFn, FlAxis, StagesFn, StepFn, ABI_VERSION,
+};
 use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
 };
@@ -54,6 +56,7 @@ pub struct LibController {
     state: *mut c_void,
     step: StepFn,
     destroy: DestroyFn,
+    stages: Option<u32>,
     // Keeps the code mapped as long as the state lives (dropped after `destroy`).
     _lib: Arc<libloading::Library>,
 }
@@ -89,6 +92,10 @@ impl LibController {
             let destroy: DestroyFn = *lib
                 .get::<DestroyFn>(b"feedloop_plugin_destroy\0")
                 .map_err(|_| sym("feedloop_plugin_destroy"))?;
+            let stages = lib
+                .get::<StagesFn>(b"feedloop_plugin_stages\0")
+                .ok()
+                .map(|f| f());
             let found = version();
             if found != ABI_VERSION {
                 return Err(AbiError::Version { path: p, found });
@@ -128,9 +135,20 @@ impl LibController {
                 state,
                 step,
                 destroy,
+                stages,
                 _lib: Arc::new(lib),
             })
         }
+    }
+
+    /// The stages the library declares it can fill (`None`: it does not say).
+    pub fn stages(&self) -> Option<Vec<feedloop_model::Stage>> {
+        self.stages.map(|mask| {
+            feedloop_model::Stage::ALL
+                .into_iter()
+                .filter(|s| mask >> s.index() & 1 == 1)
+                .collect()
+        })
     }
 }
 

@@ -247,6 +247,9 @@ pub fn run_scheduler(
             .max(c0.saturating_sub(ep.last_poll_ns()))
             .max(ep.wait_start_ns().saturating_sub(prev_end_ns));
         cycle.step(&s, &mut cmd);
+        if let Some(c) = control.as_deref_mut() {
+            c.vet(&mut cmd);
+        }
         if stop_now {
             cmd.flags |= FLAG_STOP;
             stop_sent = true;

@@ -99,6 +99,12 @@ pub extern "C" fn feedloop_plugin_abi_version() -> u32 {
     ABI_VERSION
 }
 
+/// The stages this plugin can fill: the velocity loop only (bit 3).
+#[no_mangle]
+pub extern "C" fn feedloop_plugin_stages() -> u32 {
+    1 << 3
+}
+
 /// Creates an instance; NULL with a reason in `err` on bad parameters.
 ///
 /// # Safety

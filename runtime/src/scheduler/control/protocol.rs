@@ -42,6 +42,11 @@ pub struct SwapRequest {
     /// Path of a plugin library to load `plugin` from.
     #[serde(default)]
     pub lib: Option<String>,
+    /// Apply even when the loop model finds the set unstable or marginal, and keep it when its
+    /// first cycles step the torque beyond the bumpless bound (both flagged in the swap's
+    /// `warnings`). Written only when set, so a plain request reads as before.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub force: bool,
 }
 
 impl SwapRequest {
@@ -255,6 +260,19 @@ pub struct SwapEvent {
     pub rolled_back: bool,
     /// Why it was rolled back.
     pub reason: Option<String>,
+    /// Phase margin of the axis' loops with the new controller, from the loop model (null when
+    /// it could not be computed, e.g. a library plugin that reports no gains), deg.
+    #[serde(default)]
+    pub phase_margin_deg: Option<f64>,
+    /// Gain margin likewise, dB.
+    #[serde(default)]
+    pub gain_margin_db: Option<f64>,
+    /// Whether the request said `force`.
+    #[serde(default)]
+    pub forced: bool,
+    /// What a forced swap was let through despite (and notes, e.g. margins not checked).
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// A number, or NaN for the `null` JSON writes for a non-finite one.
@@ -274,6 +292,7 @@ mod tests {
             plugin: "pi_velocity".into(),
             params: Some("kv_nms_per_rad = 4.0".into()),
             lib: None,
+            force: false,
         })
     }
 
@@ -357,6 +376,10 @@ mod tests {
             allowed_step: 0.25,
             rolled_back: false,
             reason: None,
+            phase_margin_deg: Some(52.5),
+            gain_margin_db: None,
+            forced: true,
+            warnings: vec!["kept although marginal".into()],
         }
     }
 

@@ -1,0 +1,242 @@
+//! The loop model: margins of a P position loop around a PI velocity loop on the axis model,
+//! with the controller's sampling hold and a transport delay. `feedloop tune` rejects gain sets
+//! with it, and the scheduler checks a swap or a retune with it before applying it.
+
+use std::f64::consts::PI;
+
+use feedloop_model::job::Job;
+use feedloop_model::model::PlantParams;
+use num_complex::Complex64;
+
+/// Smallest phase margin a loop may have, deg.
+pub const MIN_PHASE_MARGIN_DEG: f64 = 30.0;
+/// Smallest gain margin a loop may have, dB.
+pub const MIN_GAIN_MARGIN_DB: f64 = 6.0;
+/// The drive's transport delay assumed by default, control periods (on top of the hold).
+pub const DEFAULT_DELAY_CYCLES: u32 = 1;
+
+/// The gains of a P position loop around a PI velocity loop.
+#[derive(Debug, Clone, Copy, serde::Serialize, PartialEq)]
+pub struct Gains {
+    /// Position gain, 1/s.
+    pub kp_per_s: f64,
+    /// Velocity gain, N m s/rad.
+    pub kv_nms_per_rad: f64,
+    /// Integral time, s.
+    pub tv_s: f64,
+}
+
+impl Gains {
+    /// Sets the parameter `name` (one of `kp_per_s`, `kv_nms_per_rad`, `tv_s`).
+    pub fn set(&mut self, name: &str, v: f64) {
+        match name {
+            "kp_per_s" => self.kp_per_s = v,
+            "kv_nms_per_rad" => self.kv_nms_per_rad = v,
+            _ => self.tv_s = v,
+        }
+    }
+}
+
+/// What a controller contributes to the loop model (each `None` when it has no such gain).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LoopGains {
+    /// Position gain Kp, 1/s.
+    pub kp_per_s: Option<f64>,
+    /// Velocity gain Kv, N m s/rad (N s/m).
+    pub kv: Option<f64>,
+    /// Integral time Tv, s (0: proportional only).
+    pub tv_s: Option<f64>,
+}
+
+impl LoopGains {
+    /// The loop's gains from its stages' (position stage first for Kp, velocity stage first for
+    /// Kv and Tv, as given in `stages`' order); `None` without a Kp or a Kv.
+    pub fn combine(stages: &[LoopGains]) -> Option<Gains> {
+        let kp = stages.iter().find_map(|s| s.kp_per_s)?;
+        let kv = stages.iter().find_map(|s| s.kv)?;
+        let tv = stages.iter().find_map(|s| s.tv_s).unwrap_or(0.0);
+        Some(Gains {
+            kp_per_s: kp,
+            kv_nms_per_rad: kv,
+            tv_s: tv,
+        })
+    }
+}
+
+/// Why a gain set fails the margin check, in words (`None` when it passes).
+pub fn margin_failure(pm_deg: f64, gm_db: f64) -> Option<String> {
+    let unstable = pm_deg <= 0.0 || gm_db <= 0.0;
+    (pm_deg < MIN_PHASE_MARGIN_DEG || gm_db < MIN_GAIN_MARGIN_DB).then(|| {
+        format!(
+            "{}: phase margin {pm_deg:.1} deg (at least {MIN_PHASE_MARGIN_DEG} needed), gain margin {gm_db:.1} dB (at least {MIN_GAIN_MARGIN_DB})",
+            if unstable { "unstable loop" } else { "marginal loop" }
+        )
+    })
+}
+
+/// Phase and gain margins (deg, dB) of the velocity loop and of the position loop around it,
+/// from the axis model (2-mass, or a rigid mass); the worse of the two loops. The phase margin
+/// is the smallest distance of the phase from -180 deg at any gain crossover; the gain margin
+/// the smallest -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
+///
+/// The digital controller is in the loop with its sampling: both loops are computed from
+/// samples taken at the start of a cycle and the torque is held for a period. With
+/// `period_s = T > 0` the torque path carries the zero-order hold `(1 - e^{-sT}) / (sT)` (about
+/// T/2 of delay) and the frequency grid stops at the Nyquist frequency; `delay_s` adds a
+/// transport delay `e^{-s delay_s}` (computation, fieldbus: one period when the drive applies
+/// the command at the next cycle; 1.5 T in all is 8.6 deg at 160 Hz for T = 1e-4 s).
+/// `period_s = 0, delay_s = 0` is the continuous-time loop. `None` when a margin cannot be
+/// computed (a non-finite or non-positive gain or model value).
+pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Option<(f64, f64)> {
+    let finite = [g.kp_per_s, g.kv_nms_per_rad, g.tv_s, period_s, delay_s]
+        .iter()
+        .all(|x| x.is_finite() && *x >= 0.0);
+    if !finite || g.kv_nms_per_rad <= 0.0 {
+        return None;
+    }
+    // Motor velocity per torque, and load position per motor position, at s.
+    let axis = |s: Complex64| -> (Complex64, Complex64) {
+        match plant {
+            PlantParams::Rigid(r) => (
+                1.0 / (r.mass_kg * s + r.viscous_ns_per_m),
+                Complex64::new(1.0, 0.0),
+            ),
+            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
+                let ks = t.kl_nm_per_rad + t.cl_nms_per_rad * s;
+                let a = t.jm_kgm2 * s * s + t.dm_nms_per_rad * s + ks;
+                let b = t.jl_kgm2 * s * s + t.dl_nms_per_rad * s + ks;
+                (s * b / (a * b - ks * ks), ks / b)
+            }
+        }
+    };
+    let n = 4000;
+    let f_max = if period_s > 0.0 {
+        (0.5 / period_s).min(1e4)
+    } else {
+        1e4
+    };
+    let mut lv = Vec::with_capacity(n);
+    let mut lp = Vec::with_capacity(n);
+    for k in 0..n {
+        let f = 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64);
+        let s = Complex64::new(0.0, 2.0 * PI * f);
+        let zoh = if period_s > 0.0 {
+            (1.0 - (-s * period_s).exp()) / (s * period_s)
+        } else {
+            Complex64::new(1.0, 0.0)
+        };
+        let delay = zoh * (-s * delay_s).exp();
+        let (gv, load_per_motor) = axis(s);
+        let cv = delay
+            * if g.tv_s > 0.0 {
+                g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
+            } else {
+                Complex64::new(g.kv_nms_per_rad, 0.0)
+            };
+        let l_v = cv * gv;
+        lv.push((f, l_v));
+        // load position per velocity command, through the closed velocity loop
+        let th_l_over_v = load_per_motor * l_v / ((1.0 + l_v) * s);
+        lp.push((f, g.kp_per_s * th_l_over_v));
+    }
+    let m = |l: &[(f64, Complex64)]| -> (f64, f64) {
+        let mut pm = f64::INFINITY;
+        let mut gm = f64::INFINITY;
+        let mut prev_phase = l[0].1.arg();
+        let mut phase = prev_phase;
+        for w in l.windows(2) {
+            let p = w[1].1.arg();
+            let mut dp = p - prev_phase;
+            while dp > PI {
+                dp -= 2.0 * PI;
+            }
+            while dp < -PI {
+                dp += 2.0 * PI;
+            }
+            let ph0 = phase;
+            phase += dp;
+            prev_phase = p;
+            let (m0, m1) = (w[0].1.norm(), w[1].1.norm());
+            if (m0 - 1.0) * (m1 - 1.0) <= 0.0 {
+                let p = w[1].1.arg().to_degrees();
+                pm = pm.min(180.0 - p.abs());
+            }
+            let c0 = ((ph0 + PI) / (2.0 * PI)).floor();
+            let c1 = ((phase + PI) / (2.0 * PI)).floor();
+            if c0 != c1 {
+                gm = gm.min(-20.0 * m1.log10());
+            }
+        }
+        (pm, gm)
+    };
+    let (pv, gmv) = m(&lv);
+    let (pp, gmp) = m(&lp);
+    let (pm, gm) = (pv.min(pp), gmv.min(gmp));
+    (!pm.is_nan() && !gm.is_nan()).then_some((pm, gm))
+}
+
+/// The plant's own transport delay of axis `i` (`[effects.delay] delay_cycles`), cycles.
+pub fn model_delay_cycles(job: &Job, i: usize) -> u32 {
+    job.axes[i]
+        .model
+        .effects
+        .get("delay")
+        .and_then(|d| d.get("delay_cycles"))
+        .and_then(|v| v.as_integer())
+        .map_or(0, |n| n.clamp(0, 10_000) as u32)
+}
+
+/// Transport delay of the margin check, s: `delay_cycles` (the drive's computation / output
+/// delay) plus the model's own `[effects.delay]`, in periods.
+pub fn loop_delay_s(job: &Job, i: usize, delay_cycles: u32) -> f64 {
+    job.period_s * f64::from(delay_cycles + model_delay_cycles(job, i))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use feedloop_model::model::RigidParams;
+
+    fn rigid() -> PlantParams {
+        PlantParams::Rigid(RigidParams {
+            mass_kg: 20.0,
+            viscous_ns_per_m: 50.0,
+        })
+    }
+
+    #[test]
+    fn a_rigid_axis_has_margins_that_fall_with_the_velocity_gain_and_the_delay() {
+        let g = |kv: f64| Gains {
+            kp_per_s: 50.0,
+            kv_nms_per_rad: kv,
+            tv_s: 0.01,
+        };
+        // Kv / m = 200 rad/s crossover: wide phase margin with a 1 ms hold.
+        let (pm, gm) = margins(&rigid(), g(4000.0), 1e-3, 0.0).unwrap();
+        assert!(pm > 45.0 && gm > 6.0, "{pm} deg, {gm} dB");
+        assert!(margin_failure(pm, gm).is_none());
+        // A hundred times the gain puts the crossover near Nyquist: unstable with the delay.
+        let (pm2, gm2) = margins(&rigid(), g(4.0e5), 1e-3, 1e-3).unwrap();
+        assert!(gm2 < 0.0, "{pm2} deg, {gm2} dB");
+        assert!(margin_failure(pm2, gm2).unwrap().starts_with("unstable"));
+        // Nothing to judge without a velocity gain, or with a non-finite one.
+        assert!(margins(&rigid(), g(0.0), 1e-3, 0.0).is_none());
+        assert!(margins(&rigid(), g(f64::NAN), 1e-3, 0.0).is_none());
+    }
+
+    #[test]
+    fn the_loop_gains_come_from_the_position_and_the_velocity_stage() {
+        let p = LoopGains {
+            kp_per_s: Some(40.0),
+            ..Default::default()
+        };
+        let v = LoopGains {
+            kv: Some(5.0),
+            tv_s: Some(0.004),
+            ..Default::default()
+        };
+        let g = LoopGains::combine(&[p, v]).unwrap();
+        assert_eq!((g.kp_per_s, g.kv_nms_per_rad, g.tv_s), (40.0, 5.0, 0.004));
+        assert!(LoopGains::combine(&[v]).is_none());
+    }
+}
