@@ -102,6 +102,10 @@ pub struct StiffnessArgs {
     /// Bode plot (SVG) with the picked points.
     #[arg(long)]
     pub svg: Option<PathBuf>,
+    /// Report a result that fails its checks (too few segments, low coherence, picks that do
+    /// not fit JM, ...) instead of refusing it; it is flagged in the text and the JSON.
+    #[arg(long)]
+    pub force: bool,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
@@ -292,6 +296,8 @@ fn sim_match_estimate(
         .as_ref()
         .context("--method sim-match needs --model JOB")?;
     let mpl = inp.mpl.unwrap_or(1.0);
+    let limit = job.axes[i].model.controller.torque_limit;
+    inertia::check_unsaturated(trace, axis, limit, "the measured run")?;
     let measured = inertia::trace_deviation(trace, axis, mpl, probe)?;
     let est = inertia::sim_match(job, i, measured, probe)?;
     if a.svg.is_some() {
@@ -337,6 +343,17 @@ fn linear_estimate(
         }
     };
     let (t0, t1) = (read_trace(n0)?, read_trace(n1)?);
+    let limit = inp
+        .job
+        .as_ref()
+        .and_then(|j| j.axes[inp.i].model.controller.torque_limit);
+    for (t, what) in [
+        (&t0, "the no-load run"),
+        (&t1, "the loaded run"),
+        (trace, "the measured run"),
+    ] {
+        inertia::check_unsaturated(t, axis, limit, what)?;
+    }
     let d0 = inertia::trace_deviation(&t0, axis, mpl, probe)?;
     let d1 = inertia::trace_deviation(&t1, axis, mpl, probe)?;
     let d = inertia::trace_deviation(trace, axis, mpl, probe)?;
@@ -446,8 +463,25 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
         std::fs::write(p, bode_svg(frf, a.f_min_hz, f_hi, &marks))
             .with_context(|| format!("writing {}", p.display()))?;
     }
+    let c = &r.checks;
+    let refused = !r.credible && !a.force;
     if a.json {
-        println!("{}", serde_json::to_string(&r)?);
+        let mut v = serde_json::to_value(&r)?;
+        v["refused"] = serde_json::json!(refused);
+        println!("{v}");
+    } else if refused {
+        eprintln!(
+            "feedloop: identify stiffness: refusing KL = {:.4} N m/rad, JL = {:.4e} kg m^2 \
+             (anti-resonance {:.4} Hz, resonance {:.4} Hz): the result is not credible:",
+            r.kl_nm_per_rad, r.jl_kgm2, r.antiresonance_hz, r.resonance_hz
+        );
+        for p in &c.problems {
+            eprintln!("  - {p}");
+        }
+        for p in &c.advice {
+            eprintln!("  to do: {p}");
+        }
+        eprintln!("  (--force reports it anyway, flagged)");
     } else {
         println!(
             "KL = {:.2} N m/rad, JL = {:.5e} kg m^2 (anti-resonance {:.2} Hz, resonance {:.2} Hz, coherence >= {:.3}, {} segments, {})",
@@ -465,8 +499,30 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
                 s.antiresonance_hz, s.resonance_hz
             );
         }
+        println!(
+            "checks: coherence {:.2} around the anti-resonance, {:.2} around the resonance; \
+             prominence {:.1} / {:.1} dB; {} reversals{}",
+            c.coherence_antiresonance,
+            c.coherence_resonance,
+            c.prominence_antiresonance_db,
+            c.prominence_resonance_db,
+            c.reversals,
+            c.jm_from_response_kgm2
+                .map(|j| format!("; JM from the response above the resonance {j:.4e} kg m^2"))
+                .unwrap_or_default()
+        );
+        for p in &c.problems {
+            println!("NOT CREDIBLE (kept with --force): {p}");
+        }
+        for p in &c.advice {
+            println!("to do: {p}");
+        }
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(if refused {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
 }
 
 /// The quantity a per-axis excitation key names, without its unit (`amplitude` for

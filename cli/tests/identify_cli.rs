@@ -472,3 +472,83 @@ fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
     assert_eq!(v["axis"], "y");
     assert_eq!(num(&v, "evaluated"), 3.0);
 }
+
+/// Issue 15 item 8: a stiffness result is judged before it is reported: a trace without
+/// excitation (one Welch segment, coherence 1 by construction, two picks a bin apart) and a
+/// motor inertia the response contradicts are refused with the reason and what to change;
+/// `--force` reports them flagged.
+#[test]
+fn identify_stiffness_refuses_results_it_cannot_vouch_for() {
+    let d = scratch("stiffchecks");
+    let circle = sim(&repo("examples/jobs/xy-circle.toml"), &d.join("circle"));
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 2e-3",
+        &[("--trace", &circle)],
+    ));
+    assert!(
+        e.contains("1 averaged segment") && e.contains("to do:") && e.contains("--force"),
+        "{e}"
+    );
+    let v = json(&cli(
+        "identify stiffness --jm-kgm2 2e-3 --force",
+        &[("--trace", &circle)],
+    ));
+    assert_eq!(
+        (&v["credible"], &v["refused"]),
+        (&false.into(), &false.into()),
+        "{v}"
+    );
+    assert!(
+        !v["checks"]["problems"].as_array().unwrap().is_empty(),
+        "{v}"
+    );
+    assert_eq!(v["checks"]["segments"], 1, "{v}");
+
+    let exc = sim(
+        &repo("examples/jobs/identify-stiffness.toml"),
+        &d.join("excitation"),
+    );
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 1e9",
+        &[("--trace", &exc)],
+    ));
+    assert!(e.contains("the given JM") && e.contains("--jm-kgm2"), "{e}");
+    let v = json(&cli(
+        "identify stiffness --jm-kgm2 2e-3",
+        &[("--trace", &exc)],
+    ));
+    assert_eq!(v["credible"], true, "{v}");
+    let c = &v["checks"];
+    assert!(num(c, "segments") >= 4.0, "{v}");
+    assert!(num(c, "coherence_resonance") > 0.5, "{v}");
+    assert!(num(c, "prominence_resonance_db") >= 6.0, "{v}");
+    let jm = num(c, "jm_from_response_kgm2");
+    assert!((jm / 2e-3 - 1.0).abs() < 0.5, "{v}");
+    // The shipped random segments reverse the axis: counted and said.
+    assert!(num(c, "reversals") > 10.0, "{v}");
+}
+
+/// Issue 15 item 9: the linear inertia method checks the recorded runs for torque saturation
+/// as sim-match checks its model.
+#[test]
+fn identify_inertia_linear_refuses_a_run_that_saturates_the_torque() {
+    let d = scratch("inertiasat");
+    let job = repo("examples/jobs/identify-inertia-move.toml");
+    let no_load = machine_trace(&d, "w0", 3.0e-3, "structure = \"split\"");
+    // Ten times the load inertia: the move needs more than the 30 N m the drive has.
+    let loaded = machine_trace(&d, "w900", 3.0e-2, "structure = \"split\"");
+    let measured = machine_trace(&d, "w30", 3.9e-3, "structure = \"split\"");
+    let e = refused(&cli(
+        "identify inertia --method linear --loaded-jl-kgm2 3.0e-2 --no-load-jl-kgm2 3.0e-3 --at 0.01",
+        &[
+            ("--no-load", &no_load),
+            ("--loaded", &loaded),
+            ("--model", &job),
+            ("--trace", &measured),
+        ],
+    ));
+    assert!(
+        e.contains("the loaded run") && e.contains("limit 30") && e.contains("gentler move"),
+        "{e}"
+    );
+}

@@ -308,6 +308,34 @@ pub fn run_axis(job: &Job, i: usize) -> Result<Vec<AxisRecord>, IdentifyError> {
     Ok(out)
 }
 
+/// Refuses a recorded run (`what`: "the loaded run", ...) whose `A.torque` reaches the drive's
+/// torque (force) limit `limit`: while it is clamped the deviation no longer grows linearly with
+/// the inertia. Without a torque column or a known limit there is nothing to check.
+pub fn check_unsaturated(
+    trace: &Trace,
+    axis: &str,
+    limit: Option<f64>,
+    what: &str,
+) -> Result<(), IdentifyError> {
+    let (Some(torque), Some(lim)) = (trace.column(&format!("{axis}.torque")), limit) else {
+        return Ok(());
+    };
+    if !lim.is_finite() {
+        return Ok(());
+    }
+    let at = |k: usize| torque[k].abs() >= 0.999 * lim;
+    let Some(first) = (0..torque.len()).find(|&k| at(k)) else {
+        return Ok(());
+    };
+    let n = (first..torque.len()).filter(|&k| at(k)).count();
+    Err(IdentifyError::Invalid(format!(
+        "{what} ({}) holds its torque at the limit {lim} of the model for {n} samples from \
+         t = {:.4} s: the deviation is no longer linear in the inertia; record a gentler move",
+        trace.path.display(),
+        trace.t()[first],
+    )))
+}
+
 /// The deviation of a simulated run.
 pub fn simulated_deviation(
     job: &Job,

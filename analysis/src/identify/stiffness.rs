@@ -97,9 +97,81 @@ pub struct StiffnessResult {
     pub estimator: &'static str,
     /// Averaged Welch segments.
     pub segments: usize,
+    /// Whether every check of `checks` passed.
+    pub credible: bool,
+    /// How far the result can be trusted: the figures it is judged on and what fails.
+    pub checks: StiffnessChecks,
     /// The FRF (not serialised).
     #[serde(skip)]
     pub frf: Option<Frf>,
+}
+
+/// Least averaged Welch segments for a coherence that means something (with one segment it is
+/// 1 whatever the data).
+pub const MIN_SEGMENTS: usize = 4;
+/// Least median coherence in the band around each pick.
+pub const MIN_COHERENCE: f64 = 0.5;
+/// Least distance between the two picks, and of each pick from the band's edges, in bins.
+pub const MIN_PICK_BINS: f64 = 3.0;
+/// Largest factor between the given JM and the one the response shows above the resonance.
+pub const JM_FACTOR: f64 = 2.0;
+
+/// What [`identify_stiffness`] judges its own result on (reported beside the picks).
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct StiffnessChecks {
+    /// Averaged Welch segments (at least [`MIN_SEGMENTS`]).
+    pub segments: usize,
+    /// Median torque -> velocity coherence within +-20 % of the anti-resonance (its notch, +-5 %,
+    /// left out).
+    pub coherence_antiresonance: f64,
+    /// Median coherence within +-20 % of the resonance.
+    pub coherence_resonance: f64,
+    /// How far the anti-resonance stands below the response around it (+-20 %), dB.
+    pub prominence_antiresonance_db: f64,
+    /// How far the resonance stands above the response around it, dB.
+    pub prominence_resonance_db: f64,
+    /// Distance of the resonance from the anti-resonance, frequency bins.
+    pub separation_bins: f64,
+    /// The motor inertia the response shows above the resonance (1 / |H w| between 1.5 and 3
+    /// times the resonance), kg m^2; null when the band does not reach there.
+    pub jm_from_response_kgm2: Option<f64>,
+    /// Velocity reversals in the analysed data (the nut crossing its backlash, friction
+    /// changing sign: each mixes another plant into the response).
+    pub reversals: usize,
+    /// What is not credible, with the figures; empty when the result passes.
+    pub problems: Vec<String>,
+    /// What to change for a credible result.
+    pub advice: Vec<String>,
+}
+
+impl StiffnessChecks {
+    /// Whether every check passed.
+    pub fn credible(&self) -> bool {
+        self.problems.is_empty()
+    }
+}
+
+/// Sign changes of `v` with a hysteresis of 2 % of its largest magnitude (noise about zero
+/// does not count).
+pub fn count_reversals(v: &[f64]) -> usize {
+    let peak = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let band = 0.02 * peak;
+    let mut sign = 0i8;
+    let mut n = 0;
+    for &x in v {
+        let s = if x > band {
+            1
+        } else if x < -band {
+            -1
+        } else {
+            continue;
+        };
+        if sign != 0 && s != sign {
+            n += 1;
+        }
+        sign = s;
+    }
+    n
 }
 
 /// Identifies KL and JL from a trace of axis `axis` (columns `A.torque`, `A.motor_vel`, and
@@ -138,7 +210,16 @@ pub fn identify_stiffness(
             "`{axis}.cmd` never moves: no instrument; excite through the command or use --estimator h1"
         )));
     }
-    identify_stiffness_from(u, y, r.as_deref(), trace.period_s(), opts)
+    let mut result = identify_stiffness_from(u, y, r.as_deref(), trace.period_s(), opts)?;
+    result.checks.reversals = count_reversals(y);
+    if result.checks.reversals > 0 {
+        result.checks.advice.push(format!(
+            "the axis reversed {} times in the record: backlash and friction then mix into the \
+             response; excite on top of a constant traverse",
+            result.checks.reversals
+        ));
+    }
+    Ok(result)
 }
 
 /// [`identify_stiffness`] on plain signals: torque `u`, motor velocity `y`, instrument `r`.
@@ -244,6 +325,18 @@ pub fn identify_stiffness_from(
     };
     let fa = interp(ka);
     let fr = interp(kr);
+    // prominence: how far the extremum stands out from the response within +-20 %
+    let prominence_db = |k: usize, min: bool| -> f64 {
+        let w = ((0.2 * frf.f_hz[k] / df).round() as usize).max(2);
+        let lo = k.saturating_sub(w).max(1);
+        let hi = (k + w).min(la.len() - 1);
+        let s = if min { 1.0 } else { -1.0 };
+        let left = (lo..k).map(|j| s * la[j]).fold(f64::NEG_INFINITY, f64::max);
+        let right = (k + 1..=hi)
+            .map(|j| s * la[j])
+            .fold(f64::NEG_INFINITY, f64::max);
+        (left.min(right) - s * la[k]) * 20.0 / std::f64::consts::LN_10
+    };
     let second = minima.iter().find(|&&k| k > kr).and_then(|&k2| {
         maxima.iter().find(|&&m| m > k2).map(|&m2| ModePair {
             antiresonance_hz: interp(k2),
@@ -263,6 +356,14 @@ pub fn identify_stiffness_from(
         .filter(|(f, _)| **f >= c_lo && **f <= c_hi && (**f - fa).abs() > 0.05 * fa)
         .map(|(_, c)| *c)
         .fold(1.0, f64::min);
+    let checks = judge(
+        &frf,
+        &la,
+        opts,
+        [f_lo, f_hi],
+        [fa, fr],
+        [prominence_db(ka, true), prominence_db(kr, false)],
+    );
     Ok(StiffnessResult {
         kl_nm_per_rad: kl,
         jl_kgm2: jl,
@@ -272,6 +373,118 @@ pub fn identify_stiffness_from(
         second,
         estimator: if r.is_some() { "instrument" } else { "h1" },
         segments: frf.segments,
+        credible: checks.credible(),
+        checks,
         frf: Some(frf),
     })
+}
+
+/// Median of the coherence over `lo..=hi` Hz, leaving out `notch` (+-5 % about it) when given.
+fn median_coherence(frf: &Frf, lo: f64, hi: f64, notch: Option<f64>) -> f64 {
+    let mut c: Vec<f64> = frf
+        .f_hz
+        .iter()
+        .zip(&frf.coherence)
+        .filter(|(f, _)| **f >= lo && **f <= hi && notch.is_none_or(|n| (**f - n).abs() > 0.05 * n))
+        .map(|(_, c)| *c)
+        .collect();
+    if c.is_empty() {
+        return 0.0;
+    }
+    c.sort_by(f64::total_cmp);
+    c[c.len() / 2]
+}
+
+/// The checks of a pick pair (`picks` = [anti-resonance, resonance] Hz, `prominence` in dB)
+/// on the response `la` (log |H w|) within `band` Hz; reversals are counted by the caller.
+fn judge(
+    frf: &Frf,
+    la: &[f64],
+    opts: &StiffnessOptions,
+    band: [f64; 2],
+    picks: [f64; 2],
+    prominence: [f64; 2],
+) -> StiffnessChecks {
+    let [fa, fr] = picks;
+    let df = frf.f_hz[1];
+    let mut c = StiffnessChecks {
+        segments: frf.segments,
+        coherence_antiresonance: median_coherence(frf, 0.8 * fa, 1.2 * fa, Some(fa)),
+        coherence_resonance: median_coherence(frf, 0.8 * fr, 1.2 * fr, None),
+        prominence_antiresonance_db: prominence[0],
+        prominence_resonance_db: prominence[1],
+        separation_bins: (fr - fa) / df,
+        ..Default::default()
+    };
+    // 1 / |H w| above the resonance is the motor inertia alone.
+    let hf: Vec<f64> = frf
+        .f_hz
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| **f >= 1.5 * fr && **f <= (3.0 * fr).min(band[1]))
+        .map(|(k, _)| la[k])
+        .collect();
+    if hf.len() >= 3 {
+        let mut s = hf;
+        s.sort_by(f64::total_cmp);
+        c.jm_from_response_kgm2 = Some((-s[s.len() / 2]).exp());
+    }
+    if c.segments < MIN_SEGMENTS {
+        c.problems.push(format!(
+            "{} averaged segment(s), at least {MIN_SEGMENTS} needed (with one the coherence is 1 \
+             whatever the data)",
+            c.segments
+        ));
+        c.advice.push(format!(
+            "record at least {:.0} s of excitation, or ask for a coarser --resolution-hz",
+            (MIN_SEGMENTS as f64 + 1.0) / (2.0 * opts.resolution_hz)
+        ));
+    }
+    for (what, coh) in [
+        ("anti-resonance", c.coherence_antiresonance),
+        ("resonance", c.coherence_resonance),
+    ] {
+        if coh < MIN_COHERENCE {
+            c.problems.push(format!(
+                "median coherence {coh:.2} around the {what} (at least {MIN_COHERENCE} needed): \
+                 the response there is mostly noise or another input"
+            ));
+        }
+    }
+    if c.coherence_antiresonance < MIN_COHERENCE || c.coherence_resonance < MIN_COHERENCE {
+        c.advice.push(
+            "excite the band with more amplitude or for longer, without reversals (a traverse \
+             under the excitation)"
+                .into(),
+        );
+    }
+    if c.separation_bins < MIN_PICK_BINS {
+        c.problems.push(format!(
+            "the resonance ({fr:.1} Hz) is only {:.1} bins above the anti-resonance ({fa:.1} Hz): \
+             one feature, not a two-mass pair",
+            c.separation_bins
+        ));
+    }
+    let edge = MIN_PICK_BINS * df;
+    if fa - band[0] < edge || band[1] - fr < edge {
+        c.problems.push(format!(
+            "a pick lies at the edge of the searched band {:.1} .. {:.1} Hz",
+            band[0], band[1]
+        ));
+        c.advice
+            .push("widen the band (--f-min-hz, --f-max-hz)".into());
+    }
+    if let Some(jm) = c.jm_from_response_kgm2 {
+        let ratio = opts.jm_kgm2 / jm;
+        if !(1.0 / JM_FACTOR..=JM_FACTOR).contains(&ratio) {
+            c.problems.push(format!(
+                "the given JM {:.4e} kg m^2 is {ratio:.3} times what the response shows above the \
+                 resonance ({jm:.4e} kg m^2): the pair does not fit this motor",
+                opts.jm_kgm2
+            ));
+            c.advice
+                .push("check --jm-kgm2 (motor plus coupling, in kg m^2) and the axis".into());
+        }
+    }
+    c
 }
