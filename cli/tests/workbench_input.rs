@@ -248,3 +248,63 @@ fn fit_without_a_torque_column_lists_the_columns_it_has() {
         "{err}"
     );
 }
+
+/// The EMPS estimation record (see ../shared/data/emps/README.md), when it is there.
+fn emps() -> Option<PathBuf> {
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_estimation.csv");
+    p.exists().then_some(p)
+}
+
+#[test]
+fn diagnose_and_fit_give_the_emps_offset_with_one_sign() {
+    let Some(tr) = emps() else {
+        eprintln!("EMPS data not found: skipped");
+        return;
+    };
+    let m = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/emps-nominal.toml");
+    let d = scratch("emps-sign");
+    let o = run(&[
+        "diagnose".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--json".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let top = &j["candidates"][0];
+    assert_eq!(top["effect"], "coulomb_friction", "{j}");
+    let diag_offset = top["params"]["offset_n"].as_f64().unwrap();
+    let evidence = top["evidence"].as_str().unwrap().to_string();
+    let fitted = d.join("fitted.toml");
+    let o = run(&[
+        "fit".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--add".as_ref(),
+        "coulomb_friction,constant_force".as_ref(),
+        "--out".as_ref(),
+        fitted.as_os_str(),
+        "--json".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let f: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let force_n = f["params"]["force_n"].as_f64().unwrap();
+    // the two name the same force with the same sign, and the written model file carries it
+    assert!(
+        (diag_offset - force_n).abs() < 0.3,
+        "diagnose offset_n {diag_offset}, fit force_n {force_n}"
+    );
+    let written: toml::Table = std::fs::read_to_string(&fitted).unwrap().parse().unwrap();
+    let in_file = written["effects"]["constant_force"]["force_n"]
+        .as_float()
+        .unwrap();
+    assert!((in_file - force_n).abs() < 1e-3, "{in_file} {force_n}");
+    // and the diagnosis' words give that signed value as the force on the axis
+    let words = format!("constant force of {:+.1} N on the axis", diag_offset);
+    assert!(evidence.contains(&words), "{words:?} not in {evidence:?}");
+}
