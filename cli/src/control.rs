@@ -43,6 +43,7 @@ pub fn swap(
         plugin: plugin.to_string(),
         params: params_text,
         lib: lib_path,
+        params_file: params.map(|p| p.display().to_string()),
     });
     let answer = request(instance, &req, Duration::from_secs_f64(timeout_s))?;
     print_answer(&answer)

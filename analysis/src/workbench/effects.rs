@@ -583,7 +583,8 @@ impl WbModel {
                     &file.path,
                     key,
                     format!(
-                        "unknown effect `{id}` (known: {})",
+                        "unknown effect `{id}`{} (known: {})",
+                        EffectId::did_you_mean(id),
                         EffectId::list(|_| true)
                     ),
                 )

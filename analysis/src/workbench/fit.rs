@@ -100,7 +100,8 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
             return Err(WorkbenchError::BadArgument {
                 arg: format!("--add {s}"),
                 reason: format!(
-                    "unknown effect (effects of the library: {})",
+                    "unknown effect{} (effects of the library: {})",
+                    EffectId::did_you_mean(s),
                     EffectId::list(|_| true)
                 ),
             });

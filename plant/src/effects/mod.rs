@@ -204,7 +204,8 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                 &model.path,
                 &key,
                 format!(
-                    "unknown effect `{id}` (known effects: {})",
+                    "unknown effect `{id}`{} (known effects: {})",
+                    EffectId::did_you_mean(id),
                     EffectId::list(|_| true)
                 ),
             ));

@@ -220,6 +220,8 @@ struct BuildJob {
     plugin: String,
     params: Option<String>,
     lib: Option<String>,
+    /// The file `params` came from (for errors).
+    params_file: Option<String>,
 }
 
 /// A stage's plugin id and the parameters it was built from.
@@ -622,6 +624,7 @@ impl ControlPlane {
             plugin: msg.plugin,
             params: msg.params,
             lib: msg.lib,
+            params_file: msg.params_file,
         })
     }
 }
@@ -701,7 +704,7 @@ fn build_one(
             (format!("{}@{lib}", job.plugin), toml::Table::new()),
         ));
     }
-    let src = Path::new("<swap --params>");
+    let src = Path::new(job.params_file.as_deref().unwrap_or("<swap --params>"));
     let (cur_id, cur_params) = &current[job.axis][job.stage.index()];
     let mut params = if *cur_id == job.plugin {
         cur_params.clone()

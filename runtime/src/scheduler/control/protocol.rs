@@ -42,6 +42,10 @@ pub struct SwapRequest {
     /// Path of a plugin library to load `plugin` from.
     #[serde(default)]
     pub lib: Option<String>,
+    /// The file `params` was read from, named in the errors about them (absent: the errors say
+    /// `<swap --params>`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub params_file: Option<String>,
 }
 
 impl SwapRequest {
@@ -274,6 +278,7 @@ mod tests {
             plugin: "pi_velocity".into(),
             params: Some("kv_nms_per_rad = 4.0".into()),
             lib: None,
+            params_file: None,
         })
     }
 
