@@ -184,6 +184,30 @@ fn an_unknown_key_is_answered_with_the_accepted_keys_and_the_nearest_one() {
     let (_, err) = refused("nearplugin", "sim", &job, MODEL);
     assert!(err.contains("did you mean `tv_s`?"), "{err}");
     assert!(err.contains("kv_nms_per_rad"), "{err}");
+    // an effect table of a model: its id, and a key inside it
+    let (_, err) = refused(
+        "neareffect",
+        "sim",
+        JOB,
+        &format!("{MODEL}[effects.coulomb_fricton]\nfc_nm = 0.1\n"),
+    );
+    assert!(
+        err.contains("`effects.coulomb_fricton`")
+            && err.contains("did you mean `coulomb_friction`?"),
+        "{err}"
+    );
+    let (_, err) = refused(
+        "neareffectkey",
+        "sim",
+        JOB,
+        &format!("{MODEL}[effects.coulomb_friction]\nfc_nmm = 0.1\n"),
+    );
+    assert!(
+        err.contains("`effects.coulomb_friction.fc_nmm`")
+            && err.contains("did you mean `fc_nm`")
+            && err.contains("accepted here: side, fc_nm"),
+        "{err}"
+    );
 }
 
 #[test]
