@@ -167,13 +167,14 @@ pub enum ModelCmd {
 }
 
 /// Reads the model and the trace's axis it describes; `need_torque` names what needs the torque
-/// column when one does. The trace itself is dropped once its axis is prepared.
+/// column when one does. The trace itself is dropped once its axis is prepared. Warnings about
+/// the pair are printed on standard error and returned (for the JSON's `warnings`).
 fn load(
     trace: &Path,
     model: &Path,
     c: &Common,
     need_torque: Option<&str>,
-) -> Result<(WbModel, AxisData), WorkbenchError> {
+) -> Result<(WbModel, AxisData, Vec<String>), WorkbenchError> {
     check_window_and_cutoff(c, None)?;
     let m = WbModel::load(model)?;
     // read only the columns of the axis the model describes (and the declared added input):
@@ -211,10 +212,11 @@ fn load(
         d.require_torque(why, &tr)?;
     }
     drop(tr);
-    if let Some(w) = one_position_warning(&m, &d, model) {
+    let warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
+    for w in &warnings {
         eprintln!("warning: {w}");
     }
-    Ok((m, d))
+    Ok((m, d, warnings))
 }
 
 /// Refuses a `--window-s` or `--cutoff-hz` outside its range; `trace` (file, sampling period)
@@ -366,7 +368,7 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             max_steps,
             common,
         } => {
-            let (m, d) = load(
+            let (m, d, warnings) = load(
                 &trace,
                 &model,
                 &common,
@@ -374,9 +376,9 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             )?;
             if guided {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
-                diagnose_auto(&m, &d, &out, max_steps, &common)?;
+                diagnose_auto(&m, &d, &out, max_steps, &common, &warnings)?;
             } else {
-                diagnose_once(&m, &d, out.as_deref(), &common)?;
+                diagnose_once(&m, &d, out.as_deref(), &common, &warnings)?;
             }
         }
         WorkbenchCmd::Fit {
@@ -455,10 +457,11 @@ fn init_model(
 
 /// `feedloop compare`.
 fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyhow::Result<()> {
-    let (m, d) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None)?;
     let c = compare(&m, &d, common.window_s);
     mkdir(out)?;
     let mut j = c.to_json(&d);
+    j["warnings"] = serde_json::json!(warnings);
     let report_path = out.join("report.html");
     j["report"] = serde_json::json!(report_path.display().to_string());
     let title = format!("compare: {} vs {}", model.display(), trace.display());
@@ -514,6 +517,7 @@ fn diagnose_auto(
     out: &Path,
     max_steps: usize,
     common: &Common,
+    warnings: &[String],
 ) -> anyhow::Result<()> {
     mkdir(out)?;
     let r = auto(m, d, common.window_s, max_steps)?;
@@ -524,6 +528,7 @@ fn diagnose_auto(
     let html = report::html(d, &c, "diagnose --auto: final model", &extra);
     let mut j = r.to_json();
     j["model"] = serde_json::json!(model_path.display().to_string());
+    j["warnings"] = serde_json::json!(warnings);
     write_report(out, &html, "diagnose.json", &j)?;
     if common.json {
         return print_json(&j);
@@ -550,9 +555,11 @@ fn diagnose_once(
     d: &AxisData,
     out: Option<&Path>,
     common: &Common,
+    warnings: &[String],
 ) -> anyhow::Result<()> {
     let dg = diagnose(m, d, &DiagOptions::default());
-    let j = dg.to_json();
+    let mut j = dg.to_json();
+    j["warnings"] = serde_json::json!(warnings);
     if let Some(out) = out {
         mkdir(out)?;
         let c = compare(m, d, common.window_s);
@@ -589,12 +596,14 @@ fn fit_cmd(
     out: &Path,
     common: &Common,
 ) -> anyhow::Result<()> {
-    let (m, d) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None)?;
     let add = parse_effects(add)?;
     let r = fit(&m, &d, &add, free, common.window_s)?;
     r.model.write(out)?;
     if common.json {
-        return print_json(&r.to_json());
+        let mut j = r.to_json();
+        j["warnings"] = serde_json::json!(warnings);
+        return print_json(&j);
     }
     for (k, v) in &r.params {
         println!("{k} = {v:.6}");

@@ -155,12 +155,13 @@ fn a_two_body_model_against_a_one_position_trace_is_warned_about() {
         }
         let o = run(&args);
         assert!(o.status.success(), "{cmd}: {}", text(&o.stderr));
-        // the warning goes to standard error: standard output stays pure JSON
-        let _: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-        text(&o.stderr)
+        // the warning goes to standard error (standard output stays pure JSON) and into the
+        // JSON's `warnings`
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        (text(&o.stderr), j["warnings"].clone())
     };
     for cmd in ["compare", "fit", "diagnose"] {
-        let err = go(&one, cmd);
+        let (err, w) = go(&one, cmd);
         assert!(
             err.contains("warning")
                 && err.contains("ballscrew")
@@ -168,8 +169,14 @@ fn a_two_body_model_against_a_one_position_trace_is_warned_about() {
                 && err.contains("kl_nm_per_rad"),
             "{cmd}: {err}"
         );
-        let err = go(&two, cmd);
+        assert!(
+            w[0].as_str()
+                .is_some_and(|w| w.contains("no `x.motor` column")),
+            "{cmd}: {w}"
+        );
+        let (err, w) = go(&two, cmd);
         assert!(!err.contains("warning"), "{cmd} with x.motor: {err}");
+        assert_eq!(w, serde_json::json!([]), "{cmd} with x.motor");
     }
 }
 
