@@ -81,8 +81,10 @@ fn emps_diagnosis_names_coulomb_friction_with_its_offset_first() {
     );
     let fc = top.params["fc_n"];
     assert!((fc - 20.3935).abs() < 1.0, "fc_n = {fc}");
+    // the offset as the model file's constant force on the axis (docs/workbench.md, Signs):
+    // minus the published offset, a term of the motor force
     let off = top.params["offset_n"];
-    assert!((off + 3.1648).abs() < 0.5, "offset = {off}");
+    assert!((off - 3.1648).abs() < 0.5, "offset_n = {off}");
     assert!(dg.verdict.contains("coulomb_friction"), "{}", dg.verdict);
     // Coulomb friction and its offset are the only things named: the offset alone
     // (`constant_force`) is reported in the friction class, and nothing else (a torque clamp

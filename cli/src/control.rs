@@ -67,6 +67,7 @@ pub fn swap(a: &SwapArgs) -> Result<ExitCode> {
         params: params_text,
         lib: lib_path,
         force: a.force,
+        params_file: params.map(|p| p.display().to_string()),
     });
     let answer = request(&a.instance, &req, Duration::from_secs_f64(a.timeout_s))?;
     print_answer(&answer)

@@ -16,13 +16,18 @@ use feedloop_plugins::Builtins;
 pub enum LearnCmd {
     /// Learn the reversal pulses of a job's `quadrant_compensator` stage(s) over N passes.
     Quadrant {
-        /// Job with a `quadrant_compensator` stage (its `table` key says where the table goes).
+        /// Job with a `quadrant_compensator` stage (its `table` key names the table file; that
+        /// file is read by the job, not overwritten unless given with --table).
         #[arg(long)]
         job: PathBuf,
         /// Learning passes after the uncompensated run.
         #[arg(long, default_value_t = 2)]
         passes: usize,
-        /// Write the table here instead of the job's `table` path.
+        /// Output folder: the learned table is written here under the file name of the job's
+        /// `table` (default: out/learn-JOBNAME).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write the table to this file instead (e.g. the job's own `table` path, to update it).
         #[arg(long)]
         table: Option<PathBuf>,
         /// Stop when every axis' spike is at or below this, load units (m or rad).
@@ -39,13 +44,24 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
     let LearnCmd::Quadrant {
         job,
         passes,
+        out,
         table,
         accept,
         json,
     } = cmd;
     let job = Job::load(&job)?;
+    let out_dir = match (&table, out) {
+        (Some(_), _) => None,
+        (None, Some(d)) => Some(d),
+        (None, None) => Some(PathBuf::from("out").join(format!("learn-{}", job.name))),
+    };
+    if let Some(d) = &out_dir {
+        std::fs::create_dir_all(d)
+            .with_context(|| format!("{}: cannot create folder", d.display()))?;
+    }
     let options = LearnOptions {
         table,
+        out_dir,
         accept,
         ..LearnOptions::default()
     };
@@ -73,7 +89,8 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
             })).collect::<Vec<_>>()})
         })
         .collect();
-    let v = json!({"table": report.table_path.display().to_string(), "passes": passes_json});
+    let v = json!({"table": report.table_path.display().to_string(),
+        "job_table": report.job_table.display().to_string(), "passes": passes_json});
     if json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
@@ -95,6 +112,13 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
             println!("pass {}: {}", p.pass, cells.join(", "));
         }
         println!("wrote {}", report.table_path.display());
+        if report.table_path != report.job_table {
+            println!(
+                "the job's own table {} is unchanged: copy the new one over it, or learn with --table {} to write it there",
+                report.job_table.display(),
+                report.job_table.display()
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -96,14 +96,16 @@ pub struct Common {
     /// Axis of the trace the model describes (default: the only axis).
     #[arg(long)]
     axis: Option<String>,
-    /// Cut-off of the zero-phase filter before differentiation, Hz (default min(100, fs/10)).
-    #[arg(long)]
+    /// Cut-off of the zero-phase filter before differentiation, Hz (default min(100, fs/10));
+    /// above 0 and below the trace's Nyquist frequency fs/2.
+    #[arg(long, allow_negative_numbers = true)]
     cutoff_hz: Option<f64>,
     /// Use the torque column unfiltered (default: the same zero-phase filter as the positions).
     #[arg(long)]
     raw_torque: bool,
-    /// Length of the simulation windows restarted from the measured state, s.
-    #[arg(long, default_value_t = 0.05)]
+    /// Length of the simulation windows restarted from the measured state, s (at least two
+    /// sample periods of the trace).
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
     window_s: f64,
     /// A trace column holding a known input added to the controller's output after the
     /// controller (torque units, included in the recorded torque), e.g. `x.pulses`; default
@@ -165,13 +167,15 @@ pub enum ModelCmd {
 }
 
 /// Reads the model and the trace's axis it describes; `need_torque` names what needs the torque
-/// column when one does. The trace itself is dropped once its axis is prepared.
+/// column when one does. The trace itself is dropped once its axis is prepared. Warnings about
+/// the pair are printed on standard error and returned (for the JSON's `warnings`).
 fn load(
     trace: &Path,
     model: &Path,
     c: &Common,
     need_torque: Option<&str>,
-) -> Result<(WbModel, AxisData), WorkbenchError> {
+) -> Result<(WbModel, AxisData, Vec<String>), WorkbenchError> {
+    check_window_and_cutoff(c, None)?;
     let m = WbModel::load(model)?;
     // read only the columns of the axis the model describes (and the declared added input):
     // a long multi-axis trace then takes one axis' memory
@@ -192,6 +196,7 @@ fn load(
         }
         None => Trace::read(trace)?,
     };
+    check_window_and_cutoff(c, Some((trace, tr.period_s())))?;
     let axis = pick_axis(&tr, model, c.axis.as_deref())?;
     let d = load_axis(
         &tr,
@@ -207,7 +212,93 @@ fn load(
         d.require_torque(why, &tr)?;
     }
     drop(tr);
-    Ok((m, d))
+    let warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok((m, d, warnings))
+}
+
+/// Refuses a `--window-s` or `--cutoff-hz` outside its range; `trace` (file, sampling period)
+/// adds the limits that depend on the trace.
+fn check_window_and_cutoff(c: &Common, trace: Option<(&Path, f64)>) -> Result<(), WorkbenchError> {
+    let bad = |flag: &str, v: f64, reason: String| WorkbenchError::BadArgument {
+        arg: format!("{flag} {v}"),
+        reason,
+    };
+    if !(c.window_s.is_finite() && c.window_s > 0.0) {
+        return Err(bad(
+            "--window-s",
+            c.window_s,
+            "must be a finite length of time > 0 s, at least two sample periods of the trace (default 0.05 s)".into(),
+        ));
+    }
+    if let Some(f) = c.cutoff_hz {
+        if !(f.is_finite() && f > 0.0) {
+            return Err(bad(
+                "--cutoff-hz",
+                f,
+                "must be a finite frequency > 0 Hz, below the trace's Nyquist frequency (half its sampling rate)".into(),
+            ));
+        }
+    }
+    let Some((path, dt)) = trace else {
+        return Ok(());
+    };
+    // (a trace's period is the median of its steps, a hair off the nominal one)
+    if c.window_s < 2.0 * dt * (1.0 - 1e-6) {
+        return Err(bad(
+            "--window-s",
+            c.window_s,
+            format!(
+                "shorter than two sample periods of {} ({} s each): a window must be at least {} s",
+                path.display(),
+                sig6(dt),
+                sig6(2.0 * dt)
+            ),
+        ));
+    }
+    let nyquist = 0.5 / dt;
+    if let Some(f) = c.cutoff_hz {
+        if f >= nyquist {
+            return Err(bad(
+                "--cutoff-hz",
+                f,
+                format!(
+                    "at or above the Nyquist frequency of {} ({} Hz at {} s per sample): give a cut-off in (0, {}) Hz (default min(100 Hz, fs/10) = {} Hz)",
+                    path.display(),
+                    sig6(nyquist),
+                    sig6(dt),
+                    sig6(nyquist),
+                    sig6((0.1 / dt).min(100.0))
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// `x` to 6 significant digits, printed shortest (a trace's period of 0.0010000000000000009 s
+/// reads 0.001).
+fn sig6(x: f64) -> f64 {
+    format!("{x:.5e}").parse().unwrap_or(x)
+}
+
+/// A warning when a two-body model (ball screw or rotary: motor and load coupled by a spring)
+/// meets a trace with one position (no `A.motor`): motor and load are then taken to move
+/// together, so the figures judge the sum of the two bodies and nothing of the spring.
+fn one_position_warning(m: &WbModel, d: &AxisData, model: &Path) -> Option<String> {
+    if d.kind == feedloop_model::model::AxisKind::Rigid || d.has_motor() {
+        return None;
+    }
+    Some(format!(
+        "{} is a {} model (motor and load coupled by kl_nm_per_rad) but {} has no `{}.motor` column, only one measured position: motor and load are taken to move together, so the figures judge jm_kgm2 + jl_kgm2 (and dm + dl) as one rigid body and say nothing about kl_nm_per_rad, cl_nms_per_rad or the split between motor and load; use a kind = \"rigid\" model, or a trace that records `{}.motor`",
+        model.display(),
+        m.kind().id(),
+        d.path.display(),
+        d.axis,
+        d.axis
+    ))
 }
 
 fn mkdir(dir: &Path) -> anyhow::Result<()> {
@@ -277,7 +368,7 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             max_steps,
             common,
         } => {
-            let (m, d) = load(
+            let (m, d, warnings) = load(
                 &trace,
                 &model,
                 &common,
@@ -285,9 +376,9 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             )?;
             if guided {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
-                diagnose_auto(&m, &d, &out, max_steps, &common)?;
+                diagnose_auto(&m, &d, &out, max_steps, &common, &warnings)?;
             } else {
-                diagnose_once(&m, &d, out.as_deref(), &common)?;
+                diagnose_once(&m, &d, out.as_deref(), &common, &warnings)?;
             }
         }
         WorkbenchCmd::Fit {
@@ -366,10 +457,11 @@ fn init_model(
 
 /// `feedloop compare`.
 fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyhow::Result<()> {
-    let (m, d) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None)?;
     let c = compare(&m, &d, common.window_s);
     mkdir(out)?;
     let mut j = c.to_json(&d);
+    j["warnings"] = serde_json::json!(warnings);
     let report_path = out.join("report.html");
     j["report"] = serde_json::json!(report_path.display().to_string());
     let title = format!("compare: {} vs {}", model.display(), trace.display());
@@ -378,11 +470,15 @@ fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyho
         return print_json(&j);
     }
     println!(
-        "equation error NRMSE: {}   windowed simulation NRMSE: {}   free run: {}",
+        "equation error NRMSE: {}   windowed simulation NRMSE ({}): {}   free run: {}",
         opt(j["equation_nrmse_pct"].as_f64()),
+        c.headline_channel().unwrap_or("nothing simulated"),
         opt(j["window_sim_nrmse_pct"].as_f64()),
         opt(j["free_sim_nrmse_pct"].as_f64())
     );
+    if let Some(note) = c.no_torque_note(&d) {
+        println!("note: {note}");
+    }
     if let Some(cc) = &c.controller {
         let ev = cc.events(&d);
         println!(
@@ -421,6 +517,7 @@ fn diagnose_auto(
     out: &Path,
     max_steps: usize,
     common: &Common,
+    warnings: &[String],
 ) -> anyhow::Result<()> {
     mkdir(out)?;
     let r = auto(m, d, common.window_s, max_steps)?;
@@ -431,6 +528,7 @@ fn diagnose_auto(
     let html = report::html(d, &c, "diagnose --auto: final model", &extra);
     let mut j = r.to_json();
     j["model"] = serde_json::json!(model_path.display().to_string());
+    j["warnings"] = serde_json::json!(warnings);
     write_report(out, &html, "diagnose.json", &j)?;
     if common.json {
         return print_json(&j);
@@ -457,9 +555,11 @@ fn diagnose_once(
     d: &AxisData,
     out: Option<&Path>,
     common: &Common,
+    warnings: &[String],
 ) -> anyhow::Result<()> {
     let dg = diagnose(m, d, &DiagOptions::default());
-    let j = dg.to_json();
+    let mut j = dg.to_json();
+    j["warnings"] = serde_json::json!(warnings);
     if let Some(out) = out {
         mkdir(out)?;
         let c = compare(m, d, common.window_s);
@@ -496,12 +596,14 @@ fn fit_cmd(
     out: &Path,
     common: &Common,
 ) -> anyhow::Result<()> {
-    let (m, d) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None)?;
     let add = parse_effects(add)?;
     let r = fit(&m, &d, &add, free, common.window_s)?;
     r.model.write(out)?;
     if common.json {
-        return print_json(&r.to_json());
+        let mut j = r.to_json();
+        j["warnings"] = serde_json::json!(warnings);
+        return print_json(&j);
     }
     for (k, v) in &r.params {
         println!("{k} = {v:.6}");

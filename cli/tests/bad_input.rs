@@ -139,3 +139,164 @@ fn missing_job_file_is_named() {
         "{err}"
     );
 }
+
+/// Runs `feedloop ARGS` and returns stderr after checking it failed.
+fn fails(args: &[&std::ffi::OsStr]) -> String {
+    let o = Command::new(bin()).args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(
+        !o.status.success(),
+        "{args:?} succeeded: {}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    err
+}
+
+#[test]
+fn an_unknown_key_is_answered_with_the_accepted_keys_and_the_nearest_one() {
+    // a job table whose only key is misspelled: the accepted keys are listed all the same
+    let (_, err) = refused(
+        "nearjob",
+        "sim",
+        &format!("{JOB}[run]\nmdoe = \"lockstep\"\n"),
+        MODEL,
+    );
+    assert!(err.contains("`run.mdoe`"), "{err}");
+    assert!(err.contains("did you mean `mode`?"), "{err}");
+    assert!(
+        err.contains("accepted here:") && err.contains("mode") && err.contains("wait"),
+        "{err}"
+    );
+    // a model's controller key with a slip in its unit suffix
+    let (_, err) = refused(
+        "nearmodel",
+        "sim",
+        JOB,
+        &MODEL.replace("kv_nms_per_rad", "kv_nms_per_rd"),
+    );
+    assert!(err.contains("`controller.kv_nms_per_rd`"), "{err}");
+    assert!(err.contains("did you mean `kv_nms_per_rad`?"), "{err}");
+    assert!(err.contains("torque_limit_nm"), "{err}");
+    // a plugin's parameters (what `feedloop swap --params FILE` sends is read the same way)
+    let job = format!(
+        "{JOB}[[chain]]\naxis = \"x\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\nparams = {{ tv_ss = 0.005 }}\n"
+    );
+    let (_, err) = refused("nearplugin", "sim", &job, MODEL);
+    assert!(err.contains("did you mean `tv_s`?"), "{err}");
+    assert!(err.contains("kv_nms_per_rad"), "{err}");
+    // an effect table of a model: its id, and a key inside it
+    let (_, err) = refused(
+        "neareffect",
+        "sim",
+        JOB,
+        &format!("{MODEL}[effects.coulomb_fricton]\nfc_nm = 0.1\n"),
+    );
+    assert!(
+        err.contains("`effects.coulomb_fricton`")
+            && err.contains("did you mean `coulomb_friction`?"),
+        "{err}"
+    );
+    let (_, err) = refused(
+        "neareffectkey",
+        "sim",
+        JOB,
+        &format!("{MODEL}[effects.coulomb_friction]\nfc_nmm = 0.1\n"),
+    );
+    assert!(
+        err.contains("`effects.coulomb_friction.fc_nmm`")
+            && err.contains("did you mean `fc_nm`")
+            && err.contains("accepted here: side, fc_nm"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_misspelled_required_key_is_named_not_only_reported_missing() {
+    let (_, err) = refused(
+        "slipjob",
+        "sim",
+        &JOB.replace("period_s = 0.001", "perod_s = 0.001"),
+        MODEL,
+    );
+    assert!(
+        err.contains("`period_s`") && err.contains("`perod_s`") && err.contains("misspelling"),
+        "{err}"
+    );
+    let (_, err) = refused(
+        "slipmodel",
+        "sim",
+        JOB,
+        &MODEL.replace("jm_kgm2 = 2.0e-3", "jm_kgm = 2.0e-3"),
+    );
+    assert!(
+        err.contains("`jm_kgm2`") && err.contains("`jm_kgm`") && err.contains("misspelling"),
+        "{err}"
+    );
+}
+
+#[test]
+fn an_unknown_grid_parameter_is_answered_with_the_nearest_one() {
+    let d = scratch("neargrid");
+    std::fs::write(d.join("m.toml"), MODEL).unwrap();
+    std::fs::write(d.join("job.toml"), JOB).unwrap();
+    let job = d.join("job.toml");
+    let err = fails(&[
+        "tune".as_ref(),
+        "--job".as_ref(),
+        job.as_os_str(),
+        "--grid".as_ref(),
+        "kp_pers=20:120:3".as_ref(),
+    ]);
+    assert!(err.contains("did you mean `kp_per_s`?"), "{err}");
+    assert!(
+        err.contains("kp_per_s, kv_nms_per_rad, tv_s"),
+        "the accepted parameters are listed: {err}"
+    );
+}
+
+#[test]
+fn trace_import_errors_name_the_source_file_and_its_line() {
+    let d = scratch("importline");
+    let src = d.join("export.csv");
+    // three comment lines, a header, then rows; the time steps back on line 8 of the source
+    // (line 7 of the trace it would write)
+    std::fs::write(
+        &src,
+        "# exported by a drive tool\n# units: ms, mm\n# axis X\ntime_ms,pos_mm\n0,0\n1,1\n2,2\n1.5,3\n4,4\n",
+    )
+    .unwrap();
+    let out = d.join("imported.csv");
+    let err = fails(&[
+        "trace".as_ref(),
+        "import".as_ref(),
+        "--from".as_ref(),
+        src.as_os_str(),
+        "--map".as_ref(),
+        "t=time_ms*0.001,x.cmd=pos_mm*0.001,x.load=pos_mm*0.001".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(
+        err.contains(&format!("{}: line 8:", src.display())),
+        "the source and its line: {err}"
+    );
+    assert!(err.contains("not strictly increasing"), "{err}");
+    assert!(!err.contains("imported.csv"), "the output is named: {err}");
+    // uneven sampling: the row whose step is off, on the source's line
+    std::fs::write(&src, "time_ms;pos_mm\n\n0;0\n1;1\n2;2\n3;3\n5;4\n6;5\n").unwrap();
+    let err = fails(&[
+        "trace".as_ref(),
+        "import".as_ref(),
+        "--from".as_ref(),
+        src.as_os_str(),
+        "--map".as_ref(),
+        "t=time_ms*0.001,x.cmd=pos_mm*0.001,x.load=pos_mm*0.001".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(
+        err.contains(&format!("{}: line 7:", src.display())) && err.contains("uneven"),
+        "{err}"
+    );
+    assert!(!out.exists(), "a refused import wrote its output");
+}

@@ -102,8 +102,16 @@ impl EffectId {
         )
     }
 
+    /// `; did you mean `ID`?` for a misspelled effect id close to one of the library (see
+    /// [`crate::params::nearest`]), else empty.
+    pub fn did_you_mean(typed: &str) -> String {
+        crate::params::nearest(typed, EffectId::ALL.into_iter().map(EffectId::id))
+            .map(|id| format!("; did you mean `{id}`?"))
+            .unwrap_or_default()
+    }
+
     /// The ids of the effects `keep` selects, comma-separated in [`EffectId::ALL`] order (for
-    /// error messages).
+    /// messages).
     pub fn list(keep: impl Fn(EffectId) -> bool) -> String {
         EffectId::ALL
             .into_iter()

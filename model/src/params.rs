@@ -75,7 +75,7 @@ impl ConfigError {
         Self::of_kind(ConfigErrorKind::Missing, file, key, MISSING)
     }
 
-    /// `key` is not known here; `reason` says so (e.g. `unknown key (keys read here: ...)`).
+    /// `key` is not known here; `reason` says so (e.g. from [`unknown_key_reason`]).
     pub fn unknown_key(file: &Path, key: impl Into<String>, reason: impl Into<String>) -> Self {
         Self::of_kind(ConfigErrorKind::UnknownKey, file, key, reason)
     }
@@ -159,7 +159,10 @@ pub struct Fields<'a> {
     table: &'a toml::Table,
     file: &'a Path,
     prefix: String,
+    /// Keys present in the table and read.
     used: BTreeSet<String>,
+    /// Every key asked for, present or not: the keys this table accepts.
+    asked: BTreeSet<String>,
 }
 
 impl<'a> Fields<'a> {
@@ -170,6 +173,7 @@ impl<'a> Fields<'a> {
             file,
             prefix: prefix.to_string(),
             used: BTreeSet::new(),
+            asked: BTreeSet::new(),
         }
     }
 
@@ -202,9 +206,32 @@ impl<'a> Fields<'a> {
         ConfigError::of_kind(kind, self.file, self.path(key), reason)
     }
 
-    /// `key` of this table is required but missing.
+    /// `key` of this table is required but missing. Keys of the table that nothing has read
+    /// yet and that are close to `key` (a misspelling, a unit suffix left out) are named.
     pub fn missing(&self, key: &str) -> ConfigError {
-        ConfigError::missing(self.file, self.path(key))
+        let close: Vec<String> = self
+            .table
+            .keys()
+            .filter(|k| !self.asked.contains(*k) && !self.used.contains(*k))
+            .filter(|k| is_close(k, key))
+            .map(|k| format!("`{}`", self.path(k)))
+            .collect();
+        if close.is_empty() {
+            return ConfigError::missing(self.file, self.path(key));
+        }
+        let it = if close.len() == 1 {
+            "is it"
+        } else {
+            "is one of them"
+        };
+        self.error_of(
+            ConfigErrorKind::Missing,
+            key,
+            format!(
+                "{MISSING}; the table has {} close to it: {it} a misspelling of `{key}`?",
+                close.join(", ")
+            ),
+        )
     }
 
     /// The value of `key` of this table has the wrong type.
@@ -219,6 +246,7 @@ impl<'a> Fields<'a> {
 
     /// The raw value of `key`, marking it used.
     pub fn raw(&mut self, key: &str) -> Option<&'a toml::Value> {
+        self.asked.insert(key.to_string());
         let v = self.table.get(key);
         if v.is_some() {
             self.used.insert(key.to_string());
@@ -378,27 +406,103 @@ impl<'a> Fields<'a> {
     /// Marks `key` as known without reading it (it is read elsewhere).
     pub fn allow(&mut self, key: &str) {
         self.used.insert(key.to_string());
+        self.asked.insert(key.to_string());
     }
 
-    /// Refuses any key that was not read: the error lists the known keys when given.
+    /// Refuses any key that was not read: the error suggests the nearest accepted key and lists
+    /// the keys this table accepts (every key asked for, whether the file has it or not).
     pub fn finish(self) -> Result<(), ConfigError> {
         for key in self.table.keys() {
             if !self.used.contains(key) {
-                let known: Vec<&str> = self.used.iter().map(String::as_str).collect();
-                let hint = if known.is_empty() {
-                    String::new()
-                } else {
-                    format!(" (keys read here: {})", known.join(", "))
-                };
-                return Err(self.error_of(
-                    ConfigErrorKind::UnknownKey,
-                    key,
-                    format!("unknown key{hint}"),
-                ));
+                let reason = unknown_key_reason(key, self.asked.iter().map(String::as_str));
+                return Err(self.error_of(ConfigErrorKind::UnknownKey, key, reason));
             }
         }
         Ok(())
     }
+}
+
+/// Edit distance between `a` and `b`: the fewest insertions, deletions, substitutions of one
+/// character, or swaps of two adjacent characters, that turn one into the other (Levenshtein's
+/// distance with the swap counted as one edit, as typing slips go; no substring is edited twice).
+pub fn edit_distance(a: &str, b: &str) -> usize {
+    let a: Vec<char> = a.chars().collect();
+    let b: Vec<char> = b.chars().collect();
+    // d[i][j]: distance between the first i characters of `a` and the first j of `b`
+    let mut d = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in d.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for (j, cell) in d[0].iter_mut().enumerate() {
+        *cell = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let same = a[i - 1] == b[j - 1];
+            let mut best = (d[i - 1][j - 1] + usize::from(!same))
+                .min(d[i - 1][j] + 1)
+                .min(d[i][j - 1] + 1);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                best = best.min(d[i - 2][j - 2] + 1);
+            }
+            d[i][j] = best;
+        }
+    }
+    d[a.len()][b.len()]
+}
+
+/// Whether `typed` is close enough to `accepted` to be a slip for it: equal but for case, at
+/// most a third of the longer name's characters apart (at least 1, at most 3), or one of them
+/// the other with a `_suffix` left out (`mass` for `mass_kg`).
+fn is_close(typed: &str, accepted: &str) -> bool {
+    let (t, a) = (typed.to_lowercase(), accepted.to_lowercase());
+    if t == a {
+        return true;
+    }
+    let longer = t.chars().count().max(a.chars().count());
+    if edit_distance(&t, &a) <= (longer / 3).clamp(1, 3) {
+        return true;
+    }
+    let unit_left_out = |short: &str, long: &str| {
+        long.strip_prefix(short)
+            .is_some_and(|rest| rest.starts_with('_'))
+    };
+    unit_left_out(&t, &a) || unit_left_out(&a, &t)
+}
+
+/// The accepted name nearest to `typed` by edit distance, when it is close enough to be a slip
+/// (see the rules of the private `is_close`); the first of equally near ones.
+pub fn nearest<'a>(typed: &str, accepted: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    accepted
+        .into_iter()
+        .filter(|a| is_close(typed, a))
+        .min_by_key(|a| edit_distance(&typed.to_lowercase(), &a.to_lowercase()))
+}
+
+/// The reason of an unknown-name error: `unknown key; did you mean `x`? (accepted here: ...)`,
+/// the suggestion only when one is close. Shared by every reader of names (table keys, grid
+/// parameters, flag values) so they all suggest the same way.
+pub fn unknown_key_reason<'a>(typed: &str, accepted: impl IntoIterator<Item = &'a str>) -> String {
+    unknown_name_reason("key", typed, accepted)
+}
+
+/// As [`unknown_key_reason`] for any kind of name (`key`, `parameter`, `effect`, ...).
+pub fn unknown_name_reason<'a>(
+    what: &str,
+    typed: &str,
+    accepted: impl IntoIterator<Item = &'a str>,
+) -> String {
+    let accepted: Vec<&str> = accepted.into_iter().collect();
+    let mut s = format!("unknown {what}");
+    if let Some(n) = nearest(typed, accepted.iter().copied()) {
+        s.push_str(&format!("; did you mean `{n}`?"));
+    }
+    if accepted.is_empty() {
+        s.push_str(&format!(" (no {what}s are accepted here)"));
+    } else {
+        s.push_str(&format!(" (accepted here: {})", accepted.join(", ")));
+    }
+    s
 }
 
 fn describe(v: &toml::Value) -> String {
@@ -537,6 +641,75 @@ mod tests {
         assert_eq!(
             f.f64("gone", Range::Finite).unwrap_err().to_string(),
             "m.toml: key `gone`: is required but missing"
+        );
+    }
+
+    #[test]
+    fn edit_distance_counts_single_character_edits() {
+        assert_eq!(edit_distance("", ""), 0);
+        assert_eq!(edit_distance("abc", ""), 3);
+        assert_eq!(edit_distance("", "ab"), 2);
+        assert_eq!(edit_distance("kitten", "sitting"), 3);
+        assert_eq!(edit_distance("jm_kgm", "jm_kgm2"), 1);
+        assert_eq!(edit_distance("kv_nms_per_rad", "kp_nms_per_rad"), 1);
+        assert_eq!(edit_distance("flaw", "lawn"), 2);
+        // symmetric
+        assert_eq!(edit_distance("lawn", "flaw"), 2);
+        // two adjacent characters swapped count as one slip
+        assert_eq!(edit_distance("mdoe", "mode"), 1);
+        assert_eq!(edit_distance("ab", "ba"), 1);
+    }
+
+    #[test]
+    fn nearest_suggests_slips_only() {
+        let keys = ["jm_kgm2", "kl_nm_per_rad", "lead_m", "mass_kg"];
+        assert_eq!(nearest("jm_kgm", keys), Some("jm_kgm2"));
+        assert_eq!(nearest("Lead_M", keys), Some("lead_m"));
+        assert_eq!(nearest("mass", keys), Some("mass_kg"));
+        assert_eq!(nearest("kl_nm_per_deg", keys), Some("kl_nm_per_rad"));
+        assert_eq!(nearest("speed", keys), None);
+        assert_eq!(nearest("x", keys), None);
+    }
+
+    #[test]
+    fn unknown_key_lists_the_accepted_keys_and_suggests_the_nearest() {
+        // the file has only `kp_per_s` and a misspelled `tv_ss`: the accepted keys include the
+        // ones it leaves out
+        let t = table("kp_per_s = 1.0\ntv_ss = 0.01");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "controller");
+        f.f64("kp_per_s", Range::Positive).unwrap();
+        f.opt_f64("kv_nms_per_rad", Range::Positive).unwrap();
+        f.opt_f64("tv_s", Range::NonNegative).unwrap();
+        let e = f.finish().unwrap_err();
+        assert_eq!(e.key, "controller.tv_ss");
+        assert!(e.reason.contains("did you mean `tv_s`?"), "{e}");
+        assert!(
+            e.reason
+                .contains("accepted here: kp_per_s, kv_nms_per_rad, tv_s"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_misspelled_required_key_is_named_with_the_missing_one() {
+        let t = table("jm_kgm = 1.0\nlead_m = 0.01");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        f.f64("lead_m", Range::Positive).unwrap();
+        let e = f.f64("jm_kgm2", Range::Positive).unwrap_err();
+        assert_eq!(e.kind, ConfigErrorKind::Missing);
+        assert_eq!(e.key, "jm_kgm2");
+        assert!(
+            e.reason.contains("`jm_kgm`") && e.reason.contains("misspelling of `jm_kgm2`"),
+            "{e}"
+        );
+        // a key already read is not offered as the slip
+        let t = table("jl_kgm2 = 1.0");
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        f.f64("jl_kgm2", Range::Positive).unwrap();
+        let e = f.f64("jm_kgm2", Range::Positive).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "m.toml: key `jm_kgm2`: is required but missing"
         );
     }
 }

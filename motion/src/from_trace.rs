@@ -249,6 +249,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
                 .to_string();
         }
     }
+    let made_by = f.opt_str("made_by")?;
     let smoothing_s = f.f64_or("smoothing_s", Range::Positive, DEFAULT_SMOOTHING_S)?;
     let degree = f
         .opt_i64("fit_degree", 2, 11)?
@@ -258,6 +259,20 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         (f.path("file"), f.path("columns"), f.path("smoothing_s"));
     f.finish()?;
     let err = |key: &str, reason: String| ConfigError::new(file, key, reason);
+    if !path.exists() {
+        // a command file made by another step (an excitation): say which step
+        let how = match made_by {
+            Some(cmd) => format!("make it first: `{cmd} --out {}`", path.display()),
+            None => format!(
+                "if it is an excitation, make it first with `feedloop excite --kind random-segments|prbs|multisine --out {}` (docs/identification.md)",
+                path.display()
+            ),
+        };
+        return Err(err(
+            &k_file,
+            format!("{}: no such file; {how}", path.display()),
+        ));
+    }
     let trace = Trace::read(&path).map_err(|e| err(&k_file, format!("{e}")))?;
     for c in &columns {
         trace

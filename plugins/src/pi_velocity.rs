@@ -493,6 +493,18 @@ mod tests {
     }
 
     #[test]
+    fn a_misspelled_parameter_is_answered_with_the_nearest_accepted_one() {
+        // what a `feedloop swap --params FILE` with a slip gets back from the loop
+        let e = params("kv_nms_per_rad = 4.0\nvel_filter_hx = 500").unwrap_err();
+        assert_eq!(e.key, "vel_filter_hx");
+        assert!(e.reason.contains("did you mean `vel_filter_hz`?"), "{e}");
+        assert!(
+            e.reason.contains("tv_s"),
+            "the accepted keys are listed: {e}"
+        );
+    }
+
+    #[test]
     fn filter_keys_are_read_with_notch_defaults_q_1_and_full_depth() {
         let p = params("vel_filter_hz = 500\ntorque_lowpass_hz = 1200\nnotch_hz = 700").unwrap();
         assert_eq!(p.filters.vel_filter_hz, Some(500.0));

@@ -78,6 +78,19 @@ fn swapping_the_velocity_loop_while_running_is_bumpless_and_bad_requests_are_ref
         assert!(text.contains(why), "{text}");
         refused += 1;
     }
+    // a parameter file with a slip: refused naming the file, the key and the nearest accepted one
+    let slip = dir.join("slip.toml");
+    std::fs::write(&slip, "kv_nms_per_rad = 4.0\ntv_ss = 0.006\n").unwrap();
+    let o = swap_x_velocity(&inst, &["--plugin", "pi_velocity", "--params", &s(&slip)]);
+    assert!(!o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains(&s(&slip))
+            && text.contains("`tv_ss`")
+            && text.contains("did you mean `tv_s`?"),
+        "{text}"
+    );
+    refused += 1;
     let st = feedloop_tests::status(&inst);
     assert!(
         st["cycle"].as_u64() > before["cycle"].as_u64(),

@@ -57,6 +57,7 @@ fn a_hundred_swaps_at_10_khz_are_bumpless_and_do_not_raise_the_miss_rate() {
                 params: params.map(str::to_string),
                 lib: lib.map(str::to_string),
                 force: false,
+                params_file: None,
             })
         };
         let req = match i % 4 {

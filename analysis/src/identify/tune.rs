@@ -37,8 +37,8 @@ pub fn parse_grid(s: &str) -> Result<Vec<GridAxis>, IdentifyError> {
             .ok_or_else(|| bad(format!("grid `{part}`: expected name=lo:hi:n")))?;
         if !PARAMS.contains(&name) {
             return Err(bad(format!(
-                "grid `{part}`: unknown parameter `{name}` (expected {})",
-                PARAMS.join(", ")
+                "grid `{part}`: `{name}`: {}",
+                feedloop_model::params::unknown_name_reason("parameter", name, PARAMS)
             )));
         }
         let v: Vec<&str> = range.split(':').collect();

@@ -49,6 +49,9 @@ pub struct LearnOptions {
     pub accept: f64,
     /// Write the table here instead of the path in the job's `table` key.
     pub table: Option<PathBuf>,
+    /// Without `table`: write the table into this folder, under the file name of the job's
+    /// `table` (the job's own table file is then left as it is).
+    pub out_dir: Option<PathBuf>,
     /// Learning gain of the first pass: the fitted amplitude is scaled by it. Default 1.
     pub gain: f64,
     /// Learning gain of the later passes (which fit smaller, faster residuals, where the plant
@@ -65,6 +68,7 @@ impl Default for LearnOptions {
             threshold: 0.01,
             accept: 0.0,
             table: None,
+            out_dir: None,
             gain: 1.0,
             refine_gain: 0.5,
             lobe_fraction: 0.3,
@@ -137,6 +141,9 @@ pub const MAX_BACKTRACKS: usize = 3;
 pub struct LearnReport {
     /// Where the table was written.
     pub table_path: PathBuf,
+    /// The table file the job's stages name (the same as `table_path` unless the table was
+    /// written elsewhere).
+    pub job_table: PathBuf,
     /// Pass 0 (no compensation) and every learning pass run.
     pub passes: Vec<PassReport>,
     /// The final table.
@@ -495,11 +502,24 @@ pub fn learn_quadrant(
     run: &mut RunJob<'_>,
 ) -> Result<LearnReport, LearnError> {
     let (axes, job_table) = compensated_axes(job)?;
-    let table_path = options.table.clone().unwrap_or(job_table);
-    let job = if options.table.is_some() {
-        retarget(job, &table_path)
-    } else {
-        job.clone()
+    let elsewhere = match (&options.table, &options.out_dir) {
+        (Some(t), _) => Some(t.clone()),
+        (None, Some(dir)) => Some(dir.join(job_table.file_name().unwrap_or_default())),
+        (None, None) => None,
+    };
+    let job_table_path = job_table.clone();
+    let (table_path, job) = match elsewhere {
+        // the stages resolve a relative `table` against the job's folder: give them the path
+        // as seen from here
+        Some(p) => {
+            let p = std::path::absolute(&p).map_err(|source| LearnError::Write {
+                path: p.clone(),
+                source,
+            })?;
+            let j = retarget(job, &p);
+            (p, j)
+        }
+        None => (job_table, job.clone()),
     };
     let mut table = QuadrantTable::default();
     for (_, name) in &axes {
@@ -571,6 +591,7 @@ pub fn learn_quadrant(
     }
     Ok(LearnReport {
         table_path,
+        job_table: job_table_path,
         passes: reports,
         table,
     })

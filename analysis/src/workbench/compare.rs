@@ -296,6 +296,33 @@ fn share_json(s: &Share) -> Value {
 }
 
 impl Comparison {
+    /// The channel of the headline simulation figures (`torque`, `following_error`,
+    /// `velocity`), None when nothing was simulated.
+    pub fn headline_channel(&self) -> Option<&str> {
+        self.sim.channels.first().map(|c| c.name.as_str())
+    }
+
+    /// What the headline figures mean when the trace has no torque column (None when it has
+    /// one): then there is no equation error and the simulation compares another channel.
+    pub fn no_torque_note(&self, d: &AxisData) -> Option<String> {
+        if self.eq.is_some() || d.torque_raw.is_some() {
+            return None;
+        }
+        let col = format!("{}.torque", d.axis);
+        Some(match self.headline_channel() {
+            Some("following_error") => format!(
+                "the trace has no `{col}` column: there is no equation error, and the headline simulation NRMSE is that of the following error (command minus measured position, the model run in closed loop from the command), not of the torque; the residual shares are of the following error too"
+            ),
+            Some(other) => format!(
+                "the trace has no `{col}` column: there is no equation error, and the headline simulation NRMSE is that of the {} channel, not of the torque",
+                other.replace('_', " ")
+            ),
+            None => format!(
+                "the trace has no `{col}` column and the model no [controller] to run it from the command: nothing is compared (no equation error, no simulation error)"
+            ),
+        })
+    }
+
     /// The JSON printed by `compare --json`.
     pub fn to_json(&self, d: &AxisData) -> Value {
         let seg: Vec<Value> = self
@@ -343,6 +370,8 @@ impl Comparison {
             "equation_rms": self.eq.as_ref().map(|e| e.rms),
             "relative_error_pct": self.eq.as_ref().map(|e| e.relative_error_pct),
             "window_sim_nrmse_pct": self.sim.headline_nrmse_pct(),
+            "headline_channel": self.headline_channel(),
+            "note": self.no_torque_note(d),
             "free_sim_nrmse_pct": self.sim.headline_free_nrmse_pct(),
             "controller_nrmse_pct": self.controller.as_ref().map(|c| c.nrmse_pct),
             "sim_mode": self.sim.mode,

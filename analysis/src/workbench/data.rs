@@ -199,6 +199,26 @@ impl AxisData {
         }
     }
 
+    /// The columns of this axis that were read from the trace (the axis' own columns and the
+    /// declared added input), for error messages.
+    pub fn columns_present(&self) -> Vec<String> {
+        let a = &self.axis;
+        let mut c = vec![format!("{a}.cmd"), format!("{a}.load")];
+        for (name, has) in [
+            ("motor", self.motor_raw.is_some()),
+            ("torque", self.torque_raw.is_some()),
+            ("motor_vel", self.motor_vel_raw.is_some()),
+        ] {
+            if has {
+                c.push(format!("{a}.{name}"));
+            }
+        }
+        if let Some((name, _)) = &self.added_input {
+            c.push(name.clone());
+        }
+        c
+    }
+
     /// The torque column or an error naming it and the method that needs it.
     pub fn require_torque(
         &self,

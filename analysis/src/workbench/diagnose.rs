@@ -27,8 +27,8 @@ use serde_json::{json, Value};
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
 use super::effects::{
-    base_class, base_column, base_keys, channel, class_of, evidence, fmt, Channel, Effect,
-    EffectId, Side, WbModel,
+    base_class, base_column, base_keys, channel, class_of, constant_force_words, evidence, fmt,
+    Channel, Effect, EffectId, Side, WbModel,
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::{autocorrelation, mean, quantile, rms};
@@ -934,12 +934,18 @@ fn coulomb_with_offset(
     let mut cf = Effect::new(EffectId::ConstantForce, ec.side, vec![]);
     cf.coef = vec![cv2.theta[nb + 1]];
     let mut params = flat(&ec.to_table(kind, d.r));
-    let off = cv2.theta[nb + 1]
-        * if kind == AxisKind::BallScrew {
-            d.r
-        } else {
-            1.0
-        };
+    // the offset in the sign of the model file's constant_force (the force on the axis, see
+    // docs/workbench.md "Signs"), i.e. minus the torque-balance coefficient
+    let force_key = if kind == AxisKind::Rotary {
+        "torque_nm"
+    } else {
+        "force_n"
+    };
+    let off = cf
+        .to_table(kind, d.r)
+        .get(force_key)
+        .and_then(toml::Value::as_float)
+        .unwrap_or(0.0);
     let key = if kind == AxisKind::Rotary {
         "offset_nm"
     } else {
@@ -947,10 +953,9 @@ fn coulomb_with_offset(
     };
     params.insert(key.into(), off);
     let ev = format!(
-        "{}, with an offset of {} {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
+        "{}, with {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
         evidence(&ec, d, &params),
-        fmt(off),
-        if kind == AxisKind::Rotary { "N m" } else { "N" }
+        constant_force_words(off, kind)
     );
     Some((vec![ec, cf], cv2, params, ev))
 }

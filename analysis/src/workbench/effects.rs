@@ -583,7 +583,8 @@ impl WbModel {
                     &file.path,
                     key,
                     format!(
-                        "unknown effect `{id}` (known: {})",
+                        "unknown effect `{id}`{} (known: {})",
+                        EffectId::did_you_mean(id),
                         EffectId::list(|_| true)
                     ),
                 )
@@ -853,7 +854,10 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
             fmt(e.hyper[0] / r)
         ),
         EffectId::ViscousFriction => format!("the residual grows in proportion to velocity ({} per unit of velocity)", fmt(e.coef[0])),
-        EffectId::ConstantForce => format!("the residual has the same offset of {} {fu} in both directions of travel", fmt(e.coef[0] * r)),
+        EffectId::ConstantForce => format!(
+            "the residual is the same in both directions of travel: {}",
+            constant_force_words(-e.coef[0] * r, kind)
+        ),
         EffectId::Cogging => format!(
             "a ripple of {} {tu} repeating every {} {} of motor position",
             fmt(e.coef[0].hypot(e.coef[1])),
@@ -885,6 +889,23 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
             "motor minus load position varies with load position, period {} m, amplitude {} m",
             fmt(e.hyper[0]),
             fmt(params.get("amplitude_m").copied().unwrap_or(0.0))
+        ),
+    }
+}
+
+/// A constant force (or torque on a rotary axis) in words, in the sign of the model file's
+/// `constant_force` (the force acting on the axis, positive along +x; docs/workbench.md
+/// "Signs"): `a constant force of +3.18 N on the axis (constant_force.force_n)`.
+pub(crate) fn constant_force_words(force: f64, kind: AxisKind) -> String {
+    let sign = if force > 0.0 { "+" } else { "" };
+    match kind {
+        AxisKind::Rotary => format!(
+            "a constant torque of {sign}{} N m on the axis (constant_force.torque_nm)",
+            fmt(force)
+        ),
+        _ => format!(
+            "a constant force of {sign}{} N on the axis (constant_force.force_n)",
+            fmt(force)
         ),
     }
 }

@@ -100,7 +100,8 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
             return Err(WorkbenchError::BadArgument {
                 arg: format!("--add {s}"),
                 reason: format!(
-                    "unknown effect (effects of the library: {})",
+                    "unknown effect{} (effects of the library: {})",
+                    EffectId::did_you_mean(s),
                     EffectId::list(|_| true)
                 ),
             });
@@ -136,7 +137,7 @@ pub fn fit(
                         needed_for: format!(
                             "fitting `{id}` (it shows in motor minus load position)"
                         ),
-                        present: String::new(),
+                        present: d.columns_present().join(", "),
                     })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
                 if let Some((e, _)) = best_effect(id, model, d, &dref, &[], &rd, &bl, None) {
@@ -151,7 +152,7 @@ pub fn fit(
                         path: d.path.clone(),
                         column: format!("{}.torque", d.axis),
                         needed_for: format!("fitting `{id}` by inverse dynamics"),
-                        present: String::new(),
+                        present: d.columns_present().join(", "),
                     })?;
                 // a drive that records its clamped torque shows its limit in the controller
                 // channel, not in the torque balance: take the limit from there when it

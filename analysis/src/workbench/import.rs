@@ -163,7 +163,10 @@ pub fn import(
     }
     let mut cols: Vec<Vec<f64>> = vec![Vec::new(); map.len()];
     let mut t = Vec::new();
+    // the source line of every row, so that the checks of the built trace name the source
+    let mut src_lines: Vec<usize> = Vec::new();
     for (ln, line) in lines {
+        src_lines.push(ln + 1);
         let cells: Vec<&str> = line.split(sep).collect();
         if cells.len() != names.len() {
             return Err(data_err(
@@ -218,7 +221,16 @@ pub fn import(
         "source".to_string(),
         format!("feedloop trace import of {}", from.display()),
     )];
-    let trace = Trace::from_columns(out, meta, columns, data)?;
+    let header_line = Trace::written_header_line(meta.len());
+    let trace = Trace::from_columns(out, meta, columns, data).map_err(|e| {
+        // its rows are the source's rows: name the source file and line (the time column after
+        // the --map scaling); the header and metadata lines become the source's header line
+        let e = e.relocated(from, |l| match l.checked_sub(header_line + 1) {
+            Some(r) => src_lines.get(r).copied().unwrap_or(l),
+            None => hline + 1,
+        });
+        WorkbenchError::Trace(e)
+    })?;
     trace.write(out).map_err(|e| WorkbenchError::io(out, e))?;
     Ok(trace)
 }

@@ -9,7 +9,8 @@
 //! toward -x, e.g. gravity on an upward +z axis).
 //!
 //! Typical values: vertical axis with 50 kg: -490 N; counterbalance mismatch 10 .. 100 N; EMPS
-//! offset about -3 N.
+//! about +3 N (the benchmark's published offset of -3.16 N is a term of the motor force: minus
+//! this force).
 //!
 //! Signature: a torque offset at standstill equal to the reflected force (opposite sign), the
 //! same in both directions of travel (unlike friction, which flips sign with velocity).

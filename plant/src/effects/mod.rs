@@ -24,7 +24,7 @@ pub mod torque_saturation;
 pub mod viscous_friction;
 
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
-use feedloop_model::params::{ConfigError, Fields};
+use feedloop_model::params::{nearest, ConfigError, ConfigErrorKind, Fields};
 pub use feedloop_model::{EffectId, Side};
 
 pub(crate) use cogging::CoggingHarmonic;
@@ -98,8 +98,9 @@ impl Ctx {
     }
 }
 
-/// Refuses keys not in `known`, naming the keys this table accepts (a hint about units when the
-/// key differs from a known one only by its unit suffix).
+/// Refuses keys not in `known`: the error suggests the nearest known key (the shared rule of
+/// [`feedloop_model::params::nearest`]; else one with the same stem, as the axis/side fixes the
+/// unit suffix) and lists the keys this table accepts.
 pub(crate) fn check_keys(
     f: &Fields<'_>,
     table: &toml::Table,
@@ -107,18 +108,21 @@ pub(crate) fn check_keys(
 ) -> Result<(), ConfigError> {
     for key in table.keys() {
         if !known.contains(&key.as_str()) {
-            let stem = key.split('_').next().unwrap_or("");
-            let hint = known
-                .iter()
-                .find(|k| k.split('_').next() == Some(stem) && !stem.is_empty())
-                .map(|k| format!("; did you mean `{k}` (this axis/side uses these units)?"))
-                .unwrap_or_default();
-            return Err(f.error(
+            let stem = |k: &str| k.split('_').next().unwrap_or("").to_string();
+            let same_stem = |k: &&str| !stem(key).is_empty() && stem(k) == stem(key);
+            let suggestion = nearest(key, known.iter().copied())
+                .or_else(|| known.iter().copied().find(same_stem));
+            let hint = match suggestion {
+                Some(k) if same_stem(&k) => {
+                    format!("; did you mean `{k}` (this axis/side uses these units)?")
+                }
+                Some(k) => format!("; did you mean `{k}`?"),
+                None => String::new(),
+            };
+            return Err(f.error_of(
+                ConfigErrorKind::UnknownKey,
                 key,
-                format!(
-                    "unknown key (keys of this table: {}){hint}",
-                    known.join(", ")
-                ),
+                format!("unknown key{hint} (accepted here: {})", known.join(", ")),
             ));
         }
     }
@@ -200,7 +204,8 @@ pub(crate) fn parse(model: &ModelFile) -> Result<EffectSet, ConfigError> {
                 &model.path,
                 &key,
                 format!(
-                    "unknown effect `{id}` (known effects: {})",
+                    "unknown effect `{id}`{} (known effects: {})",
+                    EffectId::did_you_mean(id),
                     EffectId::list(|_| true)
                 ),
             ));

@@ -225,6 +225,8 @@ struct BuildJob {
     params: Option<String>,
     lib: Option<String>,
     force: bool,
+    /// The file `params` came from (for errors).
+    params_file: Option<String>,
 }
 
 /// A stage's plugin id and the parameters it was built from.
@@ -696,6 +698,7 @@ impl ControlPlane {
             params: msg.params,
             lib: msg.lib,
             force: msg.force,
+            params_file: msg.params_file,
         })
     }
 }
@@ -864,7 +867,7 @@ fn build_one(
             &fits,
         )));
     }
-    let src = Path::new("<swap --params>");
+    let src = Path::new(job.params_file.as_deref().unwrap_or("<swap --params>"));
     let (cur_id, cur_params) = &current[job.axis][job.stage.index()];
     let mut params = if *cur_id == job.plugin {
         cur_params.clone()

@@ -244,4 +244,39 @@ impl TraceError {
             | TraceError::MissingColumn { .. } => None,
         }
     }
+
+    /// The same error about another file: `path`, with each line number `l` replaced by
+    /// `line(l)`. For a trace built from another file's rows (e.g. an import), so the error
+    /// names the file and line the user can open.
+    pub fn relocated(mut self, path: &Path, line: impl Fn(usize) -> usize) -> TraceError {
+        let (p, l) = self.place_mut();
+        *p = path.to_path_buf();
+        if let Some(l) = l {
+            *l = line(*l);
+        }
+        self
+    }
+
+    fn place_mut(&mut self) -> (&mut PathBuf, Option<&mut usize>) {
+        match self {
+            TraceError::NotUtf8 { path, line }
+            | TraceError::MissingHeader { path, line, .. }
+            | TraceError::MissingTime { path, line, .. }
+            | TraceError::DuplicateColumn { path, line, .. }
+            | TraceError::BadColumnName { path, line, .. }
+            | TraceError::BadMeta { path, line, .. }
+            | TraceError::MisplacedComment { path, line }
+            | TraceError::BlankLine { path, line }
+            | TraceError::NotANumber { path, line, .. }
+            | TraceError::NotFinite { path, line, .. }
+            | TraceError::CellCount { path, line, .. }
+            | TraceError::TimeNotIncreasing { path, line, .. }
+            | TraceError::UnevenSampling { path, line, .. }
+            | TraceError::TooFewRows { path, line } => (path, Some(line)),
+            TraceError::Io { path, .. }
+            | TraceError::Empty { path }
+            | TraceError::ColumnLength { path, .. }
+            | TraceError::MissingColumn { path, .. } => (path, None),
+        }
+    }
 }

@@ -157,8 +157,16 @@ impl Trace {
             period_s,
         })
     }
+    /// The line of the header row in the file [`Trace::write_to`] writes for a trace with
+    /// `meta_entries` metadata entries (the version line, one line per entry, then the header;
+    /// data row `r`, from 0, is on the line after it plus `r`).
+    pub fn written_header_line(meta_entries: usize) -> usize {
+        2 + meta_entries
+    }
+
     /// Builds a trace from column data, with the same checks as reading a file. Line numbers in
-    /// errors are those the rows would have in the file [`Trace::write_to`] produces.
+    /// errors are those the rows would have in the file [`Trace::write_to`] produces (see
+    /// [`Trace::written_header_line`]).
     pub fn from_columns(
         path: &Path,
         meta: Vec<(String, String)>,
@@ -166,7 +174,7 @@ impl Trace {
         data: Vec<Vec<f64>>,
     ) -> Result<Trace, TraceError> {
         let p = || path.to_path_buf();
-        let header_line = 2 + meta.len();
+        let header_line = Self::written_header_line(meta.len());
         for (i, (k, _)) in meta.iter().enumerate() {
             check_meta_key(k).map_err(|reason| TraceError::BadMeta {
                 path: p(),

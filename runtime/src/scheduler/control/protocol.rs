@@ -47,6 +47,10 @@ pub struct SwapRequest {
     /// `warnings`). Written only when set, so a plain request reads as before.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub force: bool,
+    /// The file `params` was read from, named in the errors about them (absent: the errors say
+    /// `<swap --params>`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub params_file: Option<String>,
 }
 
 impl SwapRequest {
@@ -293,6 +297,7 @@ mod tests {
             params: Some("kv_nms_per_rad = 4.0".into()),
             lib: None,
             force: false,
+            params_file: None,
         })
     }
 

@@ -1,0 +1,317 @@
+//! The workbench (compare, diagnose, fit) refuses options outside their range, warns when the
+//! model needs columns the trace lacks, and says what its figures mean without a torque column.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_feedloop")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("feedloop-wbin-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const RIGID: &str = "kind = \"rigid\"\nmass_kg = 50.0\nviscous_ns_per_m = 100.0\n[controller]\nkp_per_s = 50.0\nkv_ns_per_m = 5000.0\ntv_s = 0.01\nforce_limit_n = 1000.0\n";
+
+const BALLSCREW: &str = "kind = \"ballscrew\"\njm_kgm2 = 2.0e-3\nkl_nm_per_rad = 3000.0\njl_kgm2 = 3.0e-3\nlead_m = 0.01\n[controller]\nkp_per_s = 50.0\nkv_nms_per_rad = 5.0\ntv_s = 0.005\ntorque_limit_nm = 30.0\n";
+
+/// A 1 kHz trace of a 50 kg mass on a sine, 2 s, the load 2 ms behind the command; with the
+/// force column when `torque`, with a motor column (a 10 mm lead: 2 pi / 0.01 rad per m) when
+/// `motor`.
+fn trace(dir: &Path, name: &str, torque: bool, motor: bool) -> PathBuf {
+    let mut s = String::from("# feedloop-trace v1\nt,x.cmd,x.load");
+    s.push_str(if motor { ",x.motor" } else { "" });
+    s.push_str(if torque { ",x.torque\n" } else { "\n" });
+    let w = 2.0 * std::f64::consts::PI * 0.5;
+    for k in 0..2000 {
+        let t = k as f64 * 1e-3;
+        let cmd = 0.05 * (w * t).sin();
+        let tl = t - 0.002;
+        let (x, v, a) = (
+            0.05 * (w * tl).sin(),
+            0.05 * w * (w * tl).cos(),
+            -0.05 * w * w * (w * tl).sin(),
+        );
+        s.push_str(&format!("{t},{cmd},{x}"));
+        if motor {
+            s.push_str(&format!(",{}", x * 2.0 * std::f64::consts::PI / 0.01));
+        }
+        if torque {
+            s.push_str(&format!(",{}", 50.0 * a + 100.0 * v + 10.0 * v.signum()));
+        }
+        s.push('\n');
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, s).unwrap();
+    p
+}
+
+fn model(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn run(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(bin()).args(args).output().unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn a_window_or_cutoff_outside_its_range_is_refused_naming_the_flag() {
+    let d = scratch("range");
+    let tr = trace(&d, "t.csv", true, false);
+    let m = model(&d, "m.toml", RIGID);
+    let out = d.join("out");
+    for (flag, value, why) in [
+        ("--window-s", "0", "> 0"),
+        ("--window-s", "-0.05", "> 0"),
+        ("--window-s", "NaN", "finite"),
+        ("--window-s", "0.0015", "two sample periods"),
+        ("--cutoff-hz", "0", "> 0"),
+        ("--cutoff-hz", "NaN", "finite"),
+        ("--cutoff-hz", "500", "Nyquist"),
+        ("--cutoff-hz", "2000", "Nyquist"),
+    ] {
+        for cmd in ["compare", "fit", "diagnose"] {
+            let o = run(&[
+                cmd.as_ref(),
+                "--trace".as_ref(),
+                tr.as_os_str(),
+                "--model".as_ref(),
+                m.as_os_str(),
+                "--out".as_ref(),
+                out.as_os_str(),
+                flag.as_ref(),
+                value.as_ref(),
+            ]);
+            let err = text(&o.stderr);
+            assert!(!o.status.success(), "{cmd} {flag} {value} was accepted");
+            assert!(
+                err.contains(&format!("{flag} {value}")) && err.contains(why),
+                "{cmd} {flag} {value}: {err}"
+            );
+            assert!(!out.exists(), "{cmd} {flag} {value} wrote its output");
+        }
+    }
+    // the Nyquist limit is the trace's: 0.5 / 1 ms
+    let o = run(&[
+        "compare".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--cutoff-hz".as_ref(),
+        "600".as_ref(),
+    ]);
+    assert!(text(&o.stderr).contains("500 Hz"), "{}", text(&o.stderr));
+    // in range, the same command runs
+    let o = run(&[
+        "compare".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--cutoff-hz".as_ref(),
+        "50".as_ref(),
+        "--window-s".as_ref(),
+        "0.002".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+}
+
+#[test]
+fn a_two_body_model_against_a_one_position_trace_is_warned_about() {
+    let d = scratch("kinds");
+    let one = trace(&d, "one.csv", true, false);
+    let two = trace(&d, "two.csv", true, true);
+    let m = model(&d, "bs.toml", BALLSCREW);
+    let go = |tr: &Path, cmd: &str| {
+        let out = d.join(format!("out-{cmd}"));
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            cmd.as_ref(),
+            "--trace".as_ref(),
+            tr.as_os_str(),
+            "--model".as_ref(),
+            m.as_os_str(),
+            "--json".as_ref(),
+        ];
+        let f = d.join("fit.toml");
+        if cmd == "fit" {
+            args.extend(["--out".as_ref(), f.as_os_str()]);
+        } else {
+            args.extend(["--out".as_ref(), out.as_os_str()]);
+        }
+        let o = run(&args);
+        assert!(o.status.success(), "{cmd}: {}", text(&o.stderr));
+        // the warning goes to standard error (standard output stays pure JSON) and into the
+        // JSON's `warnings`
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        (text(&o.stderr), j["warnings"].clone())
+    };
+    for cmd in ["compare", "fit", "diagnose"] {
+        let (err, w) = go(&one, cmd);
+        assert!(
+            err.contains("warning")
+                && err.contains("ballscrew")
+                && err.contains("no `x.motor` column")
+                && err.contains("kl_nm_per_rad"),
+            "{cmd}: {err}"
+        );
+        assert!(
+            w[0].as_str()
+                .is_some_and(|w| w.contains("no `x.motor` column")),
+            "{cmd}: {w}"
+        );
+        let (err, w) = go(&two, cmd);
+        assert!(!err.contains("warning"), "{cmd} with x.motor: {err}");
+        assert_eq!(w, serde_json::json!([]), "{cmd} with x.motor");
+    }
+}
+
+#[test]
+fn compare_without_a_torque_column_says_what_its_headline_figure_is() {
+    let d = scratch("notorque");
+    let m = model(&d, "m.toml", RIGID);
+    let compare = |tr: &Path, json: bool| {
+        let out = d.join("out");
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "compare".as_ref(),
+            "--trace".as_ref(),
+            tr.as_os_str(),
+            "--model".as_ref(),
+            m.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ];
+        if json {
+            args.push("--json".as_ref());
+        }
+        let o = run(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    let without = trace(&d, "without.csv", false, false);
+    let s = compare(&without, false);
+    assert!(
+        s.contains("windowed simulation NRMSE (following_error)"),
+        "{s}"
+    );
+    assert!(
+        s.contains("no `x.torque` column")
+            && s.contains("following error")
+            && s.contains("not of the torque"),
+        "{s}"
+    );
+    let j: serde_json::Value = serde_json::from_str(&compare(&without, true)).unwrap();
+    assert_eq!(j["headline_channel"], "following_error", "{j}");
+    assert!(
+        j["note"].as_str().unwrap().contains("no `x.torque` column"),
+        "{j}"
+    );
+    // with the torque column the headline is the torque and there is nothing to note
+    let with = trace(&d, "with.csv", true, false);
+    let s = compare(&with, false);
+    assert!(s.contains("windowed simulation NRMSE (torque)"), "{s}");
+    assert!(!s.contains("note:"), "{s}");
+    let j: serde_json::Value = serde_json::from_str(&compare(&with, true)).unwrap();
+    assert_eq!(j["headline_channel"], "torque", "{j}");
+    assert!(j["note"].is_null(), "{j}");
+}
+
+#[test]
+fn fit_without_a_torque_column_lists_the_columns_it_has() {
+    let d = scratch("fitcols");
+    let tr = trace(&d, "without.csv", false, false);
+    let m = model(&d, "m.toml", RIGID);
+    let out = d.join("fit.toml");
+    let o = run(&[
+        "fit".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--add".as_ref(),
+        "coulomb_friction".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    let err = text(&o.stderr);
+    assert!(!o.status.success(), "fit without torque succeeded");
+    assert!(
+        err.contains("missing column `x.torque`")
+            && err.contains("columns present: x.cmd, x.load)"),
+        "{err}"
+    );
+}
+
+/// The EMPS estimation record (see ../shared/data/emps/README.md), when it is there.
+fn emps() -> Option<PathBuf> {
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_estimation.csv");
+    p.exists().then_some(p)
+}
+
+#[test]
+fn diagnose_and_fit_give_the_emps_offset_with_one_sign() {
+    let Some(tr) = emps() else {
+        eprintln!("EMPS data not found: skipped");
+        return;
+    };
+    let m = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/emps-nominal.toml");
+    let d = scratch("emps-sign");
+    let o = run(&[
+        "diagnose".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--json".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let top = &j["candidates"][0];
+    assert_eq!(top["effect"], "coulomb_friction", "{j}");
+    let diag_offset = top["params"]["offset_n"].as_f64().unwrap();
+    let evidence = top["evidence"].as_str().unwrap().to_string();
+    let fitted = d.join("fitted.toml");
+    let o = run(&[
+        "fit".as_ref(),
+        "--trace".as_ref(),
+        tr.as_os_str(),
+        "--model".as_ref(),
+        m.as_os_str(),
+        "--add".as_ref(),
+        "coulomb_friction,constant_force".as_ref(),
+        "--out".as_ref(),
+        fitted.as_os_str(),
+        "--json".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let f: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let force_n = f["params"]["force_n"].as_f64().unwrap();
+    // the two name the same force with the same sign, and the written model file carries it
+    assert!(
+        (diag_offset - force_n).abs() < 0.3,
+        "diagnose offset_n {diag_offset}, fit force_n {force_n}"
+    );
+    let written: toml::Table = std::fs::read_to_string(&fitted).unwrap().parse().unwrap();
+    let in_file = written["effects"]["constant_force"]["force_n"]
+        .as_float()
+        .unwrap();
+    assert!((in_file - force_n).abs() < 1e-3, "{in_file} {force_n}");
+    // and the diagnosis' words give that signed value as the force on the axis
+    let words = format!("constant force of {:+.1} N on the axis", diag_offset);
+    assert!(evidence.contains(&words), "{words:?} not in {evidence:?}");
+}
