@@ -13,6 +13,7 @@ use feedloop_analysis::latency::{
     attribute_misses, hist_json, percentile_svg, reference, Attribution, RunFigures,
 };
 use feedloop_model::job::{Mode, WaitKind};
+use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
@@ -296,26 +297,32 @@ fn run_processes(
 
 /// The figures of `latency.json` in a few lines.
 fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
+    // the JSON figures are in us (the key says so); printed as seconds with a prefix that fits
+    let us = |x: &Value| si(x.as_f64().unwrap_or(f64::NAN) * 1e-6, "s");
+    let percentiles = |h: &Value| {
+        format!(
+            "p50 {}  p99 {}  p99.9 {}  max {}",
+            us(&h["p50"]),
+            us(&h["p99"]),
+            us(&h["p999"]),
+            us(&h["max"])
+        )
+    };
+    println!("latency: {}", percentiles(&v["latency_us"]));
+    println!("jitter:  {}", percentiles(&v["jitter_us"]));
     println!(
-        "latency us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}",
-        v["latency_us"]["p50"],
-        v["latency_us"]["p99"],
-        v["latency_us"]["p999"],
-        v["latency_us"]["max"]
+        "deadline misses {} ({} outside stalls), overruns {}, stalls {} (max {})",
+        f.misses,
+        f.misses_outside_stalls,
+        f.overruns,
+        f.stalls,
+        si(f.stall_max_ms * 1e-3, "s")
     );
+    let half_period = si(period_ns as f64 * 0.5e-9, "s");
     println!(
-        "jitter  us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}",
-        v["jitter_us"]["p50"], v["jitter_us"]["p99"], v["jitter_us"]["p999"], v["jitter_us"]["max"]
-    );
-    println!(
-        "deadline misses {} ({} outside stalls), overruns {}, stalls {} (max {:.2} ms)",
-        f.misses, f.misses_outside_stalls, f.overruns, f.stalls, f.stall_max_ms
-    );
-    println!(
-        "core lost for >= {:.0} us: scheduler {} times (max {:.0} us), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
-        period_ns as f64 / 2000.0,
+        "core lost for >= {half_period}: scheduler {} times (max {}), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
         a.scheduler_losses,
-        a.scheduler_max_ns as f64 / 1000.0,
+        si(a.scheduler_max_ns as f64 * 1e-9, "s"),
         a.plant_losses,
         a.explained,
         a.unexplained
@@ -323,17 +330,15 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
     if !v["reference"].is_null() {
         let r = &v["reference"];
         println!(
-            "reference on the same CPUs: sleeping loop jitter p50 {:.2} p99 {:.2} p99.9 {:.2} max {:.2} us (SCHED_FIFO {}); \
-             a bare spinning loop lost its core for >= {:.0} us {} times ({:.1}/s, max {:.0} us)",
-            r["sleeping_loop"]["jitter_us"]["p50"],
-            r["sleeping_loop"]["jitter_us"]["p99"],
-            r["sleeping_loop"]["jitter_us"]["p999"],
-            r["sleeping_loop"]["jitter_us"]["max"],
+            "reference on the same CPUs: sleeping loop jitter {} (SCHED_FIFO {}); \
+             a bare spinning loop lost its core for >= {half_period} {} times ({}/s, max {})",
+            percentiles(&r["sleeping_loop"]["jitter_us"]),
             r["sleeping_loop"]["sched_fifo"],
-            period_ns as f64 / 2000.0,
             r["spinning_loop"]["interruptions"],
-            r["spinning_loop"]["interruptions_per_s"].as_f64().unwrap_or(0.0),
-            r["spinning_loop"]["max_us"].as_f64().unwrap_or(0.0),
+            sig(r["spinning_loop"]["interruptions_per_s"]
+                .as_f64()
+                .unwrap_or(0.0)),
+            us(&r["spinning_loop"]["max_us"]),
         );
     }
 }

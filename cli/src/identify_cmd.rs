@@ -10,6 +10,7 @@ use feedloop_analysis::identify::stiffness::{
 };
 use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
 use feedloop_model::job::Job;
+use feedloop_model::units::{si, sig};
 use feedloop_motion::{build_at, excitation::write_excitation_csv};
 use feedloop_trace::Trace;
 
@@ -396,15 +397,15 @@ fn print_inertia(a: &InertiaArgs, est: &inertia::InertiaEstimate) -> anyhow::Res
         return Ok(());
     }
     println!(
-        "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+        "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {}, model {}; read by a least-squares line over +-{} around the position)",
         est.jl_kgm2,
         est.method,
         est.iterations,
         est.deviation,
-        a.at,
-        1e6 * est.deviation_measured_m,
-        1e6 * est.deviation_model_m,
-        a.window
+        sig(a.at),
+        si(est.deviation_measured_m, "m"),
+        si(est.deviation_model_m, "m"),
+        sig(a.window)
     );
     if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
         println!(
@@ -555,10 +556,10 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
         );
     } else {
         println!(
-            "wrote {} ({} excitation, {:.3} s, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
+            "wrote {} ({} excitation, {}, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
             a.out.display(),
             a.kind,
-            traj.duration_s(),
+            si(traj.duration_s(), "s"),
             a.out.display()
         );
     }
@@ -847,16 +848,16 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     for ta in &tuned {
         let r = &ta.result;
         println!(
-            "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {:.1} s",
+            "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {} (defaults {}); {} sets evaluated, {} rejected, {}",
             ta.name,
-            r.best.kp_per_s,
-            r.best.kv_nms_per_rad,
-            r.best.tv_s,
-            r.e_best,
-            r.e_default,
+            sig(r.best.kp_per_s),
+            sig(r.best.kv_nms_per_rad),
+            sig(r.best.tv_s),
+            sig(r.e_best),
+            sig(r.e_default),
             r.evaluated,
             r.rejected,
-            ta.seconds
+            si(ta.seconds, "s")
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -445,6 +445,38 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
 }
 
 #[test]
+fn tune_prints_its_figures_with_four_significant_digits() {
+    let job = repo("examples/jobs/tune-ramp.toml");
+    // the grid's top tv_s is 0.002 + (0.02 - 0.002) = 0.020000000000000004 in f64; the lower
+    // one is rejected, so that is the best set
+    let args = cli(
+        "tune --grid kp_per_s=120:120:1,kv_nms_per_rad=10:10:1,tv_s=0.002:0.02:2",
+        &[("--job", &job)],
+    );
+    let o = run(&args);
+    assert!(o.status.success(), "{}", describe(&args, &o));
+    let text = String::from_utf8(o.stdout).unwrap();
+    assert!(
+        text.contains("best kp_per_s 120 kv_nms_per_rad 10 tv_s 0.02: E "),
+        "{text}"
+    );
+    let numbers: Vec<&str> = text
+        .split(|c: char| c.is_whitespace() || ",;:()".contains(c))
+        .filter(|w| w.parse::<f64>().is_ok())
+        .collect();
+    assert!(numbers.len() >= 7, "{text}");
+    for w in numbers {
+        let mantissa = w.split('e').next().unwrap();
+        let digits = mantissa
+            .chars()
+            .filter(char::is_ascii_digit)
+            .collect::<String>();
+        let significant = digits.trim_start_matches('0').len();
+        assert!(significant <= 4, "`{w}` in {text}");
+    }
+}
+
+#[test]
 fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
     let d = scratch("tune-xy");
     let svg = d.join("heat.svg");
