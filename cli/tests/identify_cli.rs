@@ -445,6 +445,31 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
 }
 
 #[test]
+fn a_simulated_trace_has_exact_decimal_times() {
+    let d = scratch("exact-t");
+    // period 1e-4 s: cycle k is at k / 10^4 s exactly, e.g. 0.0003 for k = 3 (the float
+    // product 3 x 1e-4 prints 0.00030000000000000003)
+    let text = std::fs::read_to_string(sim(&repo("examples/jobs/tune-ramp.toml"), &d)).unwrap();
+    let rows: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .collect();
+    assert!(rows.len() > 9000, "{} rows", rows.len());
+    for (k, row) in rows.iter().enumerate() {
+        let t = row.split(',').next().unwrap();
+        let frac = format!("{:04}", k % 10_000);
+        let frac = frac.trim_end_matches('0');
+        let want = format!(
+            "{}.{}",
+            k / 10_000,
+            if frac.is_empty() { "0" } else { frac }
+        );
+        assert_eq!(t, want, "row {k}");
+    }
+}
+
+#[test]
 fn tune_prints_its_figures_with_four_significant_digits() {
     let job = repo("examples/jobs/tune-ramp.toml");
     // the grid's top tv_s is 0.002 + (0.02 - 0.002) = 0.020000000000000004 in f64; the lower

@@ -22,7 +22,8 @@ pub fn trace_columns(names: &[String]) -> Vec<String> {
     c
 }
 
-/// Fills `out` with one trace row for cycle `seq` (t = seq * period).
+/// Fills `out` with one trace row for cycle `seq` (t = seq * period; a writer given the period
+/// prints that time exactly with [`crate::TraceWriter::write_cycle`]).
 #[inline]
 pub fn row_values(seq: u64, period_s: f64, axes: &[AxisRecord], out: &mut Vec<f64>) {
     out.clear();
