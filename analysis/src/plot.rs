@@ -9,7 +9,7 @@
 //! draws a grid of values with a colour scale and an optional marked cell.
 //!
 //! Parts carry a `class` (`title`, `x-label`, `y-label`, `x-tick`, `y-tick`, `legend`,
-//! `ref-line`, `colour-scale`, `marker`) so tests can check that a plot has them. No external
+//! `series`, `ref-line`, `colour-scale`, `marker`) so tests can check that a plot has them. No external
 //! libraries; plain SVG 1.1 that browsers and converters render alike.
 
 use std::fmt::Write as _;
@@ -628,6 +628,7 @@ fn draw_series(s: &mut String, se: &Series, px: &dyn Fn(f64) -> f64, py: &dyn Fn
             .map(|(x, y)| (px(*x), py(*y)))
             .filter(|(x, y)| x.is_finite() && y.is_finite());
     if se.style == Style::Dots {
+        s.push_str(r#"<g class="series">"#);
         for (x, y) in pts {
             let _ = write!(
                 s,
@@ -635,6 +636,7 @@ fn draw_series(s: &mut String, se: &Series, px: &dyn Fn(f64) -> f64, py: &dyn Fn
                 se.color
             );
         }
+        s.push_str("</g>");
         return;
     }
     let mut d = String::new();
@@ -654,7 +656,7 @@ fn draw_series(s: &mut String, se: &Series, px: &dyn Fn(f64) -> f64, py: &dyn Fn
     };
     let _ = write!(
         s,
-        r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.4"{dash}/>"#,
+        r#"<path class="series" d="{d}" fill="none" stroke="{}" stroke-width="1.4"{dash}/>"#,
         se.color
     );
 }

@@ -10,7 +10,7 @@ use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
 
 use feedloop_analysis::latency::{
-    attribute_misses, hist_json, percentile_svg, reference, Attribution, RunFigures,
+    attribute_misses, hist_json, percentile_svg, reference, Attribution, ReferenceLoops, RunFigures,
 };
 use feedloop_model::job::{Mode, WaitKind};
 use feedloop_model::units::{si, sig};
@@ -145,10 +145,11 @@ fn latency(
     } else {
         cpus.clone()
     };
-    let reference = if reference_s > 0.0 {
-        reference_loops(&probe_cpus, period_ns, reference_s)?
+    let (reference, reference_plot) = if reference_s > 0.0 {
+        let (v, sleeping, spinning_max_ns) = reference_loops(&probe_cpus, period_ns, reference_s)?;
+        (v, Some((sleeping, spinning_max_ns)))
     } else {
-        Value::Null
+        (Value::Null, None)
     };
     eprintln!(
         "bench latency: {cycles} cycles at {:.1} kHz, wait {wait}, about {:.1} s",
@@ -200,7 +201,18 @@ fn latency(
     write_json(&out.join("latency.json"), &v)?;
     std::fs::write(
         out.join("latency.svg"),
-        percentile_svg(&figures.latency, &figures.jitter),
+        percentile_svg(
+            &figures.latency,
+            &figures.jitter,
+            period_ns,
+            reference_plot
+                .as_ref()
+                .map(|(sleeping, spinning_max_ns)| ReferenceLoops {
+                    sleeping: &sleeping.lateness,
+                    spinning_max_ns: *spinning_max_ns,
+                })
+                .as_ref(),
+        ),
     )?;
     print_report(&v, &figures, &attribution, period_ns);
     println!(
@@ -212,15 +224,20 @@ fn latency(
 }
 
 /// The sleeping and the spinning reference loop on `cpus`, `seconds` each, as `latency.json`'s
-/// `reference`.
-fn reference_loops(cpus: &[usize], period_ns: u64, seconds: f64) -> Result<Value> {
+/// `reference`, with the sleeping loop's histogram and the spinning loop's longest loss (ns)
+/// for the plot.
+fn reference_loops(
+    cpus: &[usize],
+    period_ns: u64,
+    seconds: f64,
+) -> Result<(Value, reference::Sleeping, u64)> {
     eprintln!(
         "reference: a sleeping loop, then a spinning loop, {seconds} s each on CPUs {cpus:?}"
     );
     let time = Duration::from_secs_f64(seconds);
     let sleeping = reference::sleeping_loop(cpus, period_ns, time)?;
     let spinning = reference::spinning_loop(cpus, period_ns / 2, time)?;
-    Ok(json!({
+    let v = json!({
         "seconds": seconds,
         "cpus": cpus,
         "sleeping_loop": {
@@ -234,7 +251,8 @@ fn reference_loops(cpus: &[usize], period_ns: u64, seconds: f64) -> Result<Value
             "interrupted_share": spinning.lost_ns as f64 / (seconds * 1e9 * cpus.len() as f64),
             "max_us": spinning.max_ns as f64 / 1000.0,
         },
-    }))
+    });
+    Ok((v, sleeping, spinning.max_ns))
 }
 
 /// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of

@@ -8,7 +8,8 @@ use feedloop_analysis::identify::inertia::{self, Probe};
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
 };
-use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
+use feedloop_analysis::identify::svg::{bode_svg, tune_heatmap_svg};
+use feedloop_analysis::plot::{Axis, Mark, Plot, Series};
 use feedloop_model::job::Job;
 use feedloop_model::units::{si, sig};
 use feedloop_motion::{build_at, excitation::write_excitation_csv};
@@ -369,25 +370,23 @@ fn write_deviation_svg(
     est: &inertia::InertiaEstimate,
     at: f64,
 ) -> anyhow::Result<()> {
-    let series: Vec<Series> = curves
-        .iter()
-        .map(|(label, color, points)| Series {
-            label,
-            color,
-            points,
-        })
-        .collect();
-    let probe_label = format!("--at {at}");
-    let text = lines_svg(
+    let mut plot = Plot::new(
         &format!(
-            "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
-            est.deviation, est.method, est.jl_kgm2
+            "identify inertia: {} deviation along the move ({}), jl_kgm2 = {}",
+            est.deviation,
+            est.method,
+            sig(est.jl_kgm2)
         ),
-        "load position, m",
-        "deviation, m",
-        &series,
-        &[(probe_label.as_str(), at)],
-    );
+        Axis::linear("load position", "m").si(),
+        Axis::linear("deviation", "m").si(),
+    )
+    .size(860.0, 420.0);
+    for (label, color, points) in curves {
+        plot = plot.series(Series::points(label, color, points));
+    }
+    let text = plot
+        .vline(Mark::new(&format!("probe --at {}", sig(at)), at, "red"))
+        .svg();
     std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))
 }
 
@@ -584,40 +583,6 @@ fn per_axis_path(p: &Path, axis: &str, several: bool) -> PathBuf {
         None => format!("{stem}-{axis}"),
     };
     p.with_file_name(name)
-}
-
-/// Heat map of E over the first two grid axes (best over the others).
-fn tune_heatmap(
-    grid: &[feedloop_analysis::identify::tune::GridAxis],
-    r: &feedloop_analysis::identify::tune::TuneResult,
-    axis: &str,
-) -> String {
-    use feedloop_analysis::identify::svg::heatmap_svg;
-    let xs = &grid[0];
-    let ys = grid.get(1);
-    let ny = ys.map_or(1, |y| y.values.len());
-    let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
-    let per_y = inner / ny.max(1);
-    let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
-    for (k, e) in r.all.iter().enumerate() {
-        let ix = k / inner.max(1);
-        let iy = (k % inner.max(1)) / per_y.max(1);
-        if let Some(v) = e.e {
-            let c = &mut m[iy][ix];
-            if c.is_nan() || v < *c {
-                *c = v;
-            }
-        }
-    }
-    let empty: Vec<f64> = vec![];
-    heatmap_svg(
-        &format!("E of axis {axis} (best over the other parameters)"),
-        &xs.name,
-        &xs.values,
-        ys.map_or("-", |y| y.name.as_str()),
-        ys.map_or(&empty, |y| &y.values),
-        &m,
-    )
 }
 
 /// Sets `position_p { kp_per_s }` and `pi_velocity { kv_nms_per_rad, tv_s }` of `axis` in the
@@ -834,7 +799,7 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     if let Some(p) = &a.svg {
         for ta in &tuned {
             let out = per_axis_path(p, &ta.name, several);
-            std::fs::write(&out, tune_heatmap(&grid, &ta.result, &ta.name))
+            std::fs::write(&out, tune_heatmap_svg(&grid, &ta.result, &ta.name))
                 .with_context(|| format!("writing {}", out.display()))?;
         }
     }
