@@ -125,7 +125,10 @@ impl Axis {
             let ticks = log_ticks(10f64.powf(lo), 10f64.powf(hi));
             let max = ticks.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let (title, scale) = self.title(max);
-            let marks = ticks.iter().map(|v| (v.log10(), sig(v * scale))).collect();
+            let marks = ticks
+                .iter()
+                .map(|v| (v.log10(), log_label(v * scale)))
+                .collect();
             return (marks, title);
         }
         let ticks = nice_ticks(lo, hi, 6);
@@ -185,6 +188,15 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
         return vec![];
     }
     let (d0, d1) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+    if d1 - d0 > 8 {
+        // many decades: every second, third, ... decade, about eight ticks
+        let every = (d1 - d0 + 7) / 8;
+        return (d0..=d1)
+            .filter(|d| d.rem_euclid(every) == 0)
+            .map(|d| 10f64.powi(d))
+            .filter(|v| *v >= lo * (1.0 - 1e-9) && *v <= hi * (1.0 + 1e-9))
+            .collect();
+    }
     for mult in [
         &[1.0][..],
         &[1.0, 2.0, 5.0],
@@ -200,6 +212,16 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     }
     // less than a decade: linear steps
     nice_ticks(lo, hi, 4)
+}
+
+/// A tick label on a log axis: plain digits from 1e-3 up to 1e6 (`10000`, not `1e4`),
+/// exponent form outside.
+fn log_label(v: f64) -> String {
+    if (1e4..1e6).contains(&v.abs()) {
+        format!("{}", v.round())
+    } else {
+        sig(v)
+    }
 }
 
 /// A tick label for `v` on a grid of `step`: as many decimals as the step needs.
@@ -293,7 +315,8 @@ pub struct Mark {
 }
 
 impl Mark {
-    /// A reference line at `value`.
+    /// A reference line at `value` (an empty label leaves it out of the legend, e.g. when
+    /// another panel names it).
     pub fn new(label: &str, value: f64, color: &str) -> Self {
         Self {
             label: label.into(),
@@ -393,7 +416,9 @@ impl Plot {
             .map(|s| (s.label.clone(), s.color.clone(), Some(s.style)))
             .collect();
         for m in self.vlines.iter().chain(&self.hlines) {
-            e.push((m.label.clone(), m.color.clone(), Some(Style::Dashed)));
+            if !m.label.is_empty() {
+                e.push((m.label.clone(), m.color.clone(), Some(Style::Dashed)));
+            }
         }
         if !self.shade.is_empty() && !self.shade_label.is_empty() {
             e.push((self.shade_label.clone(), "#f4b6b6".into(), None));
@@ -456,7 +481,17 @@ impl Plot {
         }
         let (xt, xtitle) = self.x.tick_marks(xr.0, xr.1);
         let (yt, ytitle) = self.y.tick_marks(yr.0, yr.1);
-        draw_axes(s, (x0, x1, y0, y1), xr, yr, &xt, &yt, &xtitle, &ytitle);
+        draw_axes(
+            s,
+            true,
+            (x0, x1, y0, y1),
+            xr,
+            yr,
+            &xt,
+            &yt,
+            &xtitle,
+            &ytitle,
+        );
         let clip = clip_id(&self.title, ox, oy);
         let _ = write!(
             s,
@@ -566,11 +601,12 @@ fn svg_open(w: f64, h: f64) -> String {
     )
 }
 
-/// Frame, grid lines, tick labels and the two axis titles of the plot area (x0, x1, y0, y1)
-/// with transformed ranges `xr`, `yr`.
+/// Frame, grid lines (with `grid`), tick marks and labels and the two axis titles of the plot
+/// area (x0, x1, y0, y1) with transformed ranges `xr`, `yr`.
 #[allow(clippy::too_many_arguments)]
 fn draw_axes(
     s: &mut String,
+    grid: bool,
     (x0, x1, y0, y1): (f64, f64, f64, f64),
     xr: (f64, f64),
     yr: (f64, f64),
@@ -579,11 +615,12 @@ fn draw_axes(
     xtitle: &str,
     ytitle: &str,
 ) {
+    let grid_colour = if grid { "#e3e3e3" } else { "none" };
     for (v, label) in xt {
         let x = x0 + (v - xr.0) / (xr.1 - xr.0) * (x1 - x0);
         let _ = write!(
             s,
-            r##"<g class="x-tick"><line x1="{x:.1}" y1="{y0:.1}" x2="{x:.1}" y2="{y1:.1}" stroke="#e3e3e3"/><line x1="{x:.1}" y1="{y1:.1}" x2="{x:.1}" y2="{:.1}" stroke="#555"/><text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text></g>"##,
+            r##"<g class="x-tick"><line x1="{x:.1}" y1="{y0:.1}" x2="{x:.1}" y2="{y1:.1}" stroke="{grid_colour}"/><line x1="{x:.1}" y1="{y1:.1}" x2="{x:.1}" y2="{:.1}" stroke="#555"/><text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text></g>"##,
             y1 + 4.0,
             y1 + 16.0,
             esc(label)
@@ -593,7 +630,7 @@ fn draw_axes(
         let y = y1 - (v - yr.0) / (yr.1 - yr.0) * (y1 - y0);
         let _ = write!(
             s,
-            r##"<g class="y-tick"><line x1="{x0}" y1="{y:.1}" x2="{x1}" y2="{y:.1}" stroke="#e3e3e3"/><line x1="{:.1}" y1="{y:.1}" x2="{x0}" y2="{y:.1}" stroke="#555"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text></g>"##,
+            r##"<g class="y-tick"><line x1="{x0}" y1="{y:.1}" x2="{x1}" y2="{y:.1}" stroke="{grid_colour}"/><line x1="{:.1}" y1="{y:.1}" x2="{x0}" y2="{y:.1}" stroke="#555"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text></g>"##,
             x0 - 4.0,
             x0 - 6.0,
             y + 4.0,
@@ -839,7 +876,7 @@ impl HeatMap {
         if has_missing {
             legend.push((self.missing.clone(), "rgb(200,200,200)".into(), None));
         }
-        let bar_w = 110.0;
+        let bar_w = 100.0;
         let (x0, x1) = (ML, w - MR - bar_w);
         let legend_h = legend_rows(&legend, x1 - x0) as f64 * LEGEND_ROW;
         let (y0, y1) = (MT + legend_h + 4.0, h - MB);
@@ -891,7 +928,17 @@ impl HeatMap {
         }
         let (xt, xtitle) = self.x.tick_marks(xr.0, xr.1);
         let (yt, ytitle) = self.y.tick_marks(yr.0, yr.1);
-        draw_axes(&mut s, (x0, x1, y0, y1), xr, yr, &xt, &yt, &xtitle, &ytitle);
+        draw_axes(
+            &mut s,
+            false,
+            (x0, x1, y0, y1),
+            xr,
+            yr,
+            &xt,
+            &yt,
+            &xtitle,
+            &ytitle,
+        );
         if let Some((i, j, _)) = &self.marker {
             if let (Some(x), Some(y)) = (self.xs.get(*i), self.ys.get(*j).or(self.ys.first())) {
                 let (cx, cy) = (
@@ -929,7 +976,7 @@ impl HeatMap {
         let ticks: Vec<(f64, String)> = if self.log_colour {
             log_ticks(10f64.powf(lo), 10f64.powf(hi))
                 .into_iter()
-                .map(|v| (v.log10(), sig(v)))
+                .map(|v| (v.log10(), log_label(v)))
                 .collect()
         } else {
             let t = nice_ticks(lo, hi, 5);
@@ -947,7 +994,7 @@ impl HeatMap {
                 y + 4.0
             );
         }
-        let (lx, ly) = (w - 12.0, (y0 + y1) / 2.0);
+        let (lx, ly) = (bx + bw + 62.0, (y0 + y1) / 2.0);
         let _ = write!(
             s,
             r#"<text x="{lx:.1}" y="{ly:.1}" transform="rotate(-90 {lx:.1} {ly:.1})" text-anchor="middle">{}{}</text></g>"#,

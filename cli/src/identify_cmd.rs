@@ -304,7 +304,7 @@ fn sim_match_estimate(
             inertia::trace_profile(trace, axis, mpl, probe.kind)?,
         ));
         curves.push((
-            format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
+            format!("model at jl_kgm2 = {}", sig(est.jl_kgm2)),
             "steelblue",
             inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
         ));
@@ -345,11 +345,11 @@ fn linear_estimate(
     let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
     if a.svg.is_some() {
         for (t, label, colour) in [
-            (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
-            (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
+            (&t0, format!("no load, jl_kgm2 = {}", sig(j0)), "grey"),
+            (&t1, format!("loaded, jl_kgm2 = {}", sig(j1)), "steelblue"),
             (
                 trace,
-                format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
+                format!("measured: jl_kgm2 = {}", sig(est.jl_kgm2)),
                 "black",
             ),
         ] {

@@ -142,15 +142,18 @@ pub fn tune_heatmap_svg(grid: &[GridAxis], r: &TuneResult, axis: &str) -> String
             vec![0.0],
         ),
     };
+    let over = match ys {
+        Some(y) => format!("{} and {}", xs.name, y.name),
+        None => xs.name.clone(),
+    };
     let others = if grid.len() > 2 {
-        " (the best over the other parameters)"
+        " (the best over the others)"
     } else {
         ""
     };
     HeatMap {
         title: format!(
-            "tune, axis {axis}: E over {}{others}; defaults E {}",
-            xs.name,
+            "tune, axis {axis}: E over {over}{others}; defaults E {}",
             sig(r.e_default)
         ),
         x: Axis::linear(&xs.name, param_unit(&xs.name)),

@@ -190,7 +190,7 @@ impl AutoResult {
         h.push_str(
             &Plot::new(
                 "Error after each step",
-                Axis::linear("step", "").ticks(
+                Axis::linear("step", "effects added").ticks(
                     (0..self.steps.len())
                         .map(|i| (i as f64, i.to_string()))
                         .collect(),
