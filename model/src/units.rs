@@ -162,7 +162,7 @@ mod tests {
         assert_eq!(sig(0.00030000000000000003), "0.0003");
         assert_eq!(sig(80.0), "80");
         assert_eq!(sig(0.35), "0.35");
-        assert_eq!(sig(3.14159265), "3.142");
+        assert_eq!(sig(2.71239), "2.712");
         assert_eq!(sig(99999.0), "1e5");
         assert_eq!(sig(123456.0), "1.235e5");
         assert_eq!(sig(1.5e-7), "1.5e-7");

@@ -51,7 +51,7 @@ impl DecimalPeriod {
         let (int, frac) = mantissa.split_once('.').unwrap_or((mantissa, ""));
         let mut digits: u64 = format!("{int}{frac}").parse().ok()?;
         let mut exp10 = exp - frac.len() as i32;
-        while digits > 0 && digits % 10 == 0 {
+        while digits > 0 && digits.is_multiple_of(10) {
             digits /= 10;
             exp10 += 1;
         }
