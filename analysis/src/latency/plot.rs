@@ -76,16 +76,28 @@ pub fn percentile_svg(
             &xs,
             &curve(r.sleeping),
         ));
-        if r.spinning_max_ns > 0 {
-            p = p.hline(Mark::new(
+        // a loss is counted from half a period on; without one there is no line to draw, but
+        // the legend says so
+        let spinning = if r.spinning_max_ns > 0 {
+            Mark::new(
                 &format!(
                     "reference: bare spinning loop, longest core loss {}",
                     si(r.spinning_max_ns as f64 * 1e-9, "s")
                 ),
                 r.spinning_max_ns as f64 / 1000.0,
                 PALETTE[3],
-            ));
-        }
+            )
+        } else {
+            Mark::new(
+                &format!(
+                    "reference: bare spinning loop, no core loss >= {}",
+                    si(period_ns as f64 * 0.5e-9, "s")
+                ),
+                f64::NAN,
+                PALETTE[3],
+            )
+        };
+        p = p.hline(spinning);
     }
     p.hline(Mark::new(
         &format!("control period {}", si(period_us * 1e-6, "s")),
@@ -125,6 +137,14 @@ mod tests {
         assert!(s.contains(">reference: sleeping loop wake-up lateness<"));
         assert!(s.contains(">reference: bare spinning loop, longest core loss 350 us<"));
         assert_eq!(s.matches(r#"class="ref-line""#).count(), 2);
+        // a spinning loop that never lost its core: said in the legend, no line
+        let calm = ReferenceLoops {
+            sleeping: &sleeping,
+            spinning_max_ns: 0,
+        };
+        let s = percentile_svg(&lat, &jit, 100_000, Some(&calm));
+        assert!(s.contains(">reference: bare spinning loop, no core loss &gt;= 50 us<"));
+        assert_eq!(s.matches(r#"class="ref-line""#).count(), 1);
         // without reference loops: the period line only
         let s = percentile_svg(&lat, &jit, 250_000, None);
         assert!(s.contains(">control period 250 us<") && !s.contains("reference:"));
