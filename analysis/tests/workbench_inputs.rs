@@ -99,6 +99,12 @@ fn an_imported_foreign_export_gets_a_nominal_model_close_to_the_truth_and_a_repo
         assert!(svg.contains(r#"class="legend""#), "{}", first("title"));
     }
     assert!(html.contains(">force (N)<"), "the measured force's axis");
+    // the figures table gives the residual RMS with its unit, e.g. `<td>1.234 N</td>`
+    let rms = c.eq.as_ref().unwrap().rms;
+    assert!(
+        html.contains(&format!("<td>{}</td>", feedloop_model::units::si(rms, "N"))),
+        "residual RMS {rms} N not in the table"
+    );
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -131,44 +131,6 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         esc(title)
     );
     let _ = write!(h, "<p>trace <code>{}</code>, axis <b>{}</b>, {} samples at {}; positions filtered zero-phase at {} Hz before differentiation.</p>", esc(&d.path.display().to_string()), esc(&d.axis), d.len(), si(d.dt, "s"), sig(d.cutoff_hz));
-    h.push_str("<h2>Figures</h2><table><tr><th>channel</th><th>method</th><th>NRMSE %</th><th>residual RMS</th></tr>");
-    if let Some(e) = &c.eq {
-        let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{:.4}</td></tr>", e.nrmse_pct, e.rms);
-    }
-    if let Some(cc) = &c.controller {
-        let _ = write!(h, "<tr><td>controller</td><td>recorded torque against the controller law on the recorded signals (velocity: {}; noise floor {:.3e}{})</td><td>{:.2}</td><td>{:.4e}</td></tr>", esc(cc.velocity), cc.noise_rms, if cc.fails() { ", <b>departs</b>" } else { "" }, cc.nrmse_pct, cc.rms);
-    }
-    for ch in &c.sim.channels {
-        let _ = write!(h, "<tr><td>{}</td><td>{} simulation, {:.0} ms windows from measured state</td><td>{:.2}</td><td>{:.4e}</td></tr>", ch.name, c.sim.mode, c.sim.window_s * 1e3, ch.window_nrmse_pct, ch.window_rms);
-        let _ = write!(
-            h,
-            "<tr><td>{}</td><td>{} simulation, free run</td><td>{:.2}</td><td></td></tr>",
-            ch.name, c.sim.mode, ch.free_nrmse_pct
-        );
-    }
-    h.push_str("</table>");
-    h.push_str("<h2>Where the residual lives</h2><table><tr><th>motion</th><th>share of residual %</th><th>share of time %</th><th>RMS</th></tr>");
-    for s in &c.by_kind {
-        let _ = write!(
-            h,
-            "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{:.4}</td></tr>",
-            s.name, s.share_pct, s.time_pct, s.rms
-        );
-    }
-    h.push_str("</table><p>Worst segments:</p><table><tr><th>kind</th><th>from s</th><th>to s</th><th>share %</th><th>RMS</th></tr>");
-    for s in c.segments.iter().take(10) {
-        let _ = write!(
-            h,
-            "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1}</td><td>{:.4}</td></tr>",
-            s.kind.id(),
-            d.t[s.start],
-            d.t[s.end - 1],
-            s.share_pct,
-            s.rms
-        );
-    }
-    h.push_str("</table>");
-    h.push_str(extra_html);
     let (pos_unit, vel_unit, torque_unit, load_unit) = units(d.kind);
     let (residual, meas, model, ylabel, unit) = match &c.eq {
         Some(e) => (
@@ -199,6 +161,47 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
             )
         }
     };
+    h.push_str("<h2>Figures</h2><table><tr><th>channel</th><th>method</th><th>NRMSE %</th><th>residual RMS</th></tr>");
+    if let Some(e) = &c.eq {
+        let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{}</td></tr>", e.nrmse_pct, si(e.rms, torque_unit));
+    }
+    if let Some(cc) = &c.controller {
+        let _ = write!(h, "<tr><td>controller</td><td>recorded torque against the controller law on the recorded signals (velocity: {}; noise floor {}{})</td><td>{:.2}</td><td>{}</td></tr>", esc(cc.velocity), si(cc.noise_rms, torque_unit), if cc.fails() { ", <b>departs</b>" } else { "" }, cc.nrmse_pct, si(cc.rms, torque_unit));
+    }
+    for ch in &c.sim.channels {
+        let _ = write!(h, "<tr><td>{}</td><td>{} simulation, {:.0} ms windows from measured state</td><td>{:.2}</td><td>{}</td></tr>", ch.name, c.sim.mode, c.sim.window_s * 1e3, ch.window_nrmse_pct, si(ch.window_rms, channel_unit(&ch.name, d.kind)));
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{} simulation, free run</td><td>{:.2}</td><td></td></tr>",
+            ch.name, c.sim.mode, ch.free_nrmse_pct
+        );
+    }
+    h.push_str("</table>");
+    h.push_str("<h2>Where the residual lives</h2><table><tr><th>motion</th><th>share of residual %</th><th>share of time %</th><th>RMS</th></tr>");
+    for s in &c.by_kind {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td></tr>",
+            s.name,
+            s.share_pct,
+            s.time_pct,
+            si(s.rms, unit)
+        );
+    }
+    h.push_str("</table><p>Worst segments:</p><table><tr><th>kind</th><th>from s</th><th>to s</th><th>share %</th><th>RMS</th></tr>");
+    for s in c.segments.iter().take(10) {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1}</td><td>{}</td></tr>",
+            s.kind.id(),
+            d.t[s.start],
+            d.t[s.end - 1],
+            s.share_pct,
+            si(s.rms, unit)
+        );
+    }
+    h.push_str("</table>");
+    h.push_str(extra_html);
     let time = || Axis::linear("time", "s");
     let value = |label: &str, unit: &str| Axis::linear(label, unit).si();
     h.push_str("<h2>Plots</h2>");
