@@ -6,5 +6,6 @@
 pub mod identify;
 pub mod latency;
 pub mod learn;
+pub mod plot;
 pub mod sim;
 pub mod workbench;

@@ -203,6 +203,7 @@ pub fn simulate(
                     std::io::BufWriter::with_capacity(1 << 20, f),
                     &trace_columns(&names),
                 )
+                .and_then(|w| w.with_period(job.period_s))
                 .map_err(|e| io_err(p, e))?,
             ))
         }
@@ -235,8 +236,10 @@ pub fn simulate(
         tracking_t += t2 - t1;
         if let Some((_, w)) = writer.as_mut() {
             for (j, rows) in batch.chunks_exact(n).take(m).enumerate() {
-                row_values(first + j as u64, period, rows, &mut row);
-                w.write_row(&row).map_err(|e| io_err(trace.unwrap(), e))?;
+                let seq = first + j as u64;
+                row_values(seq, period, rows, &mut row);
+                w.write_cycle(seq, &row)
+                    .map_err(|e| io_err(trace.unwrap(), e))?;
             }
         }
         trace_t += t2.elapsed();

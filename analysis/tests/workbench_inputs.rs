@@ -66,6 +66,45 @@ fn an_imported_foreign_export_gets_a_nominal_model_close_to_the_truth_and_a_repo
         html.contains("<svg") && html.matches("<svg").count() >= 6,
         "plots missing"
     );
+    // every plot: a title, axis titles with their unit, more than two ticks an axis, a legend;
+    // a linear (rigid) axis is in N, not "N m or N"
+    assert!(!html.contains("N m or N"));
+    for svg in html.split("<svg").skip(1) {
+        let svg = &svg[..svg.find("</svg>").unwrap()];
+        let first = |class: &str| {
+            let i = svg
+                .find(&format!(r#"class="{class}""#))
+                .unwrap_or_else(|| panic!("no {class} in {svg}"));
+            let t = &svg[i..];
+            t[t.find('>').unwrap() + 1..t.find("</text>").unwrap()].to_string()
+        };
+        assert!(!first("title").is_empty());
+        for axis in ["x-label", "y-label"] {
+            let l = first(axis);
+            assert!(
+                l.contains(" (") && l.ends_with(')'),
+                "{axis} `{l}` has no unit"
+            );
+        }
+        assert!(
+            svg.matches(r#"class="x-tick""#).count() > 2,
+            "{}",
+            first("title")
+        );
+        assert!(
+            svg.matches(r#"class="y-tick""#).count() > 2,
+            "{}",
+            first("title")
+        );
+        assert!(svg.contains(r#"class="legend""#), "{}", first("title"));
+    }
+    assert!(html.contains(">force (N)<"), "the measured force's axis");
+    // the figures table gives the residual RMS with its unit, e.g. `<td>1.234 N</td>`
+    let rms = c.eq.as_ref().unwrap().rms;
+    assert!(
+        html.contains(&format!("<td>{}</td>", feedloop_model::units::si(rms, "N"))),
+        "residual RMS {rms} N not in the table"
+    );
     std::fs::remove_dir_all(&d).ok();
 }
 

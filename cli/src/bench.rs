@@ -10,9 +10,10 @@ use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
 
 use feedloop_analysis::latency::{
-    attribute_misses, hist_json, percentile_svg, reference, Attribution, RunFigures,
+    attribute_misses, hist_json, percentile_svg, reference, Attribution, ReferenceLoops, RunFigures,
 };
 use feedloop_model::job::{Mode, WaitKind};
+use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
@@ -144,10 +145,11 @@ fn latency(
     } else {
         cpus.clone()
     };
-    let reference = if reference_s > 0.0 {
-        reference_loops(&probe_cpus, period_ns, reference_s)?
+    let (reference, reference_plot) = if reference_s > 0.0 {
+        let (v, sleeping, spinning_max_ns) = reference_loops(&probe_cpus, period_ns, reference_s)?;
+        (v, Some((sleeping, spinning_max_ns)))
     } else {
-        Value::Null
+        (Value::Null, None)
     };
     eprintln!(
         "bench latency: {cycles} cycles at {:.1} kHz, wait {wait}, about {:.1} s",
@@ -199,7 +201,18 @@ fn latency(
     write_json(&out.join("latency.json"), &v)?;
     std::fs::write(
         out.join("latency.svg"),
-        percentile_svg(&figures.latency, &figures.jitter),
+        percentile_svg(
+            &figures.latency,
+            &figures.jitter,
+            period_ns,
+            reference_plot
+                .as_ref()
+                .map(|(sleeping, spinning_max_ns)| ReferenceLoops {
+                    sleeping: &sleeping.lateness,
+                    spinning_max_ns: *spinning_max_ns,
+                })
+                .as_ref(),
+        ),
     )?;
     print_report(&v, &figures, &attribution, period_ns);
     println!(
@@ -211,15 +224,20 @@ fn latency(
 }
 
 /// The sleeping and the spinning reference loop on `cpus`, `seconds` each, as `latency.json`'s
-/// `reference`.
-fn reference_loops(cpus: &[usize], period_ns: u64, seconds: f64) -> Result<Value> {
+/// `reference`, with the sleeping loop's histogram and the spinning loop's longest loss (ns)
+/// for the plot.
+fn reference_loops(
+    cpus: &[usize],
+    period_ns: u64,
+    seconds: f64,
+) -> Result<(Value, reference::Sleeping, u64)> {
     eprintln!(
         "reference: a sleeping loop, then a spinning loop, {seconds} s each on CPUs {cpus:?}"
     );
     let time = Duration::from_secs_f64(seconds);
     let sleeping = reference::sleeping_loop(cpus, period_ns, time)?;
     let spinning = reference::spinning_loop(cpus, period_ns / 2, time)?;
-    Ok(json!({
+    let v = json!({
         "seconds": seconds,
         "cpus": cpus,
         "sleeping_loop": {
@@ -233,7 +251,8 @@ fn reference_loops(cpus: &[usize], period_ns: u64, seconds: f64) -> Result<Value
             "interrupted_share": spinning.lost_ns as f64 / (seconds * 1e9 * cpus.len() as f64),
             "max_us": spinning.max_ns as f64 / 1000.0,
         },
-    }))
+    });
+    Ok((v, sleeping, spinning.max_ns))
 }
 
 /// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of
@@ -296,26 +315,32 @@ fn run_processes(
 
 /// The figures of `latency.json` in a few lines.
 fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
+    // the JSON figures are in us (the key says so); printed as seconds with a prefix that fits
+    let us = |x: &Value| si(x.as_f64().unwrap_or(f64::NAN) * 1e-6, "s");
+    let percentiles = |h: &Value| {
+        format!(
+            "p50 {}  p99 {}  p99.9 {}  max {}",
+            us(&h["p50"]),
+            us(&h["p99"]),
+            us(&h["p999"]),
+            us(&h["max"])
+        )
+    };
+    println!("latency: {}", percentiles(&v["latency_us"]));
+    println!("jitter:  {}", percentiles(&v["jitter_us"]));
     println!(
-        "latency us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}",
-        v["latency_us"]["p50"],
-        v["latency_us"]["p99"],
-        v["latency_us"]["p999"],
-        v["latency_us"]["max"]
+        "deadline misses {} ({} outside stalls), overruns {}, stalls {} (max {})",
+        f.misses,
+        f.misses_outside_stalls,
+        f.overruns,
+        f.stalls,
+        si(f.stall_max_ms * 1e-3, "s")
     );
+    let half_period = si(period_ns as f64 * 0.5e-9, "s");
     println!(
-        "jitter  us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}",
-        v["jitter_us"]["p50"], v["jitter_us"]["p99"], v["jitter_us"]["p999"], v["jitter_us"]["max"]
-    );
-    println!(
-        "deadline misses {} ({} outside stalls), overruns {}, stalls {} (max {:.2} ms)",
-        f.misses, f.misses_outside_stalls, f.overruns, f.stalls, f.stall_max_ms
-    );
-    println!(
-        "core lost for >= {:.0} us: scheduler {} times (max {:.0} us), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
-        period_ns as f64 / 2000.0,
+        "core lost for >= {half_period}: scheduler {} times (max {}), plant while waiting {} times; misses then: {}; misses outside stalls and core losses: {}",
         a.scheduler_losses,
-        a.scheduler_max_ns as f64 / 1000.0,
+        si(a.scheduler_max_ns as f64 * 1e-9, "s"),
         a.plant_losses,
         a.explained,
         a.unexplained
@@ -323,17 +348,15 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
     if !v["reference"].is_null() {
         let r = &v["reference"];
         println!(
-            "reference on the same CPUs: sleeping loop jitter p50 {:.2} p99 {:.2} p99.9 {:.2} max {:.2} us (SCHED_FIFO {}); \
-             a bare spinning loop lost its core for >= {:.0} us {} times ({:.1}/s, max {:.0} us)",
-            r["sleeping_loop"]["jitter_us"]["p50"],
-            r["sleeping_loop"]["jitter_us"]["p99"],
-            r["sleeping_loop"]["jitter_us"]["p999"],
-            r["sleeping_loop"]["jitter_us"]["max"],
+            "reference on the same CPUs: sleeping loop jitter {} (SCHED_FIFO {}); \
+             a bare spinning loop lost its core for >= {half_period} {} times ({}/s, max {})",
+            percentiles(&r["sleeping_loop"]["jitter_us"]),
             r["sleeping_loop"]["sched_fifo"],
-            period_ns as f64 / 2000.0,
             r["spinning_loop"]["interruptions"],
-            r["spinning_loop"]["interruptions_per_s"].as_f64().unwrap_or(0.0),
-            r["spinning_loop"]["max_us"].as_f64().unwrap_or(0.0),
+            sig(r["spinning_loop"]["interruptions_per_s"]
+                .as_f64()
+                .unwrap_or(0.0)),
+            us(&r["spinning_loop"]["max_us"]),
         );
     }
 }

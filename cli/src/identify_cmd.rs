@@ -8,8 +8,10 @@ use feedloop_analysis::identify::inertia::{self, Probe};
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
 };
-use feedloop_analysis::identify::svg::{bode_svg, lines_svg, Series};
+use feedloop_analysis::identify::svg::{bode_svg, tune_heatmap_svg};
+use feedloop_analysis::plot::{Axis, Mark, Plot, Series};
 use feedloop_model::job::Job;
+use feedloop_model::units::{si, sig};
 use feedloop_motion::{build_at, excitation::write_excitation_csv};
 use feedloop_trace::Trace;
 
@@ -308,7 +310,7 @@ fn sim_match_estimate(
             inertia::trace_profile(trace, axis, mpl, probe.kind)?,
         ));
         curves.push((
-            format!("model at jl_kgm2 = {:.4e}", est.jl_kgm2),
+            format!("model at jl_kgm2 = {}", sig(est.jl_kgm2)),
             "steelblue",
             inertia::simulated_profile(job, i, est.jl_kgm2, ff, probe.kind)?,
         ));
@@ -360,11 +362,11 @@ fn linear_estimate(
     let est = inertia::linear(d0, j0, d1, j1, d, probe.kind)?;
     if a.svg.is_some() {
         for (t, label, colour) in [
-            (&t0, format!("no load, jl_kgm2 = {j0:.4e}"), "grey"),
-            (&t1, format!("loaded, jl_kgm2 = {j1:.4e}"), "steelblue"),
+            (&t0, format!("no load, jl_kgm2 = {}", sig(j0)), "grey"),
+            (&t1, format!("loaded, jl_kgm2 = {}", sig(j1)), "steelblue"),
             (
                 trace,
-                format!("measured: jl_kgm2 = {:.4e}", est.jl_kgm2),
+                format!("measured: jl_kgm2 = {}", sig(est.jl_kgm2)),
                 "black",
             ),
         ] {
@@ -385,25 +387,23 @@ fn write_deviation_svg(
     est: &inertia::InertiaEstimate,
     at: f64,
 ) -> anyhow::Result<()> {
-    let series: Vec<Series> = curves
-        .iter()
-        .map(|(label, color, points)| Series {
-            label,
-            color,
-            points,
-        })
-        .collect();
-    let probe_label = format!("--at {at}");
-    let text = lines_svg(
+    let mut plot = Plot::new(
         &format!(
-            "{} deviation along the move ({}), jl_kgm2 = {:.4e}",
-            est.deviation, est.method, est.jl_kgm2
+            "identify inertia: {} deviation along the move ({}), jl_kgm2 = {}",
+            est.deviation,
+            est.method,
+            sig(est.jl_kgm2)
         ),
-        "load position, m",
-        "deviation, m",
-        &series,
-        &[(probe_label.as_str(), at)],
-    );
+        Axis::linear("load position", "m").si(),
+        Axis::linear("deviation", "m").si(),
+    )
+    .size(860.0, 420.0);
+    for (label, color, points) in curves {
+        plot = plot.series(Series::points(label, color, points));
+    }
+    let text = plot
+        .vline(Mark::new(&format!("probe --at {}", sig(at)), at, "red"))
+        .svg();
     std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))
 }
 
@@ -413,15 +413,15 @@ fn print_inertia(a: &InertiaArgs, est: &inertia::InertiaEstimate) -> anyhow::Res
         return Ok(());
     }
     println!(
-        "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {:.4} um, model {:.4} um; read by a least-squares line over +-{} around the position)",
+        "jl_kgm2 = {:.6e} ({}, {} simulated moves; {} deviation at {} measured {}, model {}; read by a least-squares line over +-{} around the position)",
         est.jl_kgm2,
         est.method,
         est.iterations,
         est.deviation,
-        a.at,
-        1e6 * est.deviation_measured_m,
-        1e6 * est.deviation_model_m,
-        a.window
+        sig(a.at),
+        si(est.deviation_measured_m, "m"),
+        si(est.deviation_model_m, "m"),
+        sig(a.window)
     );
     if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
         println!(
@@ -611,10 +611,10 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
         );
     } else {
         println!(
-            "wrote {} ({} excitation, {:.3} s, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
+            "wrote {} ({} excitation, {}, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
             a.out.display(),
             a.kind,
-            traj.duration_s(),
+            si(traj.duration_s(), "s"),
             a.out.display()
         );
     }
@@ -639,40 +639,6 @@ fn per_axis_path(p: &Path, axis: &str, several: bool) -> PathBuf {
         None => format!("{stem}-{axis}"),
     };
     p.with_file_name(name)
-}
-
-/// Heat map of E over the first two grid axes (best over the others).
-fn tune_heatmap(
-    grid: &[feedloop_analysis::identify::tune::GridAxis],
-    r: &feedloop_analysis::identify::tune::TuneResult,
-    axis: &str,
-) -> String {
-    use feedloop_analysis::identify::svg::heatmap_svg;
-    let xs = &grid[0];
-    let ys = grid.get(1);
-    let ny = ys.map_or(1, |y| y.values.len());
-    let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
-    let per_y = inner / ny.max(1);
-    let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
-    for (k, e) in r.all.iter().enumerate() {
-        let ix = k / inner.max(1);
-        let iy = (k % inner.max(1)) / per_y.max(1);
-        if let Some(v) = e.e {
-            let c = &mut m[iy][ix];
-            if c.is_nan() || v < *c {
-                *c = v;
-            }
-        }
-    }
-    let empty: Vec<f64> = vec![];
-    heatmap_svg(
-        &format!("E of axis {axis} (best over the other parameters)"),
-        &xs.name,
-        &xs.values,
-        ys.map_or("-", |y| y.name.as_str()),
-        ys.map_or(&empty, |y| &y.values),
-        &m,
-    )
 }
 
 /// Sets `position_p { kp_per_s }` and `pi_velocity { kv_nms_per_rad, tv_s }` of `axis` in the
@@ -889,7 +855,7 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     if let Some(p) = &a.svg {
         for ta in &tuned {
             let out = per_axis_path(p, &ta.name, several);
-            std::fs::write(&out, tune_heatmap(&grid, &ta.result, &ta.name))
+            std::fs::write(&out, tune_heatmap_svg(&grid, &ta.result, &ta.name))
                 .with_context(|| format!("writing {}", out.display()))?;
         }
     }
@@ -903,16 +869,16 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     for ta in &tuned {
         let r = &ta.result;
         println!(
-            "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {:.4e} (defaults {:.4e}); {} sets evaluated, {} rejected, {:.1} s",
+            "axis {}: best kp_per_s {} kv_nms_per_rad {} tv_s {}: E {} (defaults {}); {} sets evaluated, {} rejected, {}",
             ta.name,
-            r.best.kp_per_s,
-            r.best.kv_nms_per_rad,
-            r.best.tv_s,
-            r.e_best,
-            r.e_default,
+            sig(r.best.kp_per_s),
+            sig(r.best.kv_nms_per_rad),
+            sig(r.best.tv_s),
+            sig(r.e_best),
+            sig(r.e_default),
             r.evaluated,
             r.rejected,
-            ta.seconds
+            si(ta.seconds, "s")
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -9,6 +9,7 @@ use serde_json::json;
 use feedloop_analysis::learn::quadrant::{learn_quadrant, LearnOptions};
 use feedloop_analysis::sim::run_records;
 use feedloop_model::job::Job;
+use feedloop_model::units::{si, sig};
 use feedloop_plugins::Builtins;
 
 /// Learning subcommands.
@@ -102,10 +103,10 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
                 .map(|(i, a)| {
                     let r = base.get(i).map(|b| a.spike / b).unwrap_or(f64::NAN);
                     format!(
-                        "{} spike {:.3} um ({:.2} of pass 0)",
+                        "{} spike {} ({} of pass 0)",
                         a.axis,
-                        a.spike * 1e6,
-                        r
+                        si(a.spike, "m"),
+                        sig(r)
                     )
                 })
                 .collect();

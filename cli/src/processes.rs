@@ -616,12 +616,13 @@ fn write_trace(
     let mut w = TraceWriter::new(
         std::io::BufWriter::with_capacity(1 << 20, f),
         &trace_columns(&names),
-    )?;
+    )?
+    .with_period(job.period_s)?;
     let mut row = Vec::with_capacity(1 + 5 * n);
     let mut plant_compute_ns = 0u64;
     for r in records {
         row_values(r.seq, job.period_s, &r.axes[..n], &mut row);
-        w.write_row(&row)?;
+        w.write_cycle(r.seq, &row)?;
         let ce = judge.error_m(cycle, cycle.time_of(r.seq), &r.axes[..n]);
         tracking.push(&r.axes[..n], ce);
         plant_compute_ns += u64::from(r.compute_ns);

@@ -17,6 +17,7 @@ use feedloop_analysis::workbench::{
     import::{import, model_init, parse_map},
     report, WorkbenchError,
 };
+use feedloop_model::units::{si, sig};
 use feedloop_trace::Trace;
 
 /// Workbench subcommands.
@@ -410,10 +411,10 @@ fn trace_import(
         );
     } else {
         println!(
-            "wrote {} ({} samples at {} s; columns {})",
+            "wrote {} ({} samples at {}; columns {})",
             out.display(),
             tr.len(),
-            tr.period_s(),
+            si(tr.period_s(), "s"),
             tr.columns.join(", ")
         );
     }
@@ -490,8 +491,10 @@ fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyho
                     ev.len(),
                     ev.first()
                         .map(|e| format!(
-                            " (first {:.4} .. {:.4} s, {:.4} mean)",
-                            e.start_s, e.end_s, e.mean
+                            " (first {} .. {}, {} mean)",
+                            si(e.start_s, "s"),
+                            si(e.end_s, "s"),
+                            sig(e.mean)
                         ))
                         .unwrap_or_default()
                 )

@@ -74,6 +74,65 @@ fn refused<S: AsRef<str>>(args: &[S]) -> String {
     err
 }
 
+/// The texts of the elements of class `class` in `svg`: a `<text>`'s own, a group's first.
+fn texts_of(svg: &str, class: &str) -> Vec<String> {
+    svg.match_indices(&format!(r#"class="{class}""#))
+        .map(|(i, _)| {
+            let rest = &svg[i..];
+            let t = if svg[..i].ends_with("<g ") {
+                &rest[rest.find("<text").unwrap()..]
+            } else {
+                rest
+            };
+            let t = &t[t.find('>').unwrap() + 1..];
+            t[..t.find("</text>").unwrap()].to_string()
+        })
+        .collect()
+}
+
+/// All texts of the legends of `svg`, joined by ` | `.
+fn legend_of(svg: &str) -> String {
+    svg.split(r#"class="legend""#)
+        .skip(1)
+        .flat_map(|rest| {
+            let group = &rest[..rest.find("</g>").unwrap()];
+            group
+                .split("<text")
+                .skip(1)
+                .map(|t| t[t.find('>').unwrap() + 1..t.find("</text>").unwrap()].to_string())
+                .collect::<Vec<_>>()
+        })
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// Reads a plot and checks what every plot has: a title, axis titles that carry a unit in
+/// parentheses, more than two ticks on each axis of each panel, a legend.
+fn check_plot(path: &Path, panels: usize) -> String {
+    let s = std::fs::read_to_string(path).unwrap();
+    assert!(s.starts_with("<svg") && s.trim_end().ends_with("</svg>"));
+    assert!(!texts_of(&s, "title")[0].is_empty(), "no title");
+    for axis in ["x-label", "y-label"] {
+        let labels = texts_of(&s, axis);
+        assert_eq!(labels.len(), panels, "{axis}: {labels:?}");
+        for l in labels {
+            assert!(
+                l.contains(" (") && l.ends_with(')'),
+                "{axis} `{l}` has no unit"
+            );
+        }
+    }
+    for tick in ["x-tick", "y-tick"] {
+        assert!(
+            texts_of(&s, tick).len() > 2 * panels,
+            "{tick}: {:?}",
+            texts_of(&s, tick)
+        );
+    }
+    assert!(s.contains(r#"class="legend""#), "no legend");
+    s
+}
+
 fn num(v: &serde_json::Value, key: &str) -> f64 {
     v[key]
         .as_f64()
@@ -213,12 +272,15 @@ fn identify_stiffness_on_the_shipped_excitation_finds_kl_and_jl_and_draws_the_bo
     assert!((num(&v, "resonance_hz") / wr - 1.0).abs() < 0.01, "{v}");
     let c = num(&v, "coherence_min");
     assert!(c > 0.8 && c <= 1.0, "{v}");
-    let plot = std::fs::read_to_string(&svg).unwrap();
+    // magnitude, phase and coherence, the resonance pair marked in each
+    let plot = check_plot(&svg, 3);
+    assert!(texts_of(&plot, "y-label").contains(&"phase (deg)".to_string()));
+    assert_eq!(plot.matches(r#"class="ref-line""#).count(), 2 * 3);
+    let legend = legend_of(&plot);
     assert!(
-        plot.starts_with("<svg") || plot.starts_with("<?xml"),
-        "not an SVG"
+        legend.contains("anti-resonance") && legend.contains(" Hz"),
+        "{legend}"
     );
-    assert!(plot.contains("anti-resonance") && plot.contains("</svg>"));
 
     // A band without a resonance (below the anti-resonance) names the band.
     let e = refused(&cli(
@@ -252,13 +314,15 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
         ],
     ));
     println!("sim-match: {v}");
-    let plot = std::fs::read_to_string(&svg).unwrap();
-    assert!(plot.contains("</svg>") && plot.contains("--at 0.01"));
+    let plot = check_plot(&svg, 1);
+    assert!(plot.contains("--at 0.01"));
     assert_eq!(
-        plot.matches("<polyline").count(),
+        plot.matches(r#"class="series""#).count(),
         2,
         "measured and model curves"
     );
+    assert_eq!(plot.matches(r#"class="ref-line""#).count(), 1, "the probe");
+    assert!(texts_of(&plot, "y-label")[0].starts_with("deviation ("));
     assert_eq!(v["method"], "sim-match");
     assert_eq!(v["deviation"], "command-load");
     assert!((num(&v, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v}");
@@ -302,8 +366,8 @@ fn identify_inertia_sim_match_and_linear_find_a_30_percent_workpiece_and_apply_w
         ],
     ));
     println!("linear: {v3}");
-    let plot = std::fs::read_to_string(&svg).unwrap();
-    assert_eq!(plot.matches("<polyline").count(), 3, "three traces");
+    let plot = check_plot(&svg, 1);
+    assert_eq!(plot.matches(r#"class="series""#).count(), 3, "three traces");
     assert_eq!(v3["method"], "linear");
     assert!((num(&v3, "jl_kgm2") / truth - 1.0).abs() < 0.02, "{v3}");
 
@@ -401,8 +465,14 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
     assert!((ed / 2.0e-3 - 1.0).abs() < 0.05, "{v}");
     assert!(eb < ed, "{v}");
     assert_eq!(v["axis"], "x");
-    let plot = std::fs::read_to_string(&svg).unwrap();
-    assert!(plot.contains("</svg>") && plot.contains("kp_per_s"));
+    let plot = check_plot(&svg, 1);
+    assert_eq!(texts_of(&plot, "x-label"), ["kp_per_s (1/s)"]);
+    assert_eq!(texts_of(&plot, "y-label"), ["kv_nms_per_rad (N m s/rad)"]);
+    assert!(plot.contains(r#"class="colour-scale""#), "no colour scale");
+    assert!(plot.contains(r#"class="marker""#), "no best-point marker");
+    let best = format!("best: kp_per_s {}", v["best"]["kp_per_s"].as_f64().unwrap());
+    let legend = legend_of(&plot);
+    assert!(legend.starts_with(&best), "{best}: {legend}");
     // The tuned job, run afresh, has the lower E: its following error is v / kp.
     let t: toml::Table = std::fs::read_to_string(&tuned).unwrap().parse().unwrap();
     let kp = t["chain"]
@@ -442,6 +512,63 @@ fn tune_on_the_shipped_ramp_beats_the_defaults_writes_the_heat_map_and_the_tuned
         &[("--job", &job)],
     ));
     assert!(e.contains("`z`"), "{e}");
+}
+
+#[test]
+fn a_simulated_trace_has_exact_decimal_times() {
+    let d = scratch("exact-t");
+    // period 1e-4 s: cycle k is at k / 10^4 s exactly, e.g. 0.0003 for k = 3 (the float
+    // product 3 x 1e-4 prints 0.00030000000000000003)
+    let text = std::fs::read_to_string(sim(&repo("examples/jobs/tune-ramp.toml"), &d)).unwrap();
+    let rows: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .collect();
+    assert!(rows.len() > 9000, "{} rows", rows.len());
+    for (k, row) in rows.iter().enumerate() {
+        let t = row.split(',').next().unwrap();
+        let frac = format!("{:04}", k % 10_000);
+        let frac = frac.trim_end_matches('0');
+        let want = format!(
+            "{}.{}",
+            k / 10_000,
+            if frac.is_empty() { "0" } else { frac }
+        );
+        assert_eq!(t, want, "row {k}");
+    }
+}
+
+#[test]
+fn tune_prints_its_figures_with_four_significant_digits() {
+    let job = repo("examples/jobs/tune-ramp.toml");
+    // the grid's top tv_s is 0.002 + (0.02 - 0.002) = 0.020000000000000004 in f64; the lower
+    // one is rejected, so that is the best set
+    let args = cli(
+        "tune --grid kp_per_s=120:120:1,kv_nms_per_rad=10:10:1,tv_s=0.002:0.02:2",
+        &[("--job", &job)],
+    );
+    let o = run(&args);
+    assert!(o.status.success(), "{}", describe(&args, &o));
+    let text = String::from_utf8(o.stdout).unwrap();
+    assert!(
+        text.contains("best kp_per_s 120 kv_nms_per_rad 10 tv_s 0.02: E "),
+        "{text}"
+    );
+    let numbers: Vec<&str> = text
+        .split(|c: char| c.is_whitespace() || ",;:()".contains(c))
+        .filter(|w| w.parse::<f64>().is_ok())
+        .collect();
+    assert!(numbers.len() >= 7, "{text}");
+    for w in numbers {
+        let mantissa = w.split('e').next().unwrap();
+        let digits = mantissa
+            .chars()
+            .filter(char::is_ascii_digit)
+            .collect::<String>();
+        let significant = digits.trim_start_matches('0').len();
+        assert!(significant <= 4, "`{w}` in {text}");
+    }
 }
 
 #[test]

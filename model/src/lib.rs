@@ -4,6 +4,7 @@
 //!   what is accepted.
 //! - [`model`]: a model file (plant, effects, sensors, controller defaults) for one axis.
 //! - [`job`]: a job file (axes, trajectory, chains, timing).
+//! - [`units`]: printed figures (significant digits, an SI prefix that fits).
 //! - [`Stage`]: the stages of an axis chain.
 //! - [`EffectId`], [`Side`]: the effects a model file may switch on, and the body one acts on.
 //!
@@ -15,6 +16,7 @@ pub mod job;
 pub mod model;
 pub mod params;
 mod stage;
+pub mod units;
 
 pub use effect::{EffectId, Side};
 pub use stage::Stage;

@@ -538,7 +538,7 @@ pub fn write_excitation_csv<W: Write>(
         ),
     ];
     all_meta.extend(meta.iter().cloned());
-    let mut tw = TraceWriter::with_meta(w, &all_meta, &cols)?;
+    let mut tw = TraceWriter::with_meta(w, &all_meta, &cols)?.with_period(period_s)?;
     let rows = (traj.duration_s() / period_s).round() as u64 + 1;
     let mut states = vec![[0.0; REF_DERIVS]; axes.len()];
     let mut row = vec![0.0; cols.len()];
@@ -549,7 +549,7 @@ pub fn write_excitation_csv<W: Write>(
         for (i, s) in states.iter().enumerate() {
             row[1 + 3 * i..4 + 3 * i].copy_from_slice(&s[..3]);
         }
-        tw.write_row(&row)?;
+        tw.write_cycle(k, &row)?;
     }
     tw.finish()
 }

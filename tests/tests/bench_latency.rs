@@ -109,9 +109,16 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     );
     assert!(r["spinning_loop"]["interruptions"].is_u64());
     assert!(r["spinning_loop"]["max_us"].is_number());
-    assert!(std::fs::read_to_string(out.join("latency.svg"))
-        .unwrap()
-        .starts_with("<svg"));
+    // the plot: axes with units and ticks, a legend, the period and the reference loops
+    let svg = std::fs::read_to_string(out.join("latency.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains(r#"class="title""#));
+    assert!(svg.contains(">percentile (%)<") && svg.contains(">time (us, log scale)<"));
+    assert!(svg.matches(r#"class="x-tick""#).count() > 2);
+    assert!(svg.matches(r#"class="y-tick""#).count() > 2);
+    assert!(svg.contains(r#"class="legend""#));
+    assert!(svg.contains(">control period 1 ms<"), "no period line");
+    assert!(svg.contains(">reference: sleeping loop wake-up lateness<"));
+    assert!(svg.contains(">reference: bare spinning loop, "));
 }
 
 #[test]

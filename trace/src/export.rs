@@ -5,6 +5,7 @@
 
 use std::collections::BTreeMap;
 
+use feedloop_model::units::si;
 use serde_json::{json, Value};
 
 use crate::log::AxisRecord;
@@ -21,7 +22,8 @@ pub fn trace_columns(names: &[String]) -> Vec<String> {
     c
 }
 
-/// Fills `out` with one trace row for cycle `seq` (t = seq * period).
+/// Fills `out` with one trace row for cycle `seq` (t = seq * period; a writer given the period
+/// prints that time exactly with [`crate::TraceWriter::write_cycle`]).
 #[inline]
 pub fn row_values(seq: u64, period_s: f64, axes: &[AxisRecord], out: &mut Vec<f64>) {
     out.clear();
@@ -139,54 +141,56 @@ pub fn summary_json(s: &SummaryInput<'_>) -> Value {
 pub fn human_summary(v: &Value) -> String {
     let mut out = String::new();
     let f = |x: &Value| x.as_f64().unwrap_or(f64::NAN);
+    // latency_us and max_ms hold their unit in the key; print them as seconds with a prefix
+    let us = |x: &Value| si(f(x) * 1e-6, "s");
     out.push_str(&format!(
-        "{} [{}]: {} cycles of {} us, ended: {}\n",
+        "{} [{}]: {} cycles of {}, ended: {}\n",
         v["job"].as_str().unwrap_or("?"),
         v["mode"].as_str().unwrap_or("?"),
         v["cycles"],
-        f(&v["period_s"]) * 1e6,
+        si(f(&v["period_s"]), "s"),
         v["end"]["reason"].as_str().unwrap_or("?")
     ));
     if let Some(axes) = v["axes"].as_object() {
         for (name, a) in axes {
-            // rotary axes are in rad: print urad, linear ones in m: print um
-            let unit = if a["unit"] == "rad" { "urad" } else { "um" };
+            // rotary axes are in rad, linear ones in m
+            let unit = if a["unit"] == "rad" { "rad" } else { "m" };
             out.push_str(&format!(
-                "  axis {name}: following error max {:.3} {unit}, rms {:.3} {unit}\n",
-                f(&a["max_following_error"]) * 1e6,
-                f(&a["rms_following_error"]) * 1e6
+                "  axis {name}: following error max {}, rms {}\n",
+                si(f(&a["max_following_error"]), unit),
+                si(f(&a["rms_following_error"]), unit)
             ));
         }
     }
     if !v["contour"].is_null() {
         out.push_str(&format!(
-            "  contour error max {:.3} um, rms {:.3} um\n",
-            f(&v["contour"]["max_error"]) * 1e6,
-            f(&v["contour"]["rms_error"]) * 1e6
+            "  contour error max {}, rms {}\n",
+            si(f(&v["contour"]["max_error"]), "m"),
+            si(f(&v["contour"]["rms_error"]), "m")
         ));
     }
     if !v["latency_us"].is_null() {
         let l = &v["latency_us"];
         out.push_str(&format!(
-            "  latency us: p50 {:.2}  p99 {:.2}  p99.9 {:.2}  max {:.2}\n",
-            f(&l["p50"]),
-            f(&l["p99"]),
-            f(&l["p999"]),
-            f(&l["max"])
+            "  latency: p50 {}  p99 {}  p99.9 {}  max {}\n",
+            us(&l["p50"]),
+            us(&l["p99"]),
+            us(&l["p999"]),
+            us(&l["max"])
         ));
     }
     if v["mode"] == "realtime" {
         out.push_str(&format!(
-            "  deadline misses {}, plant overruns {}, stalls {} (max {:.2} ms)\n",
+            "  deadline misses {}, plant overruns {}, stalls {} (max {})\n",
             v["deadline_misses"],
             v["plant_overruns"],
             v["stalls"]["count"],
-            f(&v["stalls"]["max_ms"])
+            si(f(&v["stalls"]["max_ms"]) * 1e-3, "s")
         ));
     }
     out.push_str(&format!(
-        "  compute {:.4} s (physics + control)\n",
-        f(&v["compute_s"])
+        "  compute {} (physics + control)\n",
+        si(f(&v["compute_s"]), "s")
     ));
     if let Some(closed) = v["startup"]["loop_closed_after_s"].as_f64() {
         out.push_str(&format!(
@@ -255,7 +259,7 @@ mod tests {
     use crate::summary::Tracking;
 
     #[test]
-    fn summary_lists_axes_in_job_order_with_their_units_and_prints_rotary_errors_in_urad() {
+    fn summary_lists_axes_in_job_order_with_their_units_and_prints_errors_with_a_fitting_prefix() {
         let dir = std::env::temp_dir().join(format!("feedloop-export-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(
@@ -299,15 +303,41 @@ mod tests {
         assert_eq!(v["axes"]["c"]["unit"], "rad");
         assert_eq!(v["axes"]["c"]["max_following_error"], 3e-3);
         let text = human_summary(&v);
+        // significant digits with a prefix that fits: a nanometre error is not `0.000 um`
         assert!(
-            text.contains("axis x: following error max 2.000 um"),
+            text.contains("axis x: following error max 2 um, rms 2 um"),
             "{text}"
         );
         assert!(
-            text.contains("axis c: following error max 3000.000 urad"),
+            text.contains("axis c: following error max 3 mrad"),
             "{text}"
         );
+        assert!(text.contains(" cycles of 1 ms, "), "{text}");
         assert!(text.find("axis x").unwrap() < text.find("axis c").unwrap());
         std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
+    fn nanometre_errors_and_short_times_print_with_their_own_prefix() {
+        let v = json!({
+            "job": "j", "mode": "realtime", "cycles": 3, "period_s": 0.00025,
+            "end": {"reason": "completed"},
+            "axes": {"x": {"unit": "m", "max_following_error": 3e-9, "rms_following_error": 1.2e-9}},
+            "contour": {"max_error": 4.5e-9, "rms_error": 2e-9},
+            "latency_us": {"p50": 12.5, "p99": 40.0, "p999": 1500.0, "max": 2000.0},
+            "deadline_misses": 0, "plant_overruns": 0, "stalls": {"count": 0, "max_ms": 0.0},
+            "compute_s": 0.0123
+        });
+        let text = human_summary(&v);
+        for want in [
+            "3 cycles of 250 us, ended: completed",
+            "axis x: following error max 3 nm, rms 1.2 nm",
+            "contour error max 4.5 nm, rms 2 nm",
+            "latency: p50 12.5 us  p99 40 us  p99.9 1.5 ms  max 2 ms",
+            "stalls 0 (max 0 s)",
+            "compute 12.3 ms",
+        ] {
+            assert!(text.contains(want), "missing `{want}` in:\n{text}");
+        }
     }
 }

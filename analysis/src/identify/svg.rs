@@ -1,275 +1,170 @@
-//! Minimal SVG plots: a Bode plot with marked points, a heat map, and curves over a linear axis.
+//! The plots of the identification tools, drawn with [`crate::plot`]: the Bode plot of
+//! `identify stiffness --svg` and the heat map of `tune --svg`.
 
-use std::fmt::Write;
+use feedloop_model::units::sig;
 
 use super::frf::Frf;
+use super::tune::{GridAxis, TuneResult};
+use crate::plot::{stacked, Axis, HeatMap, Mark, Plot, Series, PALETTE};
 
-/// A Bode plot (magnitude in dB and phase in degrees over log frequency) of `frf` between
-/// `f_lo` and `f_hi`, with vertical markers at `marks` (label, Hz).
+/// The unit of a tunable parameter, from its name.
+pub fn param_unit(name: &str) -> &'static str {
+    match name {
+        "kp_per_s" => "1/s",
+        "kv_nms_per_rad" => "N m s/rad",
+        "tv_s" => "s",
+        _ => "",
+    }
+}
+
+/// The Bode plot of the torque-to-motor-velocity response `frf` between `f_lo` and `f_hi`:
+/// magnitude, phase and coherence over log frequency, with a reference line at each of `marks`
+/// (label, Hz).
 pub fn bode_svg(frf: &Frf, f_lo: f64, f_hi: f64, marks: &[(&str, f64)]) -> String {
-    let (w, h) = (800.0, 560.0);
-    let (x0, x1) = (70.0, 780.0);
-    let pts: Vec<(f64, f64, f64)> = frf
-        .f_hz
-        .iter()
-        .zip(&frf.h)
-        .filter(|(f, _)| **f >= f_lo && **f <= f_hi && **f > 0.0)
-        .map(|(f, h)| {
-            (
-                *f,
-                20.0 * h.norm().max(1e-300).log10(),
-                h.arg().to_degrees(),
-            )
-        })
+    let inside: Vec<usize> = (0..frf.f_hz.len())
+        .filter(|&i| frf.f_hz[i] >= f_lo && frf.f_hz[i] <= f_hi && frf.f_hz[i] > 0.0)
         .collect();
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12">"#
-    );
-    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-    if pts.is_empty() {
-        s.push_str("</svg>\n");
-        return s;
-    }
-    let lx = |f: f64| x0 + (f.log10() - f_lo.log10()) / (f_hi.log10() - f_lo.log10()) * (x1 - x0);
-    let (mlo, mhi) = pts
+    let f: Vec<f64> = inside.iter().map(|&i| frf.f_hz[i]).collect();
+    let mag: Vec<f64> = inside
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.1), b.max(p.1))
-        });
-    let panels = [
-        (
-            "magnitude, dB",
-            20.0,
-            260.0,
-            mlo,
-            mhi.max(mlo + 1.0),
-            1usize,
-        ),
-        ("phase, deg", 300.0, 540.0, -180.0, 180.0, 2usize),
-    ];
-    for (title, y0, y1, lo, hi, idx) in panels {
-        let _ = writeln!(
-            s,
-            r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/><text x="{}" y="{}">{title}</text>"#,
-            x1 - x0,
-            y1 - y0,
-            x0 + 5.0,
-            y0 + 14.0
-        );
-        let ly = |v: f64| y1 - (v - lo) / (hi - lo) * (y1 - y0);
-        let mut path = String::new();
-        for p in &pts {
-            let v = if idx == 1 { p.1 } else { p.2 };
-            let _ = write!(path, "{:.1},{:.1} ", lx(p.0), ly(v));
-        }
-        let _ = writeln!(
-            s,
-            r#"<polyline points="{path}" fill="none" stroke="steelblue" stroke-width="1"/>"#
-        );
-        let _ = writeln!(
-            s,
-            r#"<text x="5" y="{:.1}">{hi:.0}</text><text x="5" y="{:.1}">{lo:.0}</text>"#,
-            y0 + 10.0,
-            y1
-        );
-    }
-    for (label, f) in marks {
-        let x = lx(*f);
-        let _ = writeln!(
-            s,
-            r#"<line x1="{x:.1}" y1="20" x2="{x:.1}" y2="540" stroke="red" stroke-dasharray="4,3"/><circle cx="{x:.1}" cy="30" r="4" fill="red"/><text x="{:.1}" y="34" fill="red">{label} {f:.2} Hz</text>"#,
-            x + 6.0
-        );
-    }
-    let _ = writeln!(
-        s,
-        r#"<text x="{x0}" y="556">frequency, Hz ({f_lo:.1} .. {f_hi:.1}, log)</text>"#
-    );
-    s.push_str("</svg>\n");
-    s
-}
-
-/// A heat map of `values[row][col]` (NaN = rejected, drawn grey) with axis labels.
-pub fn heatmap_svg(
-    title: &str,
-    x_label: &str,
-    x: &[f64],
-    y_label: &str,
-    y: &[f64],
-    values: &[Vec<f64>],
-) -> String {
-    let (w, h) = (720.0, 560.0);
-    let (x0, y0, pw, ph) = (80.0, 30.0, 600.0, 460.0);
-    let finite: Vec<f64> = values
-        .iter()
-        .flatten()
-        .copied()
-        .filter(|v| v.is_finite())
+        .map(|&i| 20.0 * frf.h[i].norm().max(1e-300).log10())
         .collect();
-    let lo = finite.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = finite.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="{w}" height="{h}" fill="white"/><text x="{x0}" y="18">{title} (log color, grey = rejected; min {lo:.3e}, max {hi:.3e})</text>"#
-    );
-    let nx = x.len().max(1) as f64;
-    let ny = y.len().max(1) as f64;
-    for (j, row) in values.iter().enumerate() {
-        for (i, v) in row.iter().enumerate() {
-            let color = if v.is_finite() && hi > lo {
-                let t = ((v.ln() - lo.ln()) / (hi.ln() - lo.ln())).clamp(0.0, 1.0);
-                format!(
-                    "rgb({},{},{})",
-                    (255.0 * t) as u8,
-                    (80.0 + 100.0 * (1.0 - t)) as u8,
-                    (255.0 * (1.0 - t)) as u8
-                )
-            } else if v.is_finite() {
-                "rgb(0,80,255)".to_string()
+    let phase: Vec<f64> = inside
+        .iter()
+        .map(|&i| frf.h[i].arg().to_degrees())
+        .collect();
+    let coh: Vec<f64> = inside.iter().map(|&i| frf.coherence[i]).collect();
+    let lo = f_lo.max(f.first().copied().unwrap_or(f_lo));
+    let freq = || Axis::log("frequency", "Hz").range(lo, f_hi);
+    let colours = ["#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
+    let with_marks = |mut p: Plot, legend: bool| {
+        for (k, (label, hz)) in marks.iter().enumerate() {
+            let text = if legend {
+                format!("{label} {} Hz", sig(*hz))
             } else {
-                "rgb(200,200,200)".to_string()
+                String::new()
             };
-            let _ = writeln!(
-                s,
-                r#"<rect x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}" fill="{color}"><title>{v:.4e}</title></rect>"#,
-                x0 + i as f64 * pw / nx,
-                y0 + ph - (j + 1) as f64 * ph / ny,
-                pw / nx + 0.5,
-                ph / ny + 0.5
-            );
+            p = p.vline(Mark::new(&text, *hz, colours[k % colours.len()]));
         }
-    }
-    let fmt = |v: &[f64]| match (v.first(), v.last()) {
-        (Some(a), Some(b)) => format!("{a} .. {b}"),
-        _ => String::new(),
+        p
     };
-    let _ = writeln!(
-        s,
-        r#"<text x="{x0}" y="{}">{x_label}: {}</text><text x="5" y="{}" >{y_label}: {}</text></svg>"#,
-        y0 + ph + 25.0,
-        fmt(x),
-        y0 + ph + 45.0,
-        fmt(y)
+    let magnitude = with_marks(
+        Plot::new(
+            "magnitude",
+            freq(),
+            Axis::linear("magnitude", "dB re 1 (rad/s)/(N m)"),
+        )
+        .size(860.0, 280.0)
+        .series(Series::line("measured response", PALETTE[0], &f, &mag)),
+        true,
     );
-    s
+    let phase_ticks = (-2..=2)
+        .map(|k| (90.0 * k as f64, format!("{}", 90 * k)))
+        .collect();
+    let phase = with_marks(
+        Plot::new(
+            "phase",
+            freq(),
+            Axis::linear("phase", "deg")
+                .range(-190.0, 190.0)
+                .ticks(phase_ticks),
+        )
+        .size(860.0, 230.0)
+        .series(Series::line("measured response", PALETTE[0], &f, &phase)),
+        false,
+    );
+    let coherence = with_marks(
+        Plot::new(
+            "coherence",
+            freq(),
+            Axis::linear("coherence", "0 to 1").range(0.0, 1.05),
+        )
+        .size(860.0, 180.0)
+        .series(Series::line("coherence", PALETTE[2], &f, &coh)),
+        false,
+    );
+    stacked(
+        &format!(
+            "identify stiffness: torque to motor velocity ({} segments averaged)",
+            frf.segments
+        ),
+        &[magnitude, phase, coherence],
+    )
 }
 
-/// One curve of [`lines_svg`]: label, colour, points (x, y).
-pub struct Series<'a> {
-    /// Legend text.
-    pub label: &'a str,
-    /// SVG colour.
-    pub color: &'a str,
-    /// Points.
-    pub points: &'a [(f64, f64)],
-}
-
-/// Curves over a linear x axis with vertical markers at `marks` (label, x); labels carry the
-/// units.
-/// Kept as one function (about 100 lines): one SVG from frame to legend (axes, ticks, zero
-/// line, curves, markers, labels), each part a few lines that share the same scales.
-pub fn lines_svg(
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-    marks: &[(&str, f64)],
-) -> String {
-    let (w, h) = (800.0, 480.0);
-    let (x0, x1, y0, y1) = (90.0, 780.0, 40.0, 430.0);
-    let all = series
-        .iter()
-        .flat_map(|s| s.points.iter())
-        .filter(|p| p.0.is_finite() && p.1.is_finite());
-    let (mut xlo, mut xhi, mut ylo, mut yhi) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
-    for p in all {
-        xlo = xlo.min(p.0);
-        xhi = xhi.max(p.0);
-        ylo = ylo.min(p.1);
-        yhi = yhi.max(p.1);
-    }
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="{w}" height="{h}" fill="white"/><text x="{x0}" y="20">{title}</text>"#
-    );
-    if !(xlo.is_finite() && xhi.is_finite()) {
-        s.push_str("</svg>\n");
-        return s;
-    }
-    if xhi <= xlo {
-        xhi = xlo + 1.0;
-    }
-    if yhi <= ylo {
-        yhi = ylo + 1e-12_f64.max(ylo.abs() * 1e-3);
-    }
-    let pad = 0.05 * (yhi - ylo);
-    let (ylo, yhi) = (ylo - pad, yhi + pad);
-    let lx = |x: f64| x0 + (x - xlo) / (xhi - xlo) * (x1 - x0);
-    let ly = |y: f64| y1 - (y - ylo) / (yhi - ylo) * (y1 - y0);
-    let _ = writeln!(
-        s,
-        r#"<rect x="{x0}" y="{y0}" width="{}" height="{}" fill="none" stroke="black"/>"#,
-        x1 - x0,
-        y1 - y0
-    );
-    if ylo < 0.0 && yhi > 0.0 {
-        let _ = writeln!(
-            s,
-            r#"<line x1="{x0}" y1="{y:.1}" x2="{x1}" y2="{y:.1}" stroke="grey" stroke-width="0.5"/>"#,
-            y = ly(0.0)
-        );
-    }
-    for (k, se) in series.iter().enumerate() {
-        let mut path = String::new();
-        for p in se
-            .points
-            .iter()
-            .filter(|p| p.0.is_finite() && p.1.is_finite())
-        {
-            let _ = write!(path, "{:.1},{:.1} ", lx(p.0), ly(p.1));
+/// The heat map of `tune --svg` for `axis`: E over the first two grid parameters (the best over
+/// the others), rejected sets grey, the best set marked.
+pub fn tune_heatmap_svg(grid: &[GridAxis], r: &TuneResult, axis: &str) -> String {
+    let xs = &grid[0];
+    let ys = grid.get(1);
+    let ny = ys.map_or(1, |y| y.values.len());
+    let inner: usize = grid.iter().skip(1).map(|g| g.values.len()).product();
+    let per_y = inner / ny.max(1);
+    let mut m = vec![vec![f64::NAN; xs.values.len()]; ny];
+    for (k, e) in r.all.iter().enumerate() {
+        let ix = k / inner.max(1);
+        let iy = (k % inner.max(1)) / per_y.max(1);
+        if let Some(v) = e.e {
+            let c = &mut m[iy][ix];
+            if c.is_nan() || v < *c {
+                *c = v;
+            }
         }
-        let _ = writeln!(
-            s,
-            r#"<polyline points="{path}" fill="none" stroke="{c}" stroke-width="1.2"/><text x="{:.1}" y="{:.1}" fill="{c}">{}</text>"#,
-            x0 + 10.0,
-            y0 + 16.0 + 15.0 * k as f64,
-            se.label,
-            c = se.color
-        );
     }
-    for (label, x) in marks {
-        let px = lx(*x);
-        let _ = writeln!(
-            s,
-            r#"<line x1="{px:.1}" y1="{y0}" x2="{px:.1}" y2="{y1}" stroke="red" stroke-dasharray="4,3"/><text x="{:.1}" y="{:.1}" fill="red">{label}</text>"#,
-            px + 4.0,
-            y1 - 6.0
-        );
+    // the best set's cell: its first two parameters
+    let value_of = |name: &str| match name {
+        "kp_per_s" => r.best.kp_per_s,
+        "kv_nms_per_rad" => r.best.kv_nms_per_rad,
+        _ => r.best.tv_s,
+    };
+    let nearest = |g: &GridAxis| {
+        let v = value_of(&g.name);
+        (0..g.values.len())
+            .min_by(|&a, &b| (g.values[a] - v).abs().total_cmp(&(g.values[b] - v).abs()))
+            .unwrap_or(0)
+    };
+    let best_text = grid
+        .iter()
+        .map(|g| format!("{} {}", g.name, sig(value_of(&g.name))))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let marker = r.e_best.is_finite().then(|| {
+        (
+            nearest(xs),
+            ys.map_or(0, nearest),
+            format!("best: {best_text} (E {})", sig(r.e_best)),
+        )
+    });
+    let (y_axis, y_values) = match ys {
+        Some(y) => (Axis::linear(&y.name, param_unit(&y.name)), y.values.clone()),
+        None => (
+            Axis::linear("(one grid parameter)", "").ticks(vec![]),
+            vec![0.0],
+        ),
+    };
+    let over = match ys {
+        Some(y) => format!("{} and {}", xs.name, y.name),
+        None => xs.name.clone(),
+    };
+    let others = if grid.len() > 2 {
+        " (the best over the others)"
+    } else {
+        ""
+    };
+    HeatMap {
+        title: format!(
+            "tune, axis {axis}: E over {over}{others}; defaults E {}",
+            sig(r.e_default)
+        ),
+        x: Axis::linear(&xs.name, param_unit(&xs.name)),
+        y: y_axis,
+        xs: xs.values.clone(),
+        ys: y_values,
+        values: m,
+        value_label: "E, weighted RMS error".into(),
+        log_colour: true,
+        missing: "rejected (torque saturated or margins too small)".into(),
+        marker,
     }
-    let _ = writeln!(
-        s,
-        r#"<text x="5" y="{:.1}">{yhi:.3e}</text><text x="5" y="{y1}">{ylo:.3e}</text><text x="5" y="{:.1}">{y_label}</text>"#,
-        y0 + 10.0,
-        (y0 + y1) / 2.0
-    );
-    let _ = writeln!(
-        s,
-        r#"<text x="{x0}" y="{:.1}">{xlo:.4}</text><text x="{:.1}" y="{:.1}">{xhi:.4}</text><text x="{:.1}" y="{:.1}">{x_label}</text>"#,
-        y1 + 16.0,
-        x1 - 50.0,
-        y1 + 16.0,
-        (x0 + x1) / 2.0 - 60.0,
-        y1 + 36.0
-    );
-    s.push_str("</svg>\n");
-    s
+    .svg()
 }

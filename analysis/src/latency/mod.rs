@@ -9,7 +9,7 @@ pub mod reference;
 mod run;
 
 pub use attribution::{attribute_misses, Attribution};
-pub use plot::percentile_svg;
+pub use plot::{percentile_svg, ReferenceLoops};
 pub use run::{hist_json, RunFigures};
 
 /// Errors of the latency figures.

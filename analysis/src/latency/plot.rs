@@ -1,79 +1,152 @@
-//! The percentile plot of `latency.svg`.
+//! The percentile plot of `latency.svg`, drawn with [`crate::plot`].
 
 use hdrhistogram::Histogram;
 
-/// A percentile plot (latency and jitter, log-scaled tail axis) as a standalone SVG.
-pub fn percentile_svg(lat: &Histogram<u64>, jit: &Histogram<u64>) -> String {
-    let (w, h, l, r, t, b) = (720.0, 420.0, 70.0, 20.0, 30.0, 60.0);
-    // x: -log10(1 - q) from 0 (p0) to 5 (p99.999)
-    let qs: Vec<f64> = (0..=100).map(|i| i as f64 * 0.05).collect();
-    let val = |hist: &Histogram<u64>, x: f64| {
-        let q = (1.0 - 10f64.powf(-x)).clamp(0.0, 1.0);
-        hist.value_at_quantile(q) as f64 / 1000.0
+use feedloop_model::units::si;
+
+use crate::plot::{Axis, Mark, Plot, Series, PALETTE};
+
+/// The reference loops measured before the run, for [`percentile_svg`].
+pub struct ReferenceLoops<'a> {
+    /// Wake-up lateness of the sleeping (cyclictest-style) loop, ns.
+    pub sleeping: &'a Histogram<u64>,
+    /// Longest stretch the bare spinning loop lost its core, ns.
+    pub spinning_max_ns: u64,
+}
+
+/// Percentiles drawn: x = -log10(1 - q), from p0 to p99.999.
+const TAIL: f64 = 5.0;
+
+/// Latency and jitter over percentiles (a log time axis, the tail stretched), with the control
+/// period and, when measured, the reference loops: the sleeping loop's wake-up lateness as a
+/// dashed curve and the spinning loop's longest core loss as a line.
+pub fn percentile_svg(
+    lat: &Histogram<u64>,
+    jit: &Histogram<u64>,
+    period_ns: u64,
+    reference: Option<&ReferenceLoops>,
+) -> String {
+    let xs: Vec<f64> = (0..=100).map(|i| i as f64 * TAIL / 100.0).collect();
+    // us; a zero (below the histogram's 1 ns) is drawn at 1 ns so the log axis can show it
+    let curve = |h: &Histogram<u64>| -> Vec<f64> {
+        xs.iter()
+            .map(|x| {
+                let q = (1.0 - 10f64.powf(-x)).clamp(0.0, 1.0);
+                (h.value_at_quantile(q) as f64).max(1.0) / 1000.0
+            })
+            .collect()
     };
-    let ymax = qs
-        .iter()
-        .map(|x| val(lat, *x).max(val(jit, *x)))
-        .fold(1.0f64, f64::max);
-    let (ylo, yhi) = (0.1f64.log10(), (ymax * 1.5).log10());
-    let px = |x: f64| l + (w - l - r) * x / 5.0;
-    let py = |y: f64| t + (h - t - b) * (1.0 - ((y.max(0.1).log10() - ylo) / (yhi - ylo)));
-    let line = |hist: &Histogram<u64>| {
-        qs.iter()
-            .map(|x| format!("{:.1},{:.1}", px(*x), py(val(hist, *x))))
-            .collect::<Vec<_>>()
-            .join(" ")
-    };
-    let mut s = format!(
-        "<svg xmlns='http://www.w3.org/2000/svg' width='{w}' height='{h}' font-family='sans-serif' font-size='12'>\
-         <rect width='100%' height='100%' fill='white'/>\
-         <text x='{l}' y='18' font-size='14'>feedloop bench latency: percentiles (us, log scale)</text>"
-    );
-    for (x, label) in [
-        (0.0, "p0"),
-        (0.301, "p50"),
-        (1.0, "p90"),
-        (2.0, "p99"),
-        (3.0, "p99.9"),
-        (4.0, "p99.99"),
-        (5.0, "p99.999"),
-    ] {
-        s += &format!(
-            "<line x1='{0:.1}' x2='{0:.1}' y1='{t}' y2='{1}' stroke='#ddd'/><text x='{0:.1}' y='{2}' text-anchor='middle'>{label}</text>",
-            px(x),
-            h - b,
-            h - b + 16.0
-        );
+    let ticks = [
+        (0.0, "0"),
+        (2f64.log10(), "50"),
+        (1.0, "90"),
+        (2.0, "99"),
+        (3.0, "99.9"),
+        (4.0, "99.99"),
+        (5.0, "99.999"),
+    ]
+    .iter()
+    .map(|(x, l)| (*x, l.to_string()))
+    .collect();
+    let period_us = period_ns as f64 / 1000.0;
+    let mut p = Plot::new(
+        "feedloop bench latency: round trip and wake-up jitter by percentile",
+        Axis::linear("percentile", "%")
+            .range(0.0, TAIL)
+            .ticks(ticks),
+        Axis::log("time", "us"),
+    )
+    .size(860.0, 440.0)
+    .series(Series::line(
+        "round trip (sample published -> command received)",
+        PALETTE[0],
+        &xs,
+        &curve(lat),
+    ))
+    .series(Series::line(
+        "plant wake-up lateness (jitter)",
+        PALETTE[1],
+        &xs,
+        &curve(jit),
+    ));
+    if let Some(r) = reference {
+        p = p.series(Series::dashed(
+            "reference: sleeping loop wake-up lateness",
+            "#7f7f7f",
+            &xs,
+            &curve(r.sleeping),
+        ));
+        // a loss is counted from half a period on; without one there is no line to draw, but
+        // the legend says so
+        let spinning = if r.spinning_max_ns > 0 {
+            Mark::new(
+                &format!(
+                    "reference: bare spinning loop, longest core loss {}",
+                    si(r.spinning_max_ns as f64 * 1e-9, "s")
+                ),
+                r.spinning_max_ns as f64 / 1000.0,
+                PALETTE[3],
+            )
+        } else {
+            Mark::new(
+                &format!(
+                    "reference: bare spinning loop, no core loss >= {}",
+                    si(period_ns as f64 * 0.5e-9, "s")
+                ),
+                f64::NAN,
+                PALETTE[3],
+            )
+        };
+        p = p.hline(spinning);
     }
-    let mut y = 10f64.powf(ylo.ceil());
-    while y.log10() <= yhi {
-        s += &format!(
-            "<line x1='{l}' x2='{0}' y1='{1:.1}' y2='{1:.1}' stroke='#ddd'/><text x='{2}' y='{3:.1}' text-anchor='end'>{y}</text>",
-            w - r,
-            py(y),
-            l - 6.0,
-            py(y) + 4.0
-        );
-        y *= 10.0;
+    p.hline(Mark::new(
+        &format!("control period {}", si(period_us * 1e-6, "s")),
+        period_us,
+        "black",
+    ))
+    .svg()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hist(values_ns: &[u64]) -> Histogram<u64> {
+        let mut h = crate::latency::ns_histogram().unwrap();
+        for v in values_ns {
+            h.record(*v).unwrap();
+        }
+        h
     }
-    s += &format!(
-        "<polyline fill='none' stroke='#1f77b4' stroke-width='2' points='{}'/>",
-        line(lat)
-    );
-    s += &format!(
-        "<polyline fill='none' stroke='#d62728' stroke-width='2' points='{}'/>",
-        line(jit)
-    );
-    s += &format!(
-        "<text x='{0}' y='{1}' fill='#1f77b4'>round trip (sample -> command)</text><text x='{0}' y='{2}' fill='#d62728'>plant wake-up lateness (jitter)</text>",
-        l + 10.0,
-        t + 16.0,
-        t + 32.0
-    );
-    s += &format!(
-        "<text x='{0}' y='{1}' text-anchor='middle'>percentile</text></svg>\n",
-        (l + w - r) / 2.0,
-        h - 12.0
-    );
-    s
+
+    #[test]
+    fn the_latency_plot_has_its_axes_legend_period_and_reference_loops() {
+        let lat = hist(&(1..2000).map(|i| 20_000 + 10 * i).collect::<Vec<_>>());
+        let jit = hist(&(1..2000).map(|i| 1_000 + 5 * i).collect::<Vec<_>>());
+        let sleeping = hist(&(1..2000).map(|i| 2_000 + 7 * i).collect::<Vec<_>>());
+        let r = ReferenceLoops {
+            sleeping: &sleeping,
+            spinning_max_ns: 350_000,
+        };
+        let s = percentile_svg(&lat, &jit, 100_000, Some(&r));
+        assert!(s.contains(r#"class="title""#), "{s}");
+        assert!(s.contains(">percentile (%)<") && s.contains(">time (us, log scale)<"));
+        assert!(s.matches(r#"class="x-tick""#).count() > 2);
+        assert!(s.matches(r#"class="y-tick""#).count() > 2);
+        assert!(s.contains(">control period 100 us<"));
+        assert!(s.contains(">reference: sleeping loop wake-up lateness<"));
+        assert!(s.contains(">reference: bare spinning loop, longest core loss 350 us<"));
+        assert_eq!(s.matches(r#"class="ref-line""#).count(), 2);
+        // a spinning loop that never lost its core: said in the legend, no line
+        let calm = ReferenceLoops {
+            sleeping: &sleeping,
+            spinning_max_ns: 0,
+        };
+        let s = percentile_svg(&lat, &jit, 100_000, Some(&calm));
+        assert!(s.contains(">reference: bare spinning loop, no core loss &gt;= 50 us<"));
+        assert_eq!(s.matches(r#"class="ref-line""#).count(), 1);
+        // without reference loops: the period line only
+        let s = percentile_svg(&lat, &jit, 250_000, None);
+        assert!(s.contains(">control period 250 us<") && !s.contains("reference:"));
+    }
 }

@@ -14,6 +14,7 @@ use super::diagnose::{diagnose, DiagOptions, Diagnosis};
 use super::effects::WbModel;
 use super::fit::{fit_with, Errors};
 use super::WorkbenchError;
+use crate::plot::{Axis, Plot, Series, PALETTE};
 
 /// One step of the loop.
 #[derive(Debug, Clone)]
@@ -186,17 +187,20 @@ impl AutoResult {
             .iter()
             .map(|s| s.errors.window_sim_nrmse_pct.unwrap_or(f64::NAN))
             .collect();
-        h.push_str(&super::report::plot(
-            "Error after each step",
-            "step",
-            "NRMSE %",
-            &[
-                super::report::Series::line("equation error", "#1f77b4", &x, &eq),
-                super::report::Series::line("windowed simulation", "#d62728", &x, &ws),
-            ],
-            &[],
-            false,
-        ));
+        h.push_str(
+            &Plot::new(
+                "Error after each step",
+                Axis::linear("step", "effects added").ticks(
+                    (0..self.steps.len())
+                        .map(|i| (i as f64, i.to_string()))
+                        .collect(),
+                ),
+                Axis::linear("NRMSE", "%"),
+            )
+            .series(Series::line("equation error", PALETTE[0], &x, &eq))
+            .series(Series::line("windowed simulation", PALETTE[1], &x, &ws))
+            .svg(),
+        );
         h.push_str(&format!(
             "<p><b>Verdict:</b> {}</p>",
             self.last.verdict.replace('<', "&lt;")

@@ -8,248 +8,39 @@ use std::fmt::Write as _;
 
 use rustfft::{num_complex::Complex, FftPlanner};
 
+use feedloop_model::model::AxisKind;
+use feedloop_model::units::{si, sig};
+
 use super::compare::Comparison;
 use super::data::AxisData;
+use crate::plot::{esc, Axis, Plot, Series, PALETTE};
 
-const W: f64 = 860.0;
-const H: f64 = 260.0;
-const ML: f64 = 70.0;
-const MR: f64 = 20.0;
-const MT: f64 = 28.0;
-const MB: f64 = 40.0;
-
-/// A series of a plot.
-pub struct Series<'a> {
-    /// Legend text.
-    pub name: &'a str,
-    /// Colour (CSS).
-    pub color: &'a str,
-    /// x values.
-    pub x: &'a [f64],
-    /// y values.
-    pub y: &'a [f64],
-    /// Draw as dots instead of a line.
-    pub dots: bool,
-}
-
-impl<'a> Series<'a> {
-    /// `y` over `x` drawn as a line.
-    pub fn line(name: &'a str, color: &'a str, x: &'a [f64], y: &'a [f64]) -> Self {
-        Self {
-            name,
-            color,
-            x,
-            y,
-            dots: false,
-        }
-    }
-
-    /// `y` over `x` drawn as dots.
-    pub fn dots(name: &'a str, color: &'a str, x: &'a [f64], y: &'a [f64]) -> Self {
-        Self {
-            dots: true,
-            ..Self::line(name, color, x, y)
-        }
+/// The units of an axis's signals in the model's motor units: (motor position, motor velocity,
+/// torque or force, load position).
+fn units(kind: AxisKind) -> (&'static str, &'static str, &'static str, &'static str) {
+    match kind {
+        AxisKind::Rigid => ("m", "m/s", "N", "m"),
+        AxisKind::BallScrew => ("rad", "rad/s", "N m", "m"),
+        AxisKind::Rotary => ("rad", "rad/s", "N m", "rad"),
     }
 }
 
-fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
-        return vec![lo];
+/// The unit of a windowed-simulation channel.
+fn channel_unit(name: &str, kind: AxisKind) -> &'static str {
+    let (pos, vel, torque, _) = units(kind);
+    match name {
+        "torque" => torque,
+        "velocity" => vel,
+        _ => pos,
     }
-    let raw = (hi - lo) / n as f64;
-    let mag = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 5.0, 10.0]
-        .iter()
-        .map(|m| m * mag)
-        .find(|s| *s >= raw)
-        .unwrap_or(10.0 * mag);
-    let mut t = (lo / step).ceil() * step;
-    let mut out = Vec::new();
-    while t <= hi + 1e-9 * step {
-        out.push(if t.abs() < 1e-12 * step { 0.0 } else { t });
-        t += step;
-    }
-    out
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
-/// Draws an SVG plot; `shade` are x intervals to shade; `logy` plots log10 of y.
-/// Kept as one function (about 160 lines): one SVG from frame to legend (axes, ticks, shading,
-/// lines, labels), each part a few lines that share the same scales.
-pub fn plot(
-    title: &str,
-    xlabel: &str,
-    ylabel: &str,
-    series: &[Series<'_>],
-    shade: &[(f64, f64)],
-    logy: bool,
-) -> String {
-    let tf = |v: f64| if logy { v.max(1e-300).log10() } else { v };
-    let mut xlo = f64::INFINITY;
-    let mut xhi = f64::NEG_INFINITY;
-    let mut ylo = f64::INFINITY;
-    let mut yhi = f64::NEG_INFINITY;
-    for s in series {
-        for (&x, &y) in s.x.iter().zip(s.y) {
-            let y = tf(y);
-            if x.is_finite() && y.is_finite() {
-                xlo = xlo.min(x);
-                xhi = xhi.max(x);
-                ylo = ylo.min(y);
-                yhi = yhi.max(y);
-            }
-        }
-    }
-    if !xlo.is_finite() {
-        return format!("<p>{}: no data</p>", esc(title));
-    }
-    if xhi <= xlo {
-        xhi = xlo + 1.0;
-    }
-    if yhi <= ylo {
-        yhi = ylo + 1.0;
-        ylo -= 1.0;
-    }
-    let pad = 0.05 * (yhi - ylo);
-    ylo -= pad;
-    yhi += pad;
-    let px = |x: f64| ML + (x - xlo) / (xhi - xlo) * (W - ML - MR);
-    let py = |y: f64| MT + (1.0 - (y - ylo) / (yhi - ylo)) * (H - MT - MB);
-    let mut s = String::new();
-    let _ = write!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="11">"#
-    );
-    let _ = write!(
-        s,
-        r#"<rect x="0" y="0" width="{W}" height="{H}" fill="white"/>"#
-    );
-    for &(a, b) in shade {
-        let (x0, x1) = (px(a.max(xlo)), px(b.min(xhi)));
-        let _ = write!(
-            s,
-            r##"<rect x="{x0:.1}" y="{MT}" width="{:.1}" height="{:.1}" fill="#f4b6b6" opacity="0.6"/>"##,
-            (x1 - x0).max(1.0),
-            H - MT - MB
-        );
-    }
-    for t in nice_ticks(xlo, xhi, 8) {
-        let x = px(t);
-        let _ = write!(
-            s,
-            r##"<line x1="{x:.1}" y1="{MT}" x2="{x:.1}" y2="{:.1}" stroke="#e3e3e3"/><text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"##,
-            H - MB,
-            H - MB + 14.0,
-            fmt_tick(t)
-        );
-    }
-    for t in nice_ticks(ylo, yhi, 5) {
-        let y = py(t);
-        let label = if logy {
-            format!("1e{}", t)
-        } else {
-            fmt_tick(t)
-        };
-        let _ = write!(
-            s,
-            r##"<line x1="{ML}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#e3e3e3"/><text x="{:.1}" y="{:.1}" text-anchor="end">{label}</text>"##,
-            W - MR,
-            ML - 4.0,
-            y + 4.0
-        );
-    }
-    let _ = write!(
-        s,
-        r##"<rect x="{ML}" y="{MT}" width="{:.1}" height="{:.1}" fill="none" stroke="#888"/>"##,
-        W - ML - MR,
-        H - MT - MB
-    );
-    let _ = write!(
-        s,
-        r#"<text x="{ML}" y="16" font-weight="bold" font-size="13">{}</text>"#,
-        esc(title)
-    );
-    let _ = write!(
-        s,
-        r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
-        (W + ML) / 2.0,
-        H - 6.0,
-        esc(xlabel)
-    );
-    let _ = write!(
-        s,
-        r#"<text x="14" y="{:.1}" transform="rotate(-90 14 {:.1})" text-anchor="middle">{}</text>"#,
-        (H - MB + MT) / 2.0,
-        (H - MB + MT) / 2.0,
-        esc(ylabel)
-    );
-    let mut lx = W - MR - 10.0;
-    for se in series.iter().rev() {
-        let w = 8.0 + 6.5 * se.name.len() as f64;
-        lx -= w + 18.0;
-        let _ = write!(
-            s,
-            r#"<rect x="{lx:.1}" y="8" width="12" height="4" fill="{}"/><text x="{:.1}" y="14">{}</text>"#,
-            se.color,
-            lx + 16.0,
-            esc(se.name)
-        );
-    }
-    for se in series {
-        if se.dots {
-            for (&x, &y) in se.x.iter().zip(se.y) {
-                let y = tf(y);
-                if x.is_finite() && y.is_finite() {
-                    let _ = write!(
-                        s,
-                        r#"<circle cx="{:.1}" cy="{:.1}" r="1.2" fill="{}" fill-opacity="0.35"/>"#,
-                        px(x),
-                        py(y),
-                        se.color
-                    );
-                }
-            }
-        } else {
-            let mut path = String::new();
-            for (i, (&x, &y)) in se.x.iter().zip(se.y).enumerate() {
-                let y = tf(y);
-                if !(x.is_finite() && y.is_finite()) {
-                    continue;
-                }
-                let _ = write!(
-                    path,
-                    "{}{:.1},{:.1}",
-                    if i == 0 { "M" } else { "L" },
-                    px(x),
-                    py(y)
-                );
-            }
-            let _ = write!(
-                s,
-                r#"<path d="{path}" fill="none" stroke="{}" stroke-width="1"/>"#,
-                se.color
-            );
-        }
-    }
-    s.push_str("</svg>");
-    s
-}
-
-fn fmt_tick(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 {
-        "0".into()
-    } else if !(1e-3..1e5).contains(&a) {
-        format!("{v:.1e}")
+/// A plot of the report, inline (a short note instead when it has nothing to draw).
+fn figure(p: Plot) -> String {
+    if p.has_data() {
+        p.svg()
     } else {
-        let s = format!("{v:.4}");
-        s.trim_end_matches('0').trim_end_matches('.').to_string()
+        "<p>(no data to plot)</p>".into()
     }
 }
 
@@ -339,16 +130,46 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         esc(title),
         esc(title)
     );
-    let _ = write!(h, "<p>trace <code>{}</code>, axis <b>{}</b>, {} samples at {} s; positions filtered zero-phase at {:.0} Hz before differentiation.</p>", esc(&d.path.display().to_string()), esc(&d.axis), d.len(), d.dt, d.cutoff_hz);
+    let _ = write!(h, "<p>trace <code>{}</code>, axis <b>{}</b>, {} samples at {}; positions filtered zero-phase at {} Hz before differentiation.</p>", esc(&d.path.display().to_string()), esc(&d.axis), d.len(), si(d.dt, "s"), sig(d.cutoff_hz));
+    let (pos_unit, vel_unit, torque_unit, load_unit) = units(d.kind);
+    let (residual, meas, model, ylabel, unit) = match &c.eq {
+        Some(e) => (
+            &e.residual,
+            &e.measured,
+            &e.model,
+            if torque_unit == "N" {
+                "force"
+            } else {
+                "torque"
+            }
+            .to_string(),
+            torque_unit,
+        ),
+        None => {
+            let name = c
+                .sim
+                .channels
+                .first()
+                .map(|x| x.name.as_str())
+                .unwrap_or("");
+            (
+                &c.sim.residual,
+                &c.sim.measured,
+                &c.sim.simulated,
+                name.replace('_', " "),
+                channel_unit(name, d.kind),
+            )
+        }
+    };
     h.push_str("<h2>Figures</h2><table><tr><th>channel</th><th>method</th><th>NRMSE %</th><th>residual RMS</th></tr>");
     if let Some(e) = &c.eq {
-        let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{:.4}</td></tr>", e.nrmse_pct, e.rms);
+        let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{}</td></tr>", e.nrmse_pct, si(e.rms, torque_unit));
     }
     if let Some(cc) = &c.controller {
-        let _ = write!(h, "<tr><td>controller</td><td>recorded torque against the controller law on the recorded signals (velocity: {}; noise floor {:.3e}{})</td><td>{:.2}</td><td>{:.4e}</td></tr>", esc(cc.velocity), cc.noise_rms, if cc.fails() { ", <b>departs</b>" } else { "" }, cc.nrmse_pct, cc.rms);
+        let _ = write!(h, "<tr><td>controller</td><td>recorded torque against the controller law on the recorded signals (velocity: {}; noise floor {}{})</td><td>{:.2}</td><td>{}</td></tr>", esc(cc.velocity), si(cc.noise_rms, torque_unit), if cc.fails() { ", <b>departs</b>" } else { "" }, cc.nrmse_pct, si(cc.rms, torque_unit));
     }
     for ch in &c.sim.channels {
-        let _ = write!(h, "<tr><td>{}</td><td>{} simulation, {:.0} ms windows from measured state</td><td>{:.2}</td><td>{:.4e}</td></tr>", ch.name, c.sim.mode, c.sim.window_s * 1e3, ch.window_nrmse_pct, ch.window_rms);
+        let _ = write!(h, "<tr><td>{}</td><td>{} simulation, {:.0} ms windows from measured state</td><td>{:.2}</td><td>{}</td></tr>", ch.name, c.sim.mode, c.sim.window_s * 1e3, ch.window_nrmse_pct, si(ch.window_rms, channel_unit(&ch.name, d.kind)));
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{} simulation, free run</td><td>{:.2}</td><td></td></tr>",
@@ -360,67 +181,54 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
     for s in &c.by_kind {
         let _ = write!(
             h,
-            "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{:.4}</td></tr>",
-            s.name, s.share_pct, s.time_pct, s.rms
+            "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td></tr>",
+            s.name,
+            s.share_pct,
+            s.time_pct,
+            si(s.rms, unit)
         );
     }
     h.push_str("</table><p>Worst segments:</p><table><tr><th>kind</th><th>from s</th><th>to s</th><th>share %</th><th>RMS</th></tr>");
     for s in c.segments.iter().take(10) {
         let _ = write!(
             h,
-            "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1}</td><td>{:.4}</td></tr>",
+            "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1}</td><td>{}</td></tr>",
             s.kind.id(),
             d.t[s.start],
             d.t[s.end - 1],
             s.share_pct,
-            s.rms
+            si(s.rms, unit)
         );
     }
     h.push_str("</table>");
     h.push_str(extra_html);
-    let (residual, meas, model, ylabel) = match &c.eq {
-        Some(e) => (&e.residual, &e.measured, &e.model, "torque (N m or N)"),
-        None => (
-            &c.sim.residual,
-            &c.sim.measured,
-            &c.sim.simulated,
-            c.sim
-                .channels
-                .first()
-                .map(|x| x.name.as_str())
-                .unwrap_or(""),
-        ),
-    };
+    let time = || Axis::linear("time", "s");
+    let value = |label: &str, unit: &str| Axis::linear(label, unit).si();
     h.push_str("<h2>Plots</h2>");
     if !meas.is_empty() {
         let (tx, my) = envelope(&d.t, meas, 1600);
         let (tx2, sy) = envelope(&d.t, model, 1600);
-        h.push_str(&plot(
-            "Measurement vs model",
-            "time (s)",
-            ylabel,
-            &[
-                Series::line("measured", "#1f77b4", &tx, &my),
-                Series::line("model", "#d62728", &tx2, &sy),
-            ],
-            &[],
-            false,
+        h.push_str(&figure(
+            Plot::new("Measurement vs model", time(), value(&ylabel, unit))
+                .series(Series::line("measured", PALETTE[0], &tx, &my))
+                .series(Series::line("model", PALETTE[1], &tx2, &sy)),
         ));
     }
     if let Some(cc) = &c.controller {
         let ev = cc.events(d);
         let ev_shade: Vec<(f64, f64)> = ev.iter().take(200).map(|e| (e.start_s, e.end_s)).collect();
         let (tx, ry) = envelope(&d.t, &cc.residual, 1600);
-        h.push_str(&plot(
-            &format!(
-                "Controller channel: recorded torque minus controller law ({} stretches where it departs, shaded)",
-                ev.len()
-            ),
-            "time (s)",
-            "recorded - law (N m or N)",
-            &[Series::line("recorded - law", "#9467bd", &tx, &ry)],
-            &ev_shade,
-            false,
+        h.push_str(&figure(
+            Plot::new(
+                &format!(
+                    "Controller channel: recorded torque minus controller law ({} stretches where it departs)",
+                    ev.len()
+                ),
+                time(),
+                value("recorded - law", torque_unit),
+            )
+            .series(Series::line("recorded - law", PALETTE[3], &tx, &ry))
+            .shade("where it departs beyond its noise", &ev_shade),
         ));
     }
     let shade: Vec<(f64, f64)> = c
@@ -430,60 +238,70 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         .map(|s| (d.t[s.start], d.t[s.end - 1]))
         .collect();
     let (tx, ry) = envelope(&d.t, residual, 1600);
-    h.push_str(&plot(
-        "Residual over time (worst 10 segments shaded)",
-        "time (s)",
-        "residual",
-        &[Series::line("residual", "#333", &tx, &ry)],
-        &shade,
-        false,
+    h.push_str(&figure(
+        Plot::new("Residual over time", time(), value("residual", unit))
+            .series(Series::line(
+                "residual (measured - model)",
+                "#333",
+                &tx,
+                &ry,
+            ))
+            .shade("worst 10 segments", &shade),
     ));
     let rs = thin(residual, 4000);
     let v = thin(&d.vm, 4000);
-    h.push_str(&plot(
-        "Residual against motor velocity",
-        "motor velocity (motor units/s)",
-        "residual",
-        &[Series::dots("residual", "#2ca02c", &v, &rs)],
-        &[],
-        false,
+    h.push_str(&figure(
+        Plot::new(
+            "Residual against motor velocity",
+            value("motor velocity", vel_unit),
+            value("residual", unit),
+        )
+        .series(Series::dots("residual", PALETTE[2], &v, &rs)),
     ));
     let p = thin(&d.load_raw, 4000);
-    h.push_str(&plot(
-        "Residual against load position",
-        "load position (m or rad)",
-        "residual",
-        &[Series::dots("residual", "#9467bd", &p, &rs)],
-        &[],
-        false,
+    h.push_str(&figure(
+        Plot::new(
+            "Residual against load position",
+            value("load position", load_unit),
+            value("residual", unit),
+        )
+        .series(Series::dots("residual", PALETTE[3], &p, &rs)),
     ));
     let ang: Vec<f64> = thin(&d.qm, 4000)
         .iter()
         .map(|q| {
-            if d.kind == feedloop_model::model::AxisKind::Rigid {
+            if d.kind == AxisKind::Rigid {
                 *q
             } else {
                 q.rem_euclid(2.0 * std::f64::consts::PI)
             }
         })
         .collect();
-    h.push_str(&plot(
-        "Residual against motor angle (mod one revolution; position for a linear motor)",
-        "motor angle (rad) / position (m)",
-        "residual",
-        &[Series::dots("residual", "#8c564b", &ang, &rs)],
-        &[],
-        false,
+    let (angle_title, angle_label) = if d.kind == AxisKind::Rigid {
+        ("Residual against motor position", "motor position")
+    } else {
+        (
+            "Residual against motor angle (mod one revolution)",
+            "motor angle",
+        )
+    };
+    h.push_str(&figure(
+        Plot::new(
+            angle_title,
+            value(angle_label, pos_unit),
+            value("residual", unit),
+        )
+        .series(Series::dots("residual", PALETTE[5], &ang, &rs)),
     ));
     let (a, b) = d.range;
     let (f, amp) = spectrum(&residual[a..b], d.dt);
-    h.push_str(&plot(
-        "Residual spectrum (Welch, Hann)",
-        "frequency (Hz)",
-        "amplitude (log10)",
-        &[Series::line("residual", "#ff7f0e", &f, &amp)],
-        &[],
-        true,
+    h.push_str(&figure(
+        Plot::new(
+            "Residual spectrum (Welch, Hann)",
+            Axis::linear("frequency", "Hz"),
+            Axis::log("amplitude", unit),
+        )
+        .series(Series::line("residual", PALETTE[4], &f, &amp)),
     ));
     if c.eq.is_some() && !c.sim.measured.is_empty() {
         let (tx, my) = envelope(&d.t, &c.sim.measured, 1600);
@@ -494,20 +312,19 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
             .first()
             .map(|x| x.name.clone())
             .unwrap_or_default();
-        h.push_str(&plot(
-            &format!(
-                "Windowed simulation ({}, {:.0} ms windows): {name}",
-                c.sim.mode,
-                c.sim.window_s * 1e3
-            ),
-            "time (s)",
-            &name,
-            &[
-                Series::line("measured", "#1f77b4", &tx, &my),
-                Series::line("simulated", "#d62728", &tx2, &sy),
-            ],
-            &[],
-            false,
+        h.push_str(&figure(
+            Plot::new(
+                &format!(
+                    "Windowed simulation ({}, {:.0} ms windows): {}",
+                    c.sim.mode,
+                    c.sim.window_s * 1e3,
+                    name.replace('_', " ")
+                ),
+                time(),
+                value(&name.replace('_', " "), channel_unit(&name, d.kind)),
+            )
+            .series(Series::line("measured", PALETTE[0], &tx, &my))
+            .series(Series::line("simulated", PALETTE[1], &tx2, &sy)),
         ));
     }
     h.push_str("</body></html>\n");

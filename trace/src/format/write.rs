@@ -1,5 +1,6 @@
 //! Writing a trace: [`TraceWriter`] streams rows with the shortest round-trip text of each
-//! value; [`Trace::write_to`] writes a trace held in memory.
+//! value (and, for [`TraceWriter::write_cycle`], the time as the exact decimal of cycle x
+//! period); [`Trace::write_to`] writes a trace held in memory.
 
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
@@ -19,6 +20,85 @@ pub struct TraceWriter<W: Write> {
     t_index: usize,
     last_t: f64,
     rows: u64,
+    /// The period as an exact decimal, once [`TraceWriter::with_period`] set it.
+    period: Option<DecimalPeriod>,
+    last_cycle: Option<u64>,
+}
+
+/// A period as the decimal it was written as (`0.0003` = 3 x 10^-4), so that the time of cycle
+/// `k` can be printed as the exact decimal `k x 3 x 10^-4` instead of the float product (which
+/// prints as `0.00030000000000000003` for k = 1 and period 1e-4 x 3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct DecimalPeriod {
+    seconds: f64,
+    digits: u64,
+    exp10: i32,
+}
+
+impl DecimalPeriod {
+    /// The shortest decimal that reads back as `seconds` (what `ryu` prints), split into
+    /// integer digits and a power of ten.
+    fn of(seconds: f64) -> Option<Self> {
+        if !(seconds.is_finite() && seconds > 0.0) {
+            return None;
+        }
+        let mut buf = ryu::Buffer::new();
+        let text = buf.format_finite(seconds);
+        let (mantissa, exp) = match text.split_once('e') {
+            Some((m, e)) => (m, e.parse::<i32>().ok()?),
+            None => (text, 0),
+        };
+        let (int, frac) = mantissa.split_once('.').unwrap_or((mantissa, ""));
+        let mut digits: u64 = format!("{int}{frac}").parse().ok()?;
+        let mut exp10 = exp - frac.len() as i32;
+        while digits > 0 && digits.is_multiple_of(10) {
+            digits /= 10;
+            exp10 += 1;
+        }
+        Some(Self {
+            seconds,
+            digits,
+            exp10,
+        })
+    }
+
+    /// Appends the exact decimal of `cycle` periods to `out` (`0.0`, `0.0003`, `12.5`, `40.0`),
+    /// without allocating.
+    fn write_time(&self, cycle: u64, out: &mut Vec<u8>) {
+        let mut n = u128::from(cycle) * u128::from(self.digits);
+        // the integer's digits, least significant first
+        let mut rev = [0u8; 40];
+        let mut len = 0;
+        loop {
+            rev[len] = b'0' + (n % 10) as u8;
+            len += 1;
+            n /= 10;
+            if n == 0 {
+                break;
+            }
+        }
+        let frac = (-self.exp10).max(0) as usize;
+        let zeros_after = self.exp10.max(0) as usize;
+        // integer part: the digits above `frac`, then the power's zeros
+        if len > frac {
+            out.extend(rev[frac..len].iter().rev());
+            out.extend(std::iter::repeat_n(b'0', zeros_after));
+        } else {
+            out.push(b'0');
+        }
+        out.push(b'.');
+        // fraction: `frac` digits (leading zeros where the integer is shorter), trailing zeros
+        // dropped but one digit kept
+        let fraction = (0..frac).rev().map(|i| if i < len { rev[i] } else { b'0' });
+        let start = out.len();
+        out.extend(fraction);
+        while out.len() > start + 1 && out.last() == Some(&b'0') {
+            out.pop();
+        }
+        if out.len() == start {
+            out.push(b'0');
+        }
+    }
 }
 
 fn invalid(msg: String) -> io::Error {
@@ -69,7 +149,21 @@ impl<W: Write> TraceWriter<W> {
             t_index,
             last_t: f64::NEG_INFINITY,
             rows: 0,
+            period: None,
+            last_cycle: None,
         })
+    }
+
+    /// Sets the period rows are written at with [`TraceWriter::write_cycle`]: their time is the
+    /// exact decimal of cycle x period as the period is written (`0.0003` for cycle 3 at
+    /// `1e-4`, where the float product prints `0.00030000000000000003`). The file stays format
+    /// v1: any reader parses these numbers.
+    pub fn with_period(mut self, period_s: f64) -> io::Result<Self> {
+        self.period = Some(
+            DecimalPeriod::of(period_s)
+                .ok_or_else(|| invalid(format!("period must be > 0 s, got {period_s}")))?,
+        );
+        Ok(self)
     }
 
     /// The columns, in order.
@@ -86,6 +180,35 @@ impl<W: Write> TraceWriter<W> {
     /// not after the previous row's are refused (`InvalidInput`), since the file could not be
     /// read back; nothing is written then.
     pub fn write_row(&mut self, values: &[f64]) -> io::Result<()> {
+        self.write_values(values, None)
+    }
+
+    /// Writes the row of cycle `cycle` (`values` as for [`TraceWriter::write_row`]; the value in
+    /// the `t` column is not used): its time is cycle x period, printed exactly (see
+    /// [`TraceWriter::with_period`], which must have set the period). Cycles must increase.
+    pub fn write_cycle(&mut self, cycle: u64, values: &[f64]) -> io::Result<()> {
+        let Some(p) = self.period else {
+            return Err(invalid(
+                "write_cycle needs the period: start the writer with with_period".into(),
+            ));
+        };
+        if self.last_cycle.is_some_and(|c| cycle <= c) {
+            return Err(invalid(format!(
+                "cycle {cycle} is not after the previous row's {}",
+                self.last_cycle.unwrap_or(0)
+            )));
+        }
+        self.write_values(values, Some((cycle, p)))?;
+        self.last_cycle = Some(cycle);
+        Ok(())
+    }
+
+    /// Checks and writes one row; with `cycle`, the time cell is that cycle's exact time.
+    fn write_values(
+        &mut self,
+        values: &[f64],
+        cycle: Option<(u64, DecimalPeriod)>,
+    ) -> io::Result<()> {
         if values.len() != self.columns.len() {
             return Err(invalid(format!(
                 "row has {} values, the trace has {} columns",
@@ -99,7 +222,10 @@ impl<W: Write> TraceWriter<W> {
                 self.columns[i], values[i]
             )));
         }
-        let t = values[self.t_index];
+        let t = match cycle {
+            Some((k, p)) => k as f64 * p.seconds,
+            None => values[self.t_index],
+        };
         if t <= self.last_t {
             return Err(invalid(format!(
                 "time {t} s is not after the previous row's {} s",
@@ -113,8 +239,12 @@ impl<W: Write> TraceWriter<W> {
             if i > 0 {
                 self.line.push(b',');
             }
-            self.line
-                .extend_from_slice(buf.format_finite(*v).as_bytes());
+            match cycle {
+                Some((k, p)) if i == self.t_index => p.write_time(k, &mut self.line),
+                _ => self
+                    .line
+                    .extend_from_slice(buf.format_finite(*v).as_bytes()),
+            }
         }
         self.line.push(b'\n');
         self.out.write_all(&self.line)?;
@@ -185,6 +315,94 @@ mod tests {
             text,
             "# feedloop-trace v1\n# period_s=0.25\nt,x.cmd,x.load\n0.0,0.1,-2.5e-9\n0.25,1.0,3.0\n"
         );
+    }
+
+    /// The time cells of `text` (first column after the header).
+    fn times(text: &str) -> Vec<String> {
+        text.lines()
+            .filter(|l| !l.starts_with('#'))
+            .skip(1)
+            .map(|l| l.split(',').next().unwrap().to_string())
+            .collect()
+    }
+
+    #[test]
+    fn rows_written_by_cycle_have_exact_decimal_times() {
+        let c = cols(&["t", "x.cmd"]);
+        let mut w = TraceWriter::new(Vec::new(), &c)
+            .unwrap()
+            .with_period(1e-4)
+            .unwrap();
+        for k in [0u64, 1, 3, 7, 10, 12_345, 10_000_000_001] {
+            // the t value given is ignored: the cycle's time is written
+            w.write_cycle(k, &[k as f64 * 1e-4, 0.5]).unwrap();
+        }
+        let text = String::from_utf8(w.finish().unwrap()).unwrap();
+        assert_eq!(
+            times(&text),
+            [
+                "0.0",
+                "0.0001",
+                "0.0003",
+                "0.0007",
+                "0.001",
+                "1.2345",
+                "1000000.0001"
+            ]
+        );
+        // 3 x 1e-4 as a float product would print 0.00030000000000000003
+        assert_ne!(ryu::Buffer::new().format(3.0 * 1e-4), "0.0003");
+        // and such a file reads as before (format v1)
+        let mut w = TraceWriter::new(Vec::new(), &c)
+            .unwrap()
+            .with_period(1e-4)
+            .unwrap();
+        for k in 0..20 {
+            w.write_cycle(k, &[0.0, 0.5]).unwrap();
+        }
+        let tr = parse(&String::from_utf8(w.finish().unwrap()).unwrap()).unwrap();
+        assert_eq!(tr.column("t").unwrap()[3], 0.0003);
+        assert!((tr.period_s() - 1e-4).abs() < 1e-15);
+
+        for (period, k, want) in [
+            (0.00025, 3, "0.00075"),
+            (2.5e-7, 4, "0.000001"),
+            (0.02, 3, "0.06"),
+            (1.5, 4, "6.0"),
+            (20.0, 3, "60.0"),
+            // a period that is itself a float product is taken as it is written
+            (1e-4 * 3.0, 3, "0.00090000000000000009"),
+        ] {
+            let mut w = TraceWriter::new(Vec::new(), &c)
+                .unwrap()
+                .with_period(period)
+                .unwrap();
+            w.write_cycle(k, &[0.0, 1.0]).unwrap();
+            let text = String::from_utf8(w.finish().unwrap()).unwrap();
+            assert_eq!(times(&text), [want], "period {period}, cycle {k}");
+        }
+    }
+
+    #[test]
+    fn writing_by_cycle_needs_a_period_and_increasing_cycles() {
+        let c = cols(&["t", "x.cmd"]);
+        assert!(TraceWriter::new(Vec::new(), &c)
+            .unwrap()
+            .write_cycle(0, &[0.0, 1.0])
+            .is_err());
+        assert!(TraceWriter::new(Vec::new(), &c)
+            .unwrap()
+            .with_period(0.0)
+            .is_err());
+        let mut w = TraceWriter::new(Vec::new(), &c)
+            .unwrap()
+            .with_period(1e-3)
+            .unwrap();
+        w.write_cycle(5, &[0.0, 1.0]).unwrap();
+        assert!(w.write_cycle(5, &[0.0, 1.0]).is_err());
+        assert!(w.write_cycle(4, &[0.0, 1.0]).is_err());
+        w.write_cycle(6, &[0.0, 1.0]).unwrap();
+        assert_eq!(w.rows_written(), 2);
     }
 
     #[test]
