@@ -194,9 +194,9 @@ pub fn human_summary(v: &Value) -> String {
     ));
     if let Some(closed) = v["startup"]["loop_closed_after_s"].as_f64() {
         out.push_str(&format!(
-            "  loop closed {:.1} ms after the first sample (start-up grace {} s)\n",
-            closed * 1e3,
-            f(&v["startup"]["grace_s"])
+            "  loop closed {} after the first sample (start-up grace {})\n",
+            si(closed, "s"),
+            si(f(&v["startup"]["grace_s"]), "s")
         ));
     }
     if let Some(advice) = end_advice(v) {
@@ -218,19 +218,19 @@ pub fn end_advice(v: &Value) -> Option<String> {
         "If the scheduler process was still running (see scheduler.json), "
     };
     if end["during_startup"] == true {
-        let grace = end["startup_grace_s"].as_f64().unwrap_or(f64::NAN);
+        let grace = si(end["startup_grace_s"].as_f64().unwrap_or(f64::NAN), "s");
         return Some(format!(
-            "  the scheduler sent no first command within the start-up grace ({grace} s).\n  \
+            "  the scheduler sent no first command within the start-up grace ({grace}).\n  \
              {alive}the machine was too busy to start it in time: raise [run] startup_grace_s.\n"
         ));
     }
     let n = end["detected_after_cycles"].as_u64().unwrap_or(0);
     let period = v["period_s"].as_f64().unwrap_or(f64::NAN);
     Some(format!(
-        "  no command for {n} consecutive cycles ({:.3} ms) while the plant kept its schedule.\n  \
+        "  no command for {n} consecutive cycles ({}) while the plant kept its schedule.\n  \
          {alive}the machine was too busy for this period: raise [run] watchdog_cycles (now {n}), \
          pin the two processes (--pin 0,1), lengthen period_s, or stop other work.\n",
-        n as f64 * period * 1e3
+        si(n as f64 * period, "s")
     ))
 }
 
@@ -244,7 +244,7 @@ mod tests {
             "detected_after_cycles": 500}, "scheduler": {"end": {"reason": "plant_ended"}}});
         let a = end_advice(&v).unwrap();
         assert!(
-            a.contains("watchdog_cycles (now 500)") && a.contains("50.000 ms"),
+            a.contains("watchdog_cycles (now 500)") && a.contains("(50 ms)"),
             "{a}"
         );
         assert!(a.contains("still running"), "{a}");
