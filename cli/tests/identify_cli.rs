@@ -640,6 +640,21 @@ fn identify_stiffness_refuses_results_it_cannot_vouch_for() {
         &[("--trace", &exc)],
     ));
     assert!(e.contains("the given JM") && e.contains("--jm-kgm2"), "{e}");
+    // A band that ends below 1.5 times the resonance: JM is judged on the total inertia below
+    // the anti-resonance instead.
+    let e = refused(&cli(
+        "identify stiffness --jm-kgm2 1e9 --f-max-hz 300",
+        &[("--trace", &exc)],
+    ));
+    assert!(e.contains("total inertia"), "{e}");
+    let v = json(&cli(
+        "identify stiffness --jm-kgm2 2e-3 --f-max-hz 300",
+        &[("--trace", &exc)],
+    ));
+    assert_eq!(v["credible"], true, "{v}");
+    assert!(v["checks"]["jm_from_response_kgm2"].is_null(), "{v}");
+    let total = num(&v["checks"], "total_from_response_kgm2");
+    assert!((total / 5e-3 - 1.0).abs() < 0.5, "{v}");
     let v = json(&cli(
         "identify stiffness --jm-kgm2 2e-3",
         &[("--trace", &exc)],
@@ -678,4 +693,49 @@ fn identify_inertia_linear_refuses_a_run_that_saturates_the_torque() {
         e.contains("the loaded run") && e.contains("limit 30") && e.contains("gentler move"),
         "{e}"
     );
+}
+
+/// Issue 15 item 9: the linear method's known inertias are checked, and an estimate far
+/// outside its characteristic is refused rather than extrapolated.
+#[test]
+fn identify_inertia_linear_refuses_absurd_inertias_and_far_extrapolations() {
+    let d = scratch("inertiaabsurd");
+    let job = repo("examples/jobs/identify-inertia-move.toml");
+    let no_load = machine_trace(&d, "w0", 3.0e-3, "structure = \"split\"");
+    let loaded = machine_trace(&d, "w20", 3.6e-3, "structure = \"split\"");
+    let measured = machine_trace(&d, "w30", 3.9e-3, "structure = \"split\"");
+    let runs = [
+        ("--no-load", no_load.as_path()),
+        ("--loaded", loaded.as_path()),
+        ("--model", job.as_path()),
+        ("--trace", measured.as_path()),
+    ];
+    let e = refused(&cli(
+        "identify inertia --method linear --loaded-jl-kgm2=-1 --no-load-jl-kgm2 3.0e-3 --at 0.01",
+        &runs,
+    ));
+    assert!(e.contains("--loaded-jl-kgm2 must be"), "{e}");
+    // Two runs of the same load give no characteristic; a known load only 1 % above the
+    // no-load run puts the +30 % machine about 30 spans beyond the runs.
+    let e = refused(&cli(
+        "identify inertia --method linear --loaded-jl-kgm2 3.000001e-3 --no-load-jl-kgm2 3.0e-3 --at 0.01",
+        &[
+            ("--no-load", no_load.as_path()),
+            ("--loaded", no_load.as_path()),
+            ("--model", job.as_path()),
+            ("--trace", measured.as_path()),
+        ],
+    ));
+    assert!(e.contains("same deviation"), "{e}");
+    let near = machine_trace(&d, "w1", 3.03e-3, "structure = \"split\"");
+    let e = refused(&cli(
+        "identify inertia --method linear --loaded-jl-kgm2 3.03e-3 --no-load-jl-kgm2 3.0e-3 --at 0.01",
+        &[
+            ("--no-load", no_load.as_path()),
+            ("--loaded", near.as_path()),
+            ("--model", job.as_path()),
+            ("--trace", measured.as_path()),
+        ],
+    ));
+    assert!(e.contains("spans") && e.contains("extrapolation"), "{e}");
 }

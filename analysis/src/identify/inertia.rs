@@ -496,6 +496,10 @@ pub fn sim_match(
     })
 }
 
+/// How far beyond its two runs the linear characteristic may be extrapolated, in spans
+/// (no-load to loaded).
+pub const MAX_EXTRAPOLATION_SPANS: f64 = 3.0;
+
 /// Method 2: JL from the linear deviation characteristic through a no-load run (`dev0` at
 /// `jl0`) and a known-load run (`dev1` at `jl1`).
 pub fn linear(
@@ -506,13 +510,29 @@ pub fn linear(
     measured: f64,
     kind: DeviationKind,
 ) -> Result<InertiaEstimate, IdentifyError> {
+    for (flag, v) in [("--no-load-jl-kgm2", jl0), ("--loaded-jl-kgm2", jl1)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(IdentifyError::Invalid(format!(
+                "{flag} must be a finite load inertia > 0 kg m^2, got {v}"
+            )));
+        }
+    }
     if (dev1 - dev0).abs() <= 1e-12 || (jl1 - jl0).abs() <= 0.0 {
         return Err(IdentifyError::Invalid(format!(
             "the no-load and loaded runs give the same deviation ({dev0:.4e} / {dev1:.4e}) or \
              inertia: no characteristic to interpolate"
         )));
     }
-    let jl = jl0 + (measured - dev0) / (dev1 - dev0) * (jl1 - jl0);
+    let spans = (measured - dev0) / (dev1 - dev0);
+    let jl = jl0 + spans * (jl1 - jl0);
+    if !(-MAX_EXTRAPOLATION_SPANS..=1.0 + MAX_EXTRAPOLATION_SPANS).contains(&spans) {
+        return Err(IdentifyError::Invalid(format!(
+            "the measured deviation lies {spans:.2} spans of the characteristic from the no-load \
+             run (jl_kgm2 would be {jl:.4e}): more than {MAX_EXTRAPOLATION_SPANS} spans beyond \
+             its two runs is an extrapolation nobody can vouch for; record a known-load run \
+             nearer the machine's load"
+        )));
+    }
     if jl.is_nan() || jl <= 0.0 {
         return Err(IdentifyError::Invalid(format!(
             "the characteristic gives a non-positive inertia {jl:.4e} kg m^2"

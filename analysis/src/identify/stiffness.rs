@@ -135,6 +135,10 @@ pub struct StiffnessChecks {
     /// The motor inertia the response shows above the resonance (1 / |H w| between 1.5 and 3
     /// times the resonance), kg m^2; null when the band does not reach there.
     pub jm_from_response_kgm2: Option<f64>,
+    /// The total inertia the response shows below the anti-resonance (1 / |H w| between the band's
+    /// start and half the anti-resonance), kg m^2; the pair and JM say JM (wr / wa)^2; null when
+    /// the band does not reach there.
+    pub total_from_response_kgm2: Option<f64>,
     /// Velocity reversals in the analysed data (the nut crossing its backlash, friction
     /// changing sign: each mixes another plant into the response).
     pub reversals: usize,
@@ -424,11 +428,21 @@ fn judge(
         .filter(|(_, f)| **f >= 1.5 * fr && **f <= (3.0 * fr).min(band[1]))
         .map(|(k, _)| la[k])
         .collect();
-    if hf.len() >= 3 {
-        let mut s = hf;
-        s.sort_by(f64::total_cmp);
-        c.jm_from_response_kgm2 = Some((-s[s.len() / 2]).exp());
-    }
+    let median_inertia = |mut v: Vec<f64>| -> Option<f64> {
+        (v.len() >= 3).then(|| {
+            v.sort_by(f64::total_cmp);
+            (-v[v.len() / 2]).exp()
+        })
+    };
+    c.jm_from_response_kgm2 = median_inertia(hf);
+    let lf: Vec<f64> = frf
+        .f_hz
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| **f >= band[0] && **f <= 0.5 * fa)
+        .map(|(k, _)| la[k])
+        .collect();
+    c.total_from_response_kgm2 = median_inertia(lf);
     if c.segments < MIN_SEGMENTS {
         c.problems.push(format!(
             "{} averaged segment(s), at least {MIN_SEGMENTS} needed (with one the coherence is 1 \
@@ -480,6 +494,19 @@ fn judge(
             c.problems.push(format!(
                 "the given JM {:.4e} kg m^2 is {ratio:.3} times what the response shows above the \
                  resonance ({jm:.4e} kg m^2): the pair does not fit this motor",
+                opts.jm_kgm2
+            ));
+            c.advice
+                .push("check --jm-kgm2 (motor plus coupling, in kg m^2) and the axis".into());
+        }
+    } else if let Some(total) = c.total_from_response_kgm2 {
+        // no band above the resonance: the pair's total inertia against the response below
+        let implied = opts.jm_kgm2 * (fr / fa).powi(2);
+        let ratio = implied / total;
+        if !(1.0 / JM_FACTOR..=JM_FACTOR).contains(&ratio) {
+            c.problems.push(format!(
+                "JM {:.4e} kg m^2 and the pair imply a total inertia of {implied:.4e} kg m^2, {ratio:.3} \
+                 times what the response shows below the anti-resonance ({total:.4e} kg m^2)",
                 opts.jm_kgm2
             ));
             c.advice
