@@ -249,7 +249,7 @@ fn plant_loop_config(
 }
 
 /// The plant's `end` object of plant.json.
-fn plant_end_json(outcome: &PlantOutcome, job: &Job) -> Value {
+fn plant_end_json(outcome: &PlantOutcome, job: &Job, realtime: bool) -> Value {
     match outcome.end {
         PlantEnd::Completed => json!({"reason": "completed", "cycle": outcome.cycles}),
         PlantEnd::Stopped {
@@ -264,8 +264,12 @@ fn plant_end_json(outcome: &PlantOutcome, job: &Job) -> Value {
                     detected_after_cycles,
                 } => {
                     e["detected_after_cycles"] = json!(detected_after_cycles);
-                    if outcome.loop_closed_after_s.is_none() {
-                        // never closed: lost in the handshake or the start-up grace
+                    if outcome.cycles == 0 {
+                        // no hello within the peer timeout
+                        e["during_handshake"] = json!(true);
+                        e["peer_timeout_s"] = json!(job.run.peer_timeout_s);
+                    } else if outcome.loop_closed_after_s.is_none() && realtime {
+                        // hello, but no first command within the start-up grace
                         e["during_startup"] = json!(true);
                         e["startup_grace_s"] = json!(job.run.startup_grace_s);
                     }
@@ -315,8 +319,9 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
         Err(e) => return Err(e.into()),
     };
     drop(ep);
-    let mut end = plant_end_json(&outcome, &job);
-    if !export && signals::HANGUP.load(std::sync::atomic::Ordering::Relaxed) {
+    let mut end = plant_end_json(&outcome, &job, mode == Mode::Realtime);
+    let stopped = !matches!(outcome.end, PlantEnd::Completed);
+    if !export && stopped && signals::PARENT_DIED.load(std::sync::atomic::Ordering::Relaxed) {
         // started by `feedloop run`, which died: the axes were stopped, nobody merges the logs
         end["reason"] = json!("launcher_lost");
         eprintln!(

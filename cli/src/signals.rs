@@ -1,18 +1,22 @@
-//! SIGINT/SIGTERM turn into a stop request the loops poll (no work in the handler itself);
-//! SIGHUP too, and it also says the launcher is gone: `feedloop run` asks the kernel to send it
-//! to its children when it dies ([`die_with_parent`]).
+//! SIGINT/SIGTERM turn into a stop request the loops poll (no work in the handler itself).
+//! SIGUSR2 too, and it also says the launcher is gone: `feedloop run` asks the kernel to send it
+//! to its children when it dies ([`die_with_parent`]). SIGHUP keeps its inherited disposition
+//! (`nohup feedloop run` survives a logout).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-/// Set when SIGINT, SIGTERM or SIGHUP arrived.
+/// Set when SIGINT, SIGTERM or the parent-death signal arrived.
 pub static STOP: AtomicBool = AtomicBool::new(false);
 
-/// Set when SIGHUP arrived: the parent died (or the terminal hung up).
-pub static HANGUP: AtomicBool = AtomicBool::new(false);
+/// Set when the parent-death signal arrived: the launcher died.
+pub static PARENT_DIED: AtomicBool = AtomicBool::new(false);
+
+/// The signal `feedloop run`'s children get when it dies (one nobody else sends them).
+const PARENT_DEATH_SIGNAL: libc::c_int = libc::SIGUSR2;
 
 extern "C" fn on_signal(sig: libc::c_int) {
-    if sig == libc::SIGHUP {
-        HANGUP.store(true, Ordering::SeqCst);
+    if sig == PARENT_DEATH_SIGNAL {
+        PARENT_DIED.store(true, Ordering::SeqCst);
     }
     STOP.store(true, Ordering::SeqCst);
 }
@@ -24,7 +28,7 @@ pub fn install() {
     unsafe {
         libc::signal(libc::SIGINT, handler);
         libc::signal(libc::SIGTERM, handler);
-        libc::signal(libc::SIGHUP, handler);
+        libc::signal(PARENT_DEATH_SIGNAL, handler);
     }
 }
 
@@ -37,7 +41,7 @@ pub fn quiet_broken_pipe() {
     }
 }
 
-/// Makes a child about to be started get SIGHUP when this process dies, however it dies
+/// Makes a child about to be started get the parent-death signal when this process dies, however it dies
 /// (`kill -9` included): the child then stops its loop safely on its own.
 pub fn die_with_parent(cmd: &mut std::process::Command) {
     use std::os::unix::process::CommandExt;
@@ -46,7 +50,7 @@ pub fn die_with_parent(cmd: &mut std::process::Command) {
     let parent = unsafe { libc::getpid() };
     unsafe {
         cmd.pre_exec(move || {
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGHUP) != 0 {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, PARENT_DEATH_SIGNAL) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
             // The parent may have died before the request: then nobody would send the signal.

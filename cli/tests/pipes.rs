@@ -36,9 +36,17 @@ fn commands_writing_into_a_closed_pipe_end_quietly() {
         "/../examples/jobs/xy-circle.toml"
     );
     let out = dir.join("sim");
+    let lockstep = dir.join("run");
     let cases: [&[&str]; 2] = [
         &["sim", job, "--out", out.to_str().unwrap(), "--json"],
-        &["--help"],
+        &[
+            "run",
+            job,
+            "--out",
+            lockstep.to_str().unwrap(),
+            "--mode",
+            "lockstep",
+        ],
     ];
     for args in cases {
         let (st, err) = closed_pipe(args);

@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use feedloop_model::job::Job;
 use feedloop_model::model::PlantParams;
+use nalgebra::{DMatrix, DVector};
 use num_complex::Complex64;
 
 /// Smallest phase margin a loop may have, deg.
@@ -79,13 +80,13 @@ pub fn margin_failure(pm_deg: f64, gm_db: f64) -> Option<String> {
 /// is the smallest distance of the phase from -180 deg at any gain crossover; the gain margin
 /// the smallest -|L| dB where the unwrapped phase crosses -180 deg (mod 360).
 ///
-/// The digital controller is in the loop with its sampling: both loops are computed from
-/// samples taken at the start of a cycle and the torque is held for a period. With
-/// `period_s = T > 0` the torque path carries the zero-order hold `(1 - e^{-sT}) / (sT)` (about
-/// T/2 of delay) and the frequency grid stops at the Nyquist frequency; `delay_s` adds a
-/// transport delay `e^{-s delay_s}` (computation, fieldbus: one period when the drive applies
-/// the command at the next cycle; 1.5 T in all is 8.6 deg at 160 Hz for T = 1e-4 s).
-/// `period_s = 0, delay_s = 0` is the continuous-time loop. `None` when a margin cannot be
+/// With `period_s = T > 0` the loop is the digital one exactly: the axis model sampled with its
+/// zero-order hold (the matrix exponential of its state-space model over a period, so the
+/// response up to the Nyquist frequency includes what aliasing does), the PI as the plugin runs
+/// it (rectangle rule, integrator updated before the output), evaluated on z = e^{jwT} up to
+/// and including Nyquist. `delay_s` adds a transport delay `e^{-jw delay_s}` (computation,
+/// fieldbus: one period when the drive applies the command at the next cycle).
+/// `period_s = 0` is the continuous-time loop. `None` when a margin cannot be
 /// computed (a non-finite or non-positive gain or model value).
 pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Option<(f64, f64)> {
     let finite = [g.kp_per_s, g.kv_nms_per_rad, g.tv_s, period_s, delay_s]
@@ -110,22 +111,33 @@ pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Op
         }
     };
     let n = 4000;
-    let f_max = if period_s > 0.0 {
-        (0.5 / period_s).min(1e4)
-    } else {
-        1e4
-    };
+    let f_max = if period_s > 0.0 { 0.5 / period_s } else { 1e4 };
     let mut lv = Vec::with_capacity(n);
     let mut lp = Vec::with_capacity(n);
-    for k in 0..n {
-        let f = 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64);
+    let grid = || (0..n).map(|k| 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64));
+    if period_s > 0.0 {
+        // The digital loop exactly: the plant sampled with its zero-order hold, the PI as it
+        // runs (rectangle rule, integrator updated before the output), up to Nyquist.
+        let plant_z = Sampled::new(plant, period_s)?;
+        for f in grid() {
+            let w = 2.0 * PI * f;
+            let z = Complex64::from_polar(1.0, w * period_s);
+            let (gv, gp) = plant_z.at(z)?;
+            let delay = Complex64::from_polar(1.0, -w * delay_s);
+            let cv = delay
+                * if g.tv_s > 0.0 {
+                    g.kv_nms_per_rad * (1.0 + period_s / g.tv_s * z / (z - 1.0))
+                } else {
+                    Complex64::new(g.kv_nms_per_rad, 0.0)
+                };
+            let l_v = cv * gv;
+            lv.push((f, l_v));
+            lp.push((f, g.kp_per_s * cv * gp / (1.0 + l_v)));
+        }
+    }
+    for f in grid().filter(|_| period_s == 0.0) {
         let s = Complex64::new(0.0, 2.0 * PI * f);
-        let zoh = if period_s > 0.0 {
-            (1.0 - (-s * period_s).exp()) / (s * period_s)
-        } else {
-            Complex64::new(1.0, 0.0)
-        };
-        let delay = zoh * (-s * delay_s).exp();
+        let delay = (-s * delay_s).exp();
         let (gv, load_per_motor) = axis(s);
         let cv = delay
             * if g.tv_s > 0.0 {
@@ -169,10 +181,96 @@ pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Op
         }
         (pm, gm)
     };
+    // A sampled loop can reach -180 deg exactly at Nyquist (where it is real): its gain margin.
+    let at_nyquist = |l: &[(f64, Complex64)], gm: f64| -> f64 {
+        match l.last() {
+            Some((_, x)) if period_s > 0.0 && x.re < 0.0 && x.im.abs() <= 1e-6 * x.norm() => {
+                gm.min(-20.0 * x.norm().log10())
+            }
+            _ => gm,
+        }
+    };
     let (pv, gmv) = m(&lv);
     let (pp, gmp) = m(&lp);
+    let (gmv, gmp) = (at_nyquist(&lv, gmv), at_nyquist(&lp, gmp));
     let (pm, gm) = (pv.min(pp), gmv.min(gmp));
     (!pm.is_nan() && !gm.is_nan()).then_some((pm, gm))
+}
+
+/// An axis model sampled with a zero-order hold (exact: the matrix exponential of its
+/// state-space model over one period).
+struct Sampled {
+    phi: DMatrix<Complex64>,
+    gamma: DVector<Complex64>,
+    /// Index of the motor velocity and of the load position in the state.
+    vel: usize,
+    pos: usize,
+}
+
+impl Sampled {
+    fn new(plant: &PlantParams, t: f64) -> Option<Self> {
+        let (a, b, vel, pos) = match plant {
+            PlantParams::Rigid(r) => {
+                let (m, c) = (r.mass_kg, r.viscous_ns_per_m);
+                (
+                    DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, -c / m]),
+                    vec![0.0, 1.0 / m],
+                    1,
+                    0,
+                )
+            }
+            PlantParams::BallScrew { two_mass: p, .. } | PlantParams::Rotary { two_mass: p } => {
+                let (jm, dm, kl, cl, jl, dl) = (
+                    p.jm_kgm2,
+                    p.dm_nms_per_rad,
+                    p.kl_nm_per_rad,
+                    p.cl_nms_per_rad,
+                    p.jl_kgm2,
+                    p.dl_nms_per_rad,
+                );
+                // state: motor angle, motor velocity, load angle, load velocity
+                #[rustfmt::skip]
+                let a = DMatrix::from_row_slice(4, 4, &[
+                    0.0, 1.0, 0.0, 0.0,
+                    -kl / jm, -(dm + cl) / jm, kl / jm, cl / jm,
+                    0.0, 0.0, 0.0, 1.0,
+                    kl / jl, cl / jl, -kl / jl, -(dl + cl) / jl,
+                ]);
+                (a, vec![0.0, 1.0 / jm, 0.0, 0.0], 1, 2)
+            }
+        };
+        let n = a.nrows();
+        // exp([[A, B], [0, 0]] T) = [[Phi, Gamma], [0, 1]]
+        let mut m = DMatrix::<f64>::zeros(n + 1, n + 1);
+        for i in 0..n {
+            for j in 0..n {
+                m[(i, j)] = a[(i, j)] * t;
+            }
+            m[(i, n)] = b[i] * t;
+        }
+        if !m.iter().all(|x| x.is_finite()) {
+            return None;
+        }
+        let e = m.exp();
+        let phi = DMatrix::from_fn(n, n, |i, j| Complex64::new(e[(i, j)], 0.0));
+        let gamma = DVector::from_fn(n, |i, _| Complex64::new(e[(i, n)], 0.0));
+        Some(Self {
+            phi,
+            gamma,
+            vel,
+            pos,
+        })
+    }
+
+    /// Motor velocity and load position per torque at `z`.
+    fn at(&self, z: Complex64) -> Option<(Complex64, Complex64)> {
+        let mut k = -self.phi.clone();
+        for i in 0..k.nrows() {
+            k[(i, i)] += z;
+        }
+        let x = k.lu().solve(&self.gamma)?;
+        Some((x[self.vel], x[self.pos]))
+    }
 }
 
 /// The plant's own transport delay of axis `i` (`[effects.delay] delay_cycles`), cycles.
@@ -222,6 +320,53 @@ mod tests {
         // Nothing to judge without a velocity gain, or with a non-finite one.
         assert!(margins(&rigid(), g(0.0), 1e-3, 0.0).is_none());
         assert!(margins(&rigid(), g(f64::NAN), 1e-3, 0.0).is_none());
+    }
+
+    /// The digital loop on the rigid axis, simulated: P position and PI velocity sampled every
+    /// `t`, the torque held, the mass integrated in 100 sub-steps. Whether it diverges.
+    fn diverges(kv: f64, tv: f64, t: f64) -> bool {
+        let (m, c, kp) = (20.0, 50.0, 50.0);
+        let (mut x, mut v, mut integral) = (0.0f64, 0.0f64, 0.0f64);
+        for _ in 0..20_000 {
+            let e = kp * (1e-3 - x) - v;
+            integral += t * e;
+            let u = kv * e + if tv > 0.0 { kv / tv * integral } else { 0.0 };
+            let h = t / 100.0;
+            for _ in 0..100 {
+                v += h * (u - c * v) / m;
+                x += h * v;
+            }
+            if v.is_nan() || v.abs() >= 1e6 {
+                return true;
+            }
+        }
+        false
+    }
+
+    #[test]
+    fn the_sampled_loop_model_agrees_with_a_simulation_of_the_digital_loop_near_nyquist() {
+        let t = 1e-4;
+        // P-only velocity loop: the sampled loop goes unstable near (kv + c) t / m = 2.
+        for (kv, tv) in [
+            (2.0e5, 0.0),
+            (3.2e5, 0.0),
+            (5.0e5, 0.0),
+            (3.0e5, 0.01),
+            (4.5e5, 0.01),
+        ] {
+            let g = Gains {
+                kp_per_s: 50.0,
+                kv_nms_per_rad: kv,
+                tv_s: tv,
+            };
+            let (pm, gm) = margins(&rigid(), g, t, 0.0).unwrap();
+            let stable_by_model = pm > 0.0 && gm > 0.0;
+            assert_eq!(
+                stable_by_model,
+                !diverges(kv, tv, t),
+                "kv {kv}, tv {tv}: model {pm:.1} deg / {gm:.2} dB"
+            );
+        }
     }
 
     #[test]

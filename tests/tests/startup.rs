@@ -70,7 +70,8 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
     let (job, instance, log) = start("startslow");
     let n = job.axes.len();
     let stop = Arc::new(AtomicBool::new(false));
-    // 10 kHz with a 20-cycle watchdog: the 60 ms wait for the first answer is 600 periods.
+    // 10 kHz with a 200-cycle watchdog: the 60 ms wait for the first answer is 600 periods,
+    // which must not count against it.
     let plant = spawn_plant_loop(
         &job,
         &instance,
@@ -80,7 +81,7 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
             mode: Mode::Realtime,
             period_s: 1e-4,
             cycles: CYCLES,
-            watchdog_cycles: 100_000,
+            watchdog_cycles: 200,
             startup_grace_s: 2.0,
             cycle_hook: None,
         },
@@ -102,6 +103,11 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
     // command (reference 0) while the table sits elsewhere.
     let first = &recs[0];
     assert_eq!(first.seq, 0);
+    assert_eq!(
+        first.flags & feedloop_trace::log::REC_MISSED,
+        0,
+        "cycle 0 waited for its command"
+    );
     for a in &first.axes[..n] {
         assert_eq!(a.cmd, 0.004, "cycle 0 recorded {a:?}");
     }

@@ -60,7 +60,7 @@ fn unsafe_swaps_are_refused_or_rolled_back_before_the_plant_sees_them() {
     let stiff = dir.join("kv.toml");
     std::fs::write(&stiff, "kv_nms_per_rad = 1.0e9\n").unwrap();
     let kp = dir.join("kp.toml");
-    std::fs::write(&kp, "kp_per_s = 80.0\n").unwrap();
+    std::fs::write(&kp, "kp_per_s = 45.0\n").unwrap();
     let (mut run, inst, out) =
         start_realtime_run(&dir, &job, "swapsafe", Duration::from_millis(400));
 
@@ -129,6 +129,15 @@ fn unsafe_swaps_are_refused_or_rolled_back_before_the_plant_sees_them() {
         applied <= allowed,
         "the plant got a torque step of {applied} N m at the vetoed cycle (bound {allowed})"
     );
+    // Nor later: the vetoed cycle was undone in the stages (the velocity loop's integrator did
+    // not take the vetoed error), and the old controller continued from the held torque.
+    for k in vetoed_cycle + 1..vetoed_cycle + 6 {
+        let step = (rows[k][torque_x] - rows[k - 1][torque_x]).abs();
+        assert!(
+            step <= 2.0 * allowed,
+            "cycle {k} after the veto steps the torque by {step} N m (bound {allowed})"
+        );
+    }
 }
 
 #[test]

@@ -217,6 +217,13 @@ pub fn end_advice(v: &Value) -> Option<String> {
     } else {
         "If the scheduler process was still running (see scheduler.json), "
     };
+    if end["during_handshake"] == true {
+        let t = si(end["peer_timeout_s"].as_f64().unwrap_or(f64::NAN), "s");
+        return Some(format!(
+            "  the scheduler did not answer the handshake within the peer timeout ({t}): did it \
+             start (see its error above)? On a busy machine raise [run] peer_timeout_s.\n"
+        ));
+    }
     if end["during_startup"] == true {
         let grace = si(end["startup_grace_s"].as_f64().unwrap_or(f64::NAN), "s");
         return Some(format!(

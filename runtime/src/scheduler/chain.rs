@@ -10,7 +10,8 @@ use std::path::Path;
 
 use crate::shared::wire::{ActuatorCommand, SensorSample};
 use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, Coupler, CycleContext, PluginRegistry, Stage,
+    AxisContext, AxisSignals, Controller, ControllerState, Coupler, CycleContext, PluginRegistry,
+    Stage,
 };
 use feedloop_model::job::Job;
 use feedloop_model::params::ConfigError;
@@ -151,6 +152,29 @@ impl Chain {
     /// Signals of the last cycle (motor units).
     pub fn signals(&self) -> &[AxisSignals] {
         &self.signals
+    }
+
+    /// The internal state of every stage of `axis` (empty for an empty stage). No allocation.
+    pub fn snapshot_axis(&self, axis: usize) -> [ControllerState; 4] {
+        let mut out = [ControllerState::EMPTY; 4];
+        for (o, st) in out.iter_mut().zip(&self.axes[axis].stages) {
+            if let Some(c) = st {
+                *o = c.snapshot();
+            }
+        }
+        out
+    }
+
+    /// Undoes a cycle of `axis` that must not count: every stage back to `states` (from
+    /// [`Chain::snapshot_axis`] before the cycle) and the torque of its signals set to `torque`,
+    /// the one actually sent. No allocation.
+    pub fn undo_cycle(&mut self, axis: usize, states: &[ControllerState; 4], torque: f64) {
+        for (st, s) in self.axes[axis].stages.iter_mut().zip(states) {
+            if let Some(c) = st {
+                c.restore(s);
+            }
+        }
+        self.signals[axis].torque = torque;
     }
 
     /// Replaces the controller of `axis`/`stage`, initialised from the last cycle's signals;

@@ -297,6 +297,8 @@ struct Probation {
     force: bool,
     /// The first cycle's torque step exceeded the bound: that cycle held the previous torque.
     vetoed: bool,
+    /// Every stage of the axis just before the swap's first cycle (to undo it on a veto).
+    states: [feedloop_control::controller::ControllerState; 4],
     old: Option<Box<dyn Controller>>,
     left: u32,
     event: usize,
@@ -461,8 +463,10 @@ impl ControlPlane {
                     (Some(a), Some(b)) if a > 0.0 && b > a => b / a,
                     _ => 1.0,
                 };
-                let allowed =
-                    self.max_step(axis) * ratio + 0.001 * finite_or(self.limits[axis], 0.0);
+                // 0.1 % of the torque limit, or of the largest recent torque without a limit
+                // (an axis at rest has no cycle-to-cycle change to scale)
+                let scale = finite_or(self.limits[axis], self.max_abs(axis)).max(1e-6);
+                let allowed = self.max_step(axis) * ratio + 0.001 * scale;
                 self.swaps.push(SwapEvent {
                     t_s: seq as f64 * self.period_s,
                     cycle: seq,
@@ -487,6 +491,7 @@ impl ControlPlane {
                     gains: check.gains,
                     force: check.force,
                     vetoed: false,
+                    states: cycle.chain().snapshot_axis(axis),
                     old,
                     left: PROBATION_CYCLES,
                     event: self.swaps.len() - 1,
@@ -500,9 +505,10 @@ impl ControlPlane {
     /// Between the cycle's chain and the command's publication: in the first cycle of a swap,
     /// measures the torque step of the new controller (`torque_step`) and, when it exceeds the
     /// bumpless bound and the request did not say `force`, holds the previous torque in `cmd`
-    /// instead (the swap is then rolled back after the cycle). No allocation.
+    /// instead and undoes the cycle in the axis' stages (the swap is then rolled back after the
+    /// cycle, the old controller continuing from the held torque). No allocation.
     #[inline]
-    pub fn vet(&mut self, cmd: &mut ActuatorCommand) {
+    pub fn vet(&mut self, cycle: &mut ControlCycle, cmd: &mut ActuatorCommand) {
         let Some(p) = self.probation.as_mut() else {
             return;
         };
@@ -519,9 +525,17 @@ impl ControlPlane {
         ev.torque_step = (torque - prev).abs();
         // a NaN step is the non-finite check's
         if ev.torque_step > ev.allowed_step && !p.force {
+            // the cycle did not happen for this axis: its stages' states back to before it
+            // (integrators, filters), the torque actually sent in its signals
             cmd.axes[p.axis].torque = prev;
+            cycle.chain_mut().undo_cycle(p.axis, &p.states, prev);
             p.vetoed = true;
         }
+    }
+
+    fn max_abs(&self, axis: usize) -> f64 {
+        let n = self.hist_len.min(HISTORY);
+        (0..n).fold(0.0f64, |m, j| m.max(self.history[axis][j].abs()))
     }
 
     fn max_step(&self, axis: usize) -> f64 {
@@ -792,25 +806,28 @@ fn judge(
     contexts: &[AxisContext],
     model: &LoopCheck,
 ) -> Result<Checked, SwapError> {
+    let ctx = &contexts[job.axis];
+    let delay = model.delays_s[job.axis];
+    // Kp from the position stage first, Kv and Tv from the velocity stage first.
+    let margins_of = |stages: &[LoopGains; 4]| {
+        let order = [
+            stages[Stage::Position.index()],
+            stages[Stage::Velocity.index()],
+            stages[Stage::Feedforward.index()],
+            stages[Stage::Compensator.index()],
+        ];
+        LoopGains::combine(&order)
+            .and_then(|g| loop_model::margins(&ctx.plant, g, ctx.period_s, delay))
+    };
     let mut stages = model.gains[job.axis];
     let gains = new.loop_gains();
     stages[job.stage.index()] = gains;
-    // Kp from the position stage first, Kv and Tv from the velocity stage first.
-    let order = [
-        stages[Stage::Position.index()],
-        stages[Stage::Velocity.index()],
-        stages[Stage::Feedforward.index()],
-        stages[Stage::Compensator.index()],
-    ];
     let mut check = Checked {
         gains,
         force: job.force,
         ..Default::default()
     };
-    let ctx = &contexts[job.axis];
-    let margins = LoopGains::combine(&order)
-        .and_then(|g| loop_model::margins(&ctx.plant, g, ctx.period_s, model.delays_s[job.axis]));
-    match margins {
+    match margins_of(&stages) {
         None => check.warnings.push(
             "margins not checked: the loop's gains are not all known (a plugin that reports none)"
                 .into(),
@@ -818,12 +835,21 @@ fn judge(
         Some((pm, gm)) => {
             check.margins = Some((pm, gm));
             if let Some(why) = loop_model::margin_failure(pm, gm) {
-                if !job.force {
+                // a loop already short of margin is not blamed on a swap that does not make it
+                // worse (a feedforward swap, a softer gain)
+                let before = margins_of(&model.gains[job.axis]);
+                let no_worse = before.is_some_and(|(p0, g0)| pm >= p0 - 0.5 && gm >= g0 - 0.1);
+                if no_worse {
+                    check.warnings.push(format!(
+                        "{why}: so was the loop before this swap, which does not make it worse"
+                    ));
+                } else if !job.force {
                     return Err(SwapError::Unsafe(why));
+                } else {
+                    check
+                        .warnings
+                        .push(format!("{why}: applied anyway (force)"));
                 }
-                check
-                    .warnings
-                    .push(format!("{why}: applied anyway (force)"));
             }
         }
     }

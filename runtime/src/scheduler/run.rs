@@ -248,7 +248,7 @@ pub fn run_scheduler(
             .max(ep.wait_start_ns().saturating_sub(prev_end_ns));
         cycle.step(&s, &mut cmd);
         if let Some(c) = control.as_deref_mut() {
-            c.vet(&mut cmd);
+            c.vet(cycle, &mut cmd);
         }
         if stop_now {
             cmd.flags |= FLAG_STOP;
