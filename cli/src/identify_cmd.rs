@@ -501,12 +501,25 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
         }
         println!(
             "checks: coherence {:.2} around the anti-resonance, {:.2} around the resonance; \
-             prominence {:.1} / {:.1} dB; {} reversals{}",
+             prominence {:.1} / {:.1} dB; {} reversals{}{}",
             c.coherence_antiresonance,
             c.coherence_resonance,
             c.prominence_antiresonance_db,
             c.prominence_resonance_db,
             c.reversals,
+            if c.reversals_cut > 0 {
+                format!(
+                    " ({} cut out: {} + {} segments from {} + {} windows of positive + negative \
+                     velocity)",
+                    c.reversals_cut,
+                    c.segments_positive,
+                    c.segments_negative,
+                    c.windows_positive,
+                    c.windows_negative
+                )
+            } else {
+                String::new()
+            },
             c.jm_from_response_kgm2
                 .map(|j| format!("; JM from the response above the resonance {j:.4e} kg m^2"))
                 .unwrap_or_default()
@@ -531,7 +544,7 @@ fn quantity_stem(key: &str) -> Option<&str> {
     ["_m_per_s", "_rad_per_s", "_m", "_rad"]
         .iter()
         .find_map(|u| key.strip_suffix(u))
-        .filter(|s| ["amplitude", "velocity", "max_travel"].contains(s))
+        .filter(|s| ["amplitude", "velocity", "max_travel", "traverse"].contains(s))
 }
 
 /// Runs `feedloop excite`.
