@@ -95,6 +95,9 @@ pub struct StiffnessArgs {
     /// Frequency resolution, Hz.
     #[arg(long, default_value_t = 0.3)]
     pub resolution_hz: f64,
+    /// Time cut after each reversal (and before the next) from the one-direction windows, s.
+    #[arg(long, default_value_t = 0.2)]
+    pub settle_s: f64,
     /// auto | h1 | instrument.
     #[arg(long, default_value = "auto")]
     pub estimator: String,
@@ -436,6 +439,7 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
     opts.f_min_hz = a.f_min_hz;
     opts.f_max_hz = a.f_max_hz;
     opts.resolution_hz = a.resolution_hz;
+    opts.settle_s = a.settle_s;
     opts.estimator = match a.estimator.as_str() {
         "auto" => Estimator::Auto,
         "h1" => Estimator::H1,

@@ -275,7 +275,7 @@ pub fn identify_stiffness(
         (opts.settle_s / dt).round() as usize
     } else {
         return Err(IdentifyError::Invalid(format!(
-            "the settling time must be >= 0 s, got {}",
+            "the settling time after a reversal (--settle-s, settle_s) must be >= 0 s, got {}",
             opts.settle_s
         )));
     };
