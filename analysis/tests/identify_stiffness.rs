@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use feedloop_analysis::identify::stiffness::{
-    identify_stiffness, Estimator, FrfKind, StiffnessOptions,
+    identify_stiffness, Estimator, FrfKind, StiffnessOptions, MIN_SEGMENTS,
 };
 use feedloop_analysis::identify::IdentifyError;
 use feedloop_analysis::sim::simulate;
@@ -41,6 +41,39 @@ duration_s = 12.0
 seed = 7
 "#;
 
+/// An axis that is not in the repository (JM 1.2e-3, JL 2.6e-3 kg m^2, KL 4200 N m/rad, 8 mm
+/// lead) with Stribeck friction on the motor, Coulomb friction on the table, 12 um backlash, a
+/// 20-bit encoder and velocity noise.
+const REAL_AXIS: &str = r#"
+kind = "ballscrew"
+jm_kgm2 = 1.2e-3
+dm_nms_per_rad = 8.0e-4
+kl_nm_per_rad = 4200.0
+cl_nms_per_rad = 0.03
+jl_kgm2 = 2.6e-3
+dl_nms_per_rad = 1.5e-3
+lead_m = 0.008
+[controller]
+kp_per_s = 50.0
+kv_nms_per_rad = 4.0
+tv_s = 0.005
+torque_limit_nm = 30.0
+[effects.stribeck_friction]
+side = "motor"
+fc_nm = 0.12
+fs_nm = 0.2
+vs_rad_per_s = 1.0
+[effects.coulomb_friction]
+side = "load"
+fc_n = 25.0
+[effects.backlash]
+gap_m = 1.2e-5
+[sensor]
+motor_counts_per_rev = 1048576
+motor_vel_noise_rad_per_s = 0.002
+seed = 5
+"#;
+
 /// The model: the reference X axis with a 20-bit encoder.
 fn model() -> String {
     xy_x_model(MODEL_TAIL)
@@ -48,9 +81,14 @@ fn model() -> String {
 
 /// Simulates the excitation job on `model` and reads the trace back.
 fn excite(tag: &str, model: &str) -> Trace {
+    excite_with(tag, model, JOB)
+}
+
+/// Simulates `job` (its model file `model.toml`) on `model` and reads the trace back.
+fn excite_with(tag: &str, model: &str, job: &str) -> Trace {
     let dir = temp_dir(&format!("id-{tag}"));
     std::fs::write(dir.join("model.toml"), model).unwrap();
-    std::fs::write(dir.join("job.toml"), JOB).unwrap();
+    std::fs::write(dir.join("job.toml"), job).unwrap();
     let job = Job::load(&dir.join("job.toml")).unwrap_or_else(|e| panic!("{e}"));
     let path = dir.join("trace.csv");
     simulate(&job, &Builtins, Some(&path), &mut |_, _| {}).unwrap();
@@ -158,4 +196,57 @@ fn a_band_without_a_resonance_and_a_missing_column_are_clear_errors() {
     opts.estimator = Estimator::H1;
     let e = identify_stiffness(&trace, "y", &opts).unwrap_err();
     assert!(e.to_string().contains("y.torque"), "{e}");
+}
+
+#[test]
+fn on_a_traverse_an_axis_with_friction_and_backlash_gives_kl_and_jl_within_a_few_percent() {
+    // The shipped stiffness job with this model file.
+    let shipped = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/jobs/identify-stiffness.toml"),
+    )
+    .unwrap()
+    .replace("../models/xy-x.toml", "model.toml");
+    assert!(shipped.contains("traverse_m_per_s"), "{shipped}");
+    let trace = excite_with("real-axis", REAL_AXIS, &shipped);
+    let r = identify_stiffness(&trace, "x", &StiffnessOptions::new(1.2e-3)).unwrap();
+    let (e_kl, e_jl) = (r.kl_nm_per_rad / 4200.0 - 1.0, r.jl_kgm2 / 2.6e-3 - 1.0);
+    let c = &r.checks;
+    println!(
+        "KL {:.1} ({:+.2} %), JL {:.4e} ({:+.2} %), {} + {} segments, {} reversals cut, \
+         directions {:?} / {:?}, problems {:?}",
+        r.kl_nm_per_rad,
+        100.0 * e_kl,
+        r.jl_kgm2,
+        100.0 * e_jl,
+        c.segments_positive,
+        c.segments_negative,
+        c.reversals_cut,
+        c.kl_positive_nm_per_rad,
+        c.kl_negative_nm_per_rad,
+        c.problems
+    );
+    assert!(r.credible, "{:?}", c.problems);
+    assert_eq!(c.reversals, 0);
+    assert!(c.reversals_cut >= 2);
+    assert!(c.segments_positive >= MIN_SEGMENTS && c.segments_negative >= MIN_SEGMENTS);
+    assert!(e_kl.abs() < 0.03, "KL error {e_kl}");
+    assert!(e_jl.abs() < 0.03, "JL error {e_jl}");
+
+    // The same axis under the reversing excitation (no traverse) is not read as a result.
+    let trace = excite_with("real-axis-reversing", REAL_AXIS, JOB);
+    match identify_stiffness(&trace, "x", &StiffnessOptions::new(1.2e-3)) {
+        Ok(r) => {
+            println!(
+                "reversing: KL {:+.1} %, problems {:?}",
+                100.0 * (r.kl_nm_per_rad / 4200.0 - 1.0),
+                r.checks.problems
+            );
+            assert!(r.checks.reversals > 10);
+            assert!(
+                !r.credible || (r.kl_nm_per_rad / 4200.0 - 1.0).abs() < 0.03,
+                "a wrong result passed as credible"
+            );
+        }
+        Err(e) => println!("reversing: refused: {e}"),
+    }
 }

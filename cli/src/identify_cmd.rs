@@ -95,6 +95,9 @@ pub struct StiffnessArgs {
     /// Frequency resolution, Hz.
     #[arg(long, default_value_t = 0.3)]
     pub resolution_hz: f64,
+    /// Time cut after each reversal (and before the next) from the one-direction windows, s.
+    #[arg(long, default_value_t = 0.2)]
+    pub settle_s: f64,
     /// auto | h1 | instrument.
     #[arg(long, default_value = "auto")]
     pub estimator: String,
@@ -436,6 +439,7 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
     opts.f_min_hz = a.f_min_hz;
     opts.f_max_hz = a.f_max_hz;
     opts.resolution_hz = a.resolution_hz;
+    opts.settle_s = a.settle_s;
     opts.estimator = match a.estimator.as_str() {
         "auto" => Estimator::Auto,
         "h1" => Estimator::H1,
@@ -501,12 +505,25 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
         }
         println!(
             "checks: coherence {:.2} around the anti-resonance, {:.2} around the resonance; \
-             prominence {:.1} / {:.1} dB; {} reversals{}",
+             prominence {:.1} / {:.1} dB; {} reversals{}{}",
             c.coherence_antiresonance,
             c.coherence_resonance,
             c.prominence_antiresonance_db,
             c.prominence_resonance_db,
             c.reversals,
+            if c.reversals_cut > 0 {
+                format!(
+                    " ({} cut out: {} + {} segments from {} + {} windows of positive + negative \
+                     velocity)",
+                    c.reversals_cut,
+                    c.segments_positive,
+                    c.segments_negative,
+                    c.windows_positive,
+                    c.windows_negative
+                )
+            } else {
+                String::new()
+            },
             c.jm_from_response_kgm2
                 .map(|j| format!("; JM from the response above the resonance {j:.4e} kg m^2"))
                 .unwrap_or_default()
@@ -531,7 +548,7 @@ fn quantity_stem(key: &str) -> Option<&str> {
     ["_m_per_s", "_rad_per_s", "_m", "_rad"]
         .iter()
         .find_map(|u| key.strip_suffix(u))
-        .filter(|s| ["amplitude", "velocity", "max_travel"].contains(s))
+        .filter(|s| ["amplitude", "velocity", "max_travel", "traverse"].contains(s))
 }
 
 /// Runs `feedloop excite`.

@@ -28,7 +28,7 @@ use feedloop_trace::TraceWriter;
 
 use super::moves::finish;
 use super::poly::{smoothstep, Builder};
-use super::{per_axis, Ctx, RefState, Trajectory};
+use super::{per_axis, traverse, Ctx, RefState, Trajectory};
 
 /// SplitMix64: a small, well-mixed 64-bit generator (deterministic per seed).
 #[derive(Debug, Clone)]
@@ -147,6 +147,15 @@ fn amplitudes(f: &mut Fields, ctx: &Ctx) -> Result<(Vec<f64>, bool), ConfigError
     }
 }
 
+/// The key an amplitude of either family is reported at.
+fn amplitude_key(is_vel: bool) -> &'static str {
+    if is_vel {
+        "amplitude_m_per_s"
+    } else {
+        "amplitude_m"
+    }
+}
+
 /// `kind = "random_segments"`.
 pub(crate) fn random_segments(
     mut f: Fields,
@@ -169,16 +178,14 @@ pub(crate) fn random_segments(
             "is required: the largest velocity level for at least one axis (or velocity_rad_per_s)",
         ));
     }
-    let travel: Vec<f64> = per_axis(
-        &mut f,
-        "max_travel_m",
-        "max_travel_rad",
-        ctx.axes,
-        Range::Positive,
-    )?
-    .into_iter()
-    .map(|v| v.unwrap_or(f64::INFINITY))
-    .collect();
+    let travel = traverse::read_travel(&mut f, ctx)?;
+    let trav = traverse::read(&mut f, ctx, &travel)?;
+    // On a traverse the carrier uses the travel; the levels keep their own drift within a tenth.
+    let travel: Vec<f64> = if trav.is_some() {
+        travel.iter().map(|t| 0.1 * t).collect()
+    } else {
+        travel
+    };
     let duration_s = f.f64("duration_s", Range::Positive)?;
     let min_s = f.f64("min_segment_s", Range::Positive)?;
     let max_s = f.f64("max_segment_s", Range::Positive)?;
@@ -201,7 +208,6 @@ pub(crate) fn random_segments(
     if let Some(r) = return_s {
         ctx.at_least_periods(&f, "return_s", r, 2.0)?;
     }
-    f.finish()?;
 
     let n = ctx.axes.len();
     let mut rng = SplitMix64::new(seed);
@@ -245,7 +251,13 @@ pub(crate) fn random_segments(
         let back: Vec<f64> = start.iter().zip(b.position()).map(|(s, p)| s - p).collect();
         b.smooth_move(r, &back);
     }
-    Ok(finish("random_segments", ctx, b))
+    let out = finish("random_segments", ctx, b);
+    let out = match trav {
+        Some(spec) => traverse::apply(&f, ctx, &spec, out, "velocity_m_per_s", Some(&vmax))?,
+        None => out,
+    };
+    f.finish()?;
+    Ok(out)
 }
 
 /// `kind = "prbs"`.
@@ -265,7 +277,8 @@ pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Conf
     }
     let periods = f.opt_i64("periods", 1, 10_000)?.unwrap_or(1) as usize;
     let dwell_s = f.f64_or("dwell_after_s", Range::NonNegative, 0.0)?;
-    f.finish()?;
+    let travel = traverse::read_travel(&mut f, ctx)?;
+    let trav = traverse::read(&mut f, ctx, &travel)?;
 
     let n = ctx.axes.len();
     let seq = prbs_sequence(order);
@@ -295,7 +308,16 @@ pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Conf
         b.smooth_move(tr_s, &back);
     }
     b.hold(dwell_s);
-    Ok(finish("prbs", ctx, b))
+    let out = finish("prbs", ctx, b);
+    let out = match trav {
+        Some(spec) => {
+            let vel = is_vel.then_some(amp.as_slice());
+            traverse::apply(&f, ctx, &spec, out, amplitude_key(is_vel), vel)?
+        }
+        None => out,
+    };
+    f.finish()?;
+    Ok(out)
 }
 
 /// A multisine command (kind `multisine`).
@@ -467,7 +489,8 @@ pub(crate) fn multisine(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>,
         ctx.at_least_periods(&f, "fade_s", fade_s, 2.0)?;
     }
     let dwell_s = f.f64_or("dwell_after_s", Range::NonNegative, 0.0)?;
-    f.finish()?;
+    let travel = traverse::read_travel(&mut f, ctx)?;
+    let trav = traverse::read(&mut f, ctx, &travel)?;
 
     let kcount = (k_hi - k_lo + 1) as f64;
     let mut omega = Vec::new();
@@ -504,7 +527,16 @@ pub(crate) fn multisine(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>,
         .map(|i| ms.unit(i as f64 * period / samples as f64)[d].abs())
         .fold(0.0, f64::max);
     ms.scale = amp.iter().map(|a| a / peak).collect();
-    Ok(Box::new(ms))
+    let out: Box<dyn Trajectory> = Box::new(ms);
+    let out = match trav {
+        Some(spec) => {
+            let vel = is_vel.then_some(amp.as_slice());
+            traverse::apply(&f, ctx, &spec, out, amplitude_key(is_vel), vel)?
+        }
+        None => out,
+    };
+    f.finish()?;
+    Ok(out)
 }
 
 /// Writes `traj` sampled every `period_s` from 0 to its end as a trace (format v1): columns
@@ -783,6 +815,97 @@ fade_s = 0.1
             let s = at(tr.as_ref(), k as f64 * 1e-4);
             assert_eq!(x[k].to_bits(), s[0][0].to_bits());
             assert_eq!(xv[k].to_bits(), s[0][1].to_bits());
+        }
+    }
+
+    /// The three kinds, each without and with a traverse of `V` (x) inside `travel` (x).
+    fn traversed_kinds(v: f64, travel: f64) -> Vec<(String, String)> {
+        let tail = format!("\nmax_travel_m = {{ x = {travel} }}");
+        let trav = format!("\ntraverse_m_per_s = {{ x = {v} }}\ntraverse_reversal_s = 0.05");
+        [
+            "kind = \"random_segments\"\nvelocity_m_per_s = { x = 0.01 }\nmin_segment_s = 0.002\nmax_segment_s = 0.006\ntransition_s = 0.001\nduration_s = 4\nseed = 3",
+            "kind = \"prbs\"\namplitude_m_per_s = { x = 0.012 }\norder = 9\nbit_s = 0.004\nperiods = 2",
+            "kind = \"multisine\"\namplitude_m_per_s = { x = 0.015 }\nsignal_period_s = 1\nf_min_hz = 2\nf_max_hz = 200\nperiods = 3",
+        ]
+        .iter()
+        .map(|k| (format!("{k}{tail}"), format!("{k}{tail}{trav}")))
+        .collect()
+    }
+
+    #[test]
+    fn on_a_traverse_the_axis_reverses_only_in_the_turns_and_stays_within_its_travel() {
+        let (v, travel, tr) = (0.02, 0.012, 0.05);
+        for (plain, text) in traversed_kinds(v, travel) {
+            let exc = built(&plain, &["x", "y"]);
+            let tot = built(&text, &["x", "y"]);
+            let start = at(tot.as_ref(), 0.0)[0][0];
+            assert!(tot.duration_s() > exc.duration_s(), "{text}");
+            let (mut turns, mut prev_dir, mut passes_checked) = (0, 0.0, 0);
+            let mut prev_sign = 0.0;
+            let dt = 1e-4;
+            let n = (tot.duration_s() / dt) as usize;
+            for k in 0..=n {
+                let t = k as f64 * dt;
+                let p = at(tot.as_ref(), t);
+                let e = at(exc.as_ref(), t - tr);
+                // y has no traverse: it is the excitation alone, delayed by the first ramp.
+                assert_eq!(p[1][0].to_bits(), e[1][0].to_bits());
+                assert!(
+                    (p[0][0] - start).abs() <= travel * (1.0 + 1e-9),
+                    "{text}: t {t}"
+                );
+                let carrier = p[0][1] - e[0][1];
+                let in_pass = (carrier.abs() - v).abs() < 1e-9 * v;
+                let sign = p[0][1].signum();
+                if in_pass {
+                    passes_checked += 1;
+                    assert_eq!(
+                        sign,
+                        carrier.signum(),
+                        "{text}: reversal within a pass at {t} s"
+                    );
+                    assert!(p[0][1].abs() > 0.2 * v, "{text}: {t} s");
+                    if prev_dir != 0.0 && prev_dir != carrier.signum() {
+                        turns += 1;
+                    }
+                    prev_dir = carrier.signum();
+                } else if p[0][1] != 0.0 && prev_sign != 0.0 && sign != prev_sign {
+                    // a sign change outside the passes: only in a turn (or the start and stop)
+                    assert!(carrier.abs() < v, "{text}: {t} s");
+                }
+                if p[0][1] != 0.0 {
+                    prev_sign = sign;
+                }
+            }
+            assert!(turns >= 2, "{text}: {turns} turns");
+            assert!(passes_checked > n / 2, "{text}");
+            check_final_hold(tot.as_ref());
+        }
+    }
+
+    #[test]
+    fn an_excitation_not_below_its_traverse_is_refused_at_its_amplitude() {
+        for (_, text) in traversed_kinds(0.01, 0.02) {
+            let key = if text.contains("random_segments") {
+                "trajectory.velocity_m_per_s"
+            } else {
+                "trajectory.amplitude_m_per_s"
+            };
+            let e = refused_at(&text, &["x"], key);
+            assert!(e.to_string().contains("below"), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_traverse_without_room_or_without_a_travel_is_refused() {
+        for (_, text) in traversed_kinds(0.02, 0.001) {
+            refused_at(&text, &["x"], "trajectory.max_travel_m");
+            let no_travel: String = text
+                .lines()
+                .filter(|l| !l.starts_with("max_travel_m"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            refused_at(&no_travel, &["x"], "trajectory.max_travel_m");
         }
     }
 }

@@ -41,6 +41,7 @@ pub mod jet;
 mod moves;
 pub mod path_index;
 pub mod poly;
+pub mod traverse;
 pub mod trig;
 
 pub use excitation::write_excitation_csv;

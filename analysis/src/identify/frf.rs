@@ -30,10 +30,29 @@ pub fn welch_frf(
     nseg: usize,
 ) -> Result<Frf, IdentifyError> {
     let n = u.len().min(y.len());
-    if nseg < 16 || n < nseg {
+    welch_frf_windows(u, y, r, dt, nseg, &[(0, n)]).map(|(f, _)| f)
+}
+
+/// [`welch_frf`] averaged over the segments that lie wholly inside one of `windows` (sample
+/// ranges `start..end`; no segment straddles two). Also returns the segments per window.
+pub fn welch_frf_windows(
+    u: &[f64],
+    y: &[f64],
+    r: Option<&[f64]>,
+    dt: f64,
+    nseg: usize,
+    windows: &[(usize, usize)],
+) -> Result<(Frf, Vec<usize>), IdentifyError> {
+    let n = u.len().min(y.len());
+    let longest = windows
+        .iter()
+        .map(|(a, b)| b.min(&n).saturating_sub(*a))
+        .max()
+        .unwrap_or(0);
+    if nseg < 16 || longest < nseg {
         return Err(IdentifyError::Invalid(format!(
-            "the record holds {n} samples, fewer than one FFT segment of {nseg}; record longer or \
-             lower the resolution"
+            "the record (its longest analysed window) holds {longest} samples, fewer than one FFT \
+             segment of {nseg}; record longer or lower the resolution"
         )));
     }
     let hop = nseg / 2;
@@ -58,22 +77,28 @@ pub fn welch_frf(
         fft.process(&mut buf);
         buf
     };
-    let mut start = 0;
-    while start + nseg <= n {
-        let fu = seg_fft(&u[start..start + nseg]);
-        let fy = seg_fft(&y[start..start + nseg]);
-        let fr = r.map(|r| seg_fft(&r[start..start + nseg]));
-        for k in 0..nf {
-            suu[k] += fu[k].norm_sqr();
-            syy[k] += fy[k].norm_sqr();
-            suy[k] += fu[k].conj() * fy[k];
-            if let Some(fr) = &fr {
-                sru[k] += fr[k].conj() * fu[k];
-                sry[k] += fr[k].conj() * fy[k];
+    let mut per_window = Vec::with_capacity(windows.len());
+    for &(w0, w1) in windows {
+        let w1 = w1.min(n);
+        let before = segments;
+        let mut start = w0;
+        while start + nseg <= w1 {
+            let fu = seg_fft(&u[start..start + nseg]);
+            let fy = seg_fft(&y[start..start + nseg]);
+            let fr = r.map(|r| seg_fft(&r[start..start + nseg]));
+            for k in 0..nf {
+                suu[k] += fu[k].norm_sqr();
+                syy[k] += fy[k].norm_sqr();
+                suy[k] += fu[k].conj() * fy[k];
+                if let Some(fr) = &fr {
+                    sru[k] += fr[k].conj() * fu[k];
+                    sry[k] += fr[k].conj() * fy[k];
+                }
             }
+            segments += 1;
+            start += hop;
         }
-        segments += 1;
-        start += hop;
+        per_window.push(segments - before);
     }
     let df = 1.0 / (nseg as f64 * dt);
     let mut f_hz = Vec::with_capacity(nf);
@@ -100,10 +125,13 @@ pub fn welch_frf(
         };
         coherence.push(c);
     }
-    Ok(Frf {
-        f_hz,
-        h,
-        coherence,
-        segments,
-    })
+    Ok((
+        Frf {
+            f_hz,
+            h,
+            coherence,
+            segments,
+        },
+        per_window,
+    ))
 }

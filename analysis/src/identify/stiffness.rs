@@ -10,7 +10,7 @@
 use feedloop_trace::Trace;
 use serde::Serialize;
 
-use super::frf::{welch_frf, Frf};
+use super::frf::{welch_frf_windows, Frf};
 use super::IdentifyError;
 
 /// Which frequency response to read.
@@ -52,10 +52,13 @@ pub struct StiffnessOptions {
     pub estimator: Estimator,
     /// Which FRF (only torque -> velocity is accepted).
     pub frf: FrfKind,
+    /// Time cut after each reversal (and before the next) from the one-direction windows, s.
+    pub settle_s: f64,
 }
 
 impl StiffnessOptions {
-    /// Defaults for a motor inertia: band 5 Hz .. 0.4 fs, 0.3 Hz resolution, 6 dB, auto.
+    /// Defaults for a motor inertia: band 5 Hz .. 0.4 fs, 0.3 Hz resolution, 6 dB, auto,
+    /// 0.2 s settling after a reversal.
     pub fn new(jm_kgm2: f64) -> Self {
         Self {
             jm_kgm2,
@@ -65,6 +68,7 @@ impl StiffnessOptions {
             prominence_db: 6.0,
             estimator: Estimator::Auto,
             frf: FrfKind::TorqueToVelocity,
+            settle_s: 0.2,
         }
     }
 }
@@ -113,6 +117,9 @@ pub const MIN_SEGMENTS: usize = 4;
 pub const MIN_COHERENCE: f64 = 0.5;
 /// Least distance between the two picks, and of each pick from the band's edges, in bins.
 pub const MIN_PICK_BINS: f64 = 3.0;
+/// Largest relative difference between the KL of the two directions of a traverse (each then
+/// lies within 1 % of their mean).
+pub const MAX_DIRECTION_SPREAD: f64 = 0.02;
 /// Largest factor between the given JM and the one the response shows above the resonance.
 pub const JM_FACTOR: f64 = 2.0;
 
@@ -142,6 +149,23 @@ pub struct StiffnessChecks {
     /// Velocity reversals in the analysed data (the nut crossing its backlash, friction
     /// changing sign: each mixes another plant into the response).
     pub reversals: usize,
+    /// Reversals cut out of the record with their settling (0 when the whole record is read).
+    pub reversals_cut: usize,
+    /// One-direction windows (positive velocity) whose segments were averaged.
+    pub windows_positive: usize,
+    /// One-direction windows (negative velocity) whose segments were averaged.
+    pub windows_negative: usize,
+    /// Averaged segments from windows of positive velocity.
+    pub segments_positive: usize,
+    /// Averaged segments from windows of negative velocity.
+    pub segments_negative: usize,
+    /// Averaged segments per analysed window (not serialised).
+    #[serde(skip)]
+    pub per_window: Vec<usize>,
+    /// KL from the windows of positive velocity alone (when they hold enough segments).
+    pub kl_positive_nm_per_rad: Option<f64>,
+    /// KL from the windows of negative velocity alone.
+    pub kl_negative_nm_per_rad: Option<f64>,
     /// What is not credible, with the figures; empty when the result passes.
     pub problems: Vec<String>,
     /// What to change for a credible result.
@@ -176,6 +200,37 @@ pub fn count_reversals(v: &[f64]) -> usize {
         sign = s;
     }
     n
+}
+
+/// One-direction windows of `v`: sample ranges where `v` keeps one sign beyond a band of 2 % of
+/// its largest magnitude, less `settle` samples at both ends (the reversal or stop and its
+/// settling), as `(start, end, sign)`.
+pub fn one_direction_windows(v: &[f64], settle: usize) -> Vec<(usize, usize, i8)> {
+    let peak = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let band = 0.02 * peak;
+    let sign = |x: f64| -> i8 {
+        if x > band {
+            1
+        } else if x < -band {
+            -1
+        } else {
+            0
+        }
+    };
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < v.len() {
+        let s = sign(v[k]);
+        let mut e = k + 1;
+        while e < v.len() && sign(v[e]) == s {
+            e += 1;
+        }
+        if s != 0 && e - k > 2 * settle {
+            out.push((k + settle, e - settle, s));
+        }
+        k = e;
+    }
+    out
 }
 
 /// Identifies KL and JL from a trace of axis `axis` (columns `A.torque`, `A.motor_vel`, and
@@ -214,8 +269,94 @@ pub fn identify_stiffness(
             "`{axis}.cmd` never moves: no instrument; excite through the command or use --estimator h1"
         )));
     }
-    let mut result = identify_stiffness_from(u, y, r.as_deref(), trace.period_s(), opts)?;
-    result.checks.reversals = count_reversals(y);
+    let dt = trace.period_s();
+    let nseg = (1.0 / (opts.resolution_hz * dt)).round() as usize;
+    let settle = if opts.settle_s.is_finite() && opts.settle_s >= 0.0 {
+        (opts.settle_s / dt).round() as usize
+    } else {
+        return Err(IdentifyError::Invalid(format!(
+            "the settling time after a reversal (--settle-s, settle_s) must be >= 0 s, got {}",
+            opts.settle_s
+        )));
+    };
+    let windows: Vec<(usize, usize, i8)> = one_direction_windows(y, settle)
+        .into_iter()
+        .filter(|(a, b, _)| b - a >= nseg.max(1))
+        .collect();
+    let possible: usize = windows
+        .iter()
+        .map(|(a, b, _)| (b - a - nseg) / (nseg / 2).max(1) + 1)
+        .sum();
+    let all_reversals = count_reversals(y);
+    if possible >= MIN_SEGMENTS && all_reversals > 0 {
+        // One-direction windows only: no segment holds a reversal or its settling.
+        let ranges: Vec<(usize, usize)> = windows.iter().map(|(a, b, _)| (*a, *b)).collect();
+        let mut result = identify_stiffness_windows(u, y, r.as_deref(), dt, opts, &ranges)?;
+        let (per_window, c) = (result.checks.per_window.clone(), &mut result.checks);
+        for ((_, _, s), n) in windows.iter().zip(&per_window) {
+            if *n == 0 {
+                continue;
+            }
+            if *s > 0 {
+                c.windows_positive += 1;
+                c.segments_positive += n;
+            } else {
+                c.windows_negative += 1;
+                c.segments_negative += n;
+            }
+        }
+        c.reversals_cut = all_reversals;
+        c.reversals = 0;
+        // Each direction alone must give the same pair: backlash, friction or noise that the
+        // average hides show as a disagreement.
+        let mut kl_dir = [None, None];
+        for (i, dir) in [1i8, -1].into_iter().enumerate() {
+            let own: Vec<(usize, usize)> = windows
+                .iter()
+                .filter(|w| w.2 == dir)
+                .map(|(a, b, _)| (*a, *b))
+                .collect();
+            let n: usize = own
+                .iter()
+                .map(|(a, b)| (b - a - nseg) / (nseg / 2).max(1) + 1)
+                .sum();
+            if n < MIN_SEGMENTS {
+                continue;
+            }
+            let name = if dir > 0 { "positive" } else { "negative" };
+            match identify_stiffness_windows(u, y, r.as_deref(), dt, opts, &own) {
+                Ok(one) => kl_dir[i] = Some(one.kl_nm_per_rad),
+                Err(e) => result.checks.problems.push(format!(
+                    "the {name} direction alone gives no pair ({e}): the average of both is not \
+                     reproducible"
+                )),
+            }
+        }
+        let c = &mut result.checks;
+        c.kl_positive_nm_per_rad = kl_dir[0];
+        c.kl_negative_nm_per_rad = kl_dir[1];
+        if let [Some(kp), Some(kn)] = kl_dir {
+            let apart = (kp - kn).abs() / (0.5 * (kp + kn)).abs();
+            if apart > MAX_DIRECTION_SPREAD {
+                c.problems.push(format!(
+                    "the positive direction gives KL {kp:.1} N m/rad, the negative {kn:.1} \
+                     ({:.1} % apart, at most {:.0} %): the response depends on more than the \
+                     two-mass plant (backlash opening, friction) or on noise",
+                    100.0 * apart,
+                    100.0 * MAX_DIRECTION_SPREAD
+                ));
+                c.advice.push(
+                    "lower the excitation amplitude (keeps the nut on one flank) and record \
+                     longer (averages the noise)"
+                        .into(),
+                );
+            }
+        }
+        result.credible = result.checks.credible();
+        return Ok(result);
+    }
+    let mut result = identify_stiffness_from(u, y, r.as_deref(), dt, opts)?;
+    result.checks.reversals = all_reversals;
     if result.checks.reversals > 0 {
         result.checks.advice.push(format!(
             "the axis reversed {} times in the record: backlash and friction then mix into the \
@@ -237,6 +378,20 @@ pub fn identify_stiffness_from(
     dt: f64,
     opts: &StiffnessOptions,
 ) -> Result<StiffnessResult, IdentifyError> {
+    let n = u.len().min(y.len());
+    identify_stiffness_windows(u, y, r, dt, opts, &[(0, n)])
+}
+
+/// [`identify_stiffness_from`] on the Welch segments that lie inside `windows` (sample ranges
+/// `start..end`; e.g. the one-direction windows of a record on a traverse).
+pub fn identify_stiffness_windows(
+    u: &[f64],
+    y: &[f64],
+    r: Option<&[f64]>,
+    dt: f64,
+    opts: &StiffnessOptions,
+    windows: &[(usize, usize)],
+) -> Result<StiffnessResult, IdentifyError> {
     if !(opts.jm_kgm2.is_finite() && opts.jm_kgm2 > 0.0) {
         return Err(IdentifyError::Invalid(format!(
             "the motor inertia must be > 0 kg m^2, got {}",
@@ -249,7 +404,7 @@ pub fn identify_stiffness_from(
         )));
     }
     let nseg = (1.0 / (opts.resolution_hz * dt)).round() as usize;
-    let frf = welch_frf(u, y, r, dt, nseg)?;
+    let (frf, per_window) = welch_frf_windows(u, y, r, dt, nseg, windows)?;
     let fs = 1.0 / dt;
     let f_hi = opts.f_max_hz.unwrap_or(0.4 * fs).min(0.5 * fs);
     let f_lo = opts.f_min_hz.max(frf.f_hz[1]);
@@ -360,7 +515,7 @@ pub fn identify_stiffness_from(
         .filter(|(f, _)| **f >= c_lo && **f <= c_hi && (**f - fa).abs() > 0.05 * fa)
         .map(|(_, c)| *c)
         .fold(1.0, f64::min);
-    let checks = judge(
+    let mut checks = judge(
         &frf,
         &la,
         opts,
@@ -368,6 +523,7 @@ pub fn identify_stiffness_from(
         [fa, fr],
         [prominence_db(ka, true), prominence_db(kr, false)],
     );
+    checks.per_window = per_window;
     Ok(StiffnessResult {
         kl_nm_per_rad: kl,
         jl_kgm2: jl,
@@ -514,4 +670,56 @@ fn judge(
         }
     }
     c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::frf::welch_frf_windows;
+    use super::*;
+
+    #[test]
+    fn one_direction_windows_cut_the_reversals_and_their_settling() {
+        // +1 for 1000 samples, a reversal through zero, -1 for 1000, noise below the band.
+        let mut v: Vec<f64> = (0..1000)
+            .map(|k| 1.0 + 0.01 * ((k % 7) as f64 - 3.0))
+            .collect();
+        v.extend((0..20).map(|k| 1.0 - k as f64 / 10.0));
+        v.extend((0..1000).map(|k| -1.0 + 0.01 * ((k % 5) as f64 - 2.0)));
+        let w = one_direction_windows(&v, 100);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert_eq!((w[0].0, w[0].2), (100, 1));
+        assert_eq!(w[1].2, -1);
+        // Every kept sample keeps its window's sign, at least `settle` from the reversal.
+        for (a, b, s) in &w {
+            assert!(v[*a..*b].iter().all(|x| x.signum() == f64::from(*s)));
+        }
+        let zero = v.iter().position(|x| *x <= 0.0).unwrap();
+        assert!(w[0].1 + 100 <= zero && zero + 100 <= w[1].0, "{w:?} {zero}");
+        assert_eq!(count_reversals(&v), 1);
+    }
+
+    #[test]
+    fn welch_segments_stay_inside_their_windows() {
+        let n = 3000;
+        let u: Vec<f64> = (0..n).map(|k| ((k * 7919) % 101) as f64 - 50.0).collect();
+        let y: Vec<f64> = u.iter().map(|x| 2.0 * x).collect();
+        // 1000 samples hold 9 segments of 200 (hop 100); 300 hold 2; 150 none.
+        let (frf, per) = welch_frf_windows(
+            &u,
+            &y,
+            None,
+            1e-3,
+            200,
+            &[(0, 1000), (1200, 1500), (1500, 1650)],
+        )
+        .unwrap();
+        assert_eq!(per, vec![9, 2, 0]);
+        assert_eq!(frf.segments, 11);
+        assert!(
+            frf.h[10].re > 1.99 && frf.h[10].re < 2.01,
+            "{:?}",
+            frf.h[10]
+        );
+        assert!(welch_frf_windows(&u, &y, None, 1e-3, 200, &[(0, 150)]).is_err());
+    }
 }
