@@ -19,7 +19,9 @@ fn a_shared_library_plugin_swaps_in_and_out_of_a_running_loop_and_bad_libraries_
     let wrong = feedloop_tests::build_example_plugin(&dir.join("t-wrong"), true);
     let job = write_long_circle_job(&dir, "lib");
     let params = dir.join("p.toml");
-    std::fs::write(&params, "kv_nms_per_rad = 5.5\n").unwrap();
+    // softer than the job's 5.0: at 2 kHz the job's own loop has only 3.4 dB gain margin, and a
+    // stiffer retune would be refused as marginal
+    std::fs::write(&params, "kv_nms_per_rad = 4.5\n").unwrap();
     let (mut run, inst, out) = start_realtime_run(&dir, &job, "lib", Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let swap = |extra: &[String]| swap_x_velocity(&inst, extra);

@@ -19,7 +19,9 @@ fn swapping_the_velocity_loop_while_running_is_bumpless_and_bad_requests_are_ref
     let p1 = dir.join("soft.toml");
     let p2 = dir.join("stiff.toml");
     std::fs::write(&p1, "kv_nms_per_rad = 4.0\ntv_s = 0.006\n").unwrap();
-    std::fs::write(&p2, "kv_nms_per_rad = 6.0\ntv_s = 0.004\n").unwrap();
+    // at most the job's own gain: at 2 kHz its loop has only 3.4 dB gain margin, and a stiffer
+    // retune would be refused as marginal
+    std::fs::write(&p2, "kv_nms_per_rad = 4.8\ntv_s = 0.005\n").unwrap();
     let (mut run, inst, out) = start_realtime_run(&dir, &job, "swap", Duration::from_millis(300));
     let s = |p: &Path| p.to_str().unwrap().to_string();
     for i in 0..SWAPS {

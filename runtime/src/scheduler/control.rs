@@ -387,6 +387,7 @@ impl ControlPlane {
             gains.push(g);
         }
         let model = LoopCheck {
+            initial: gains.clone(),
             gains,
             delays_s: (0..job.axes.len())
                 // this runtime applies a command within the period of its sample: the hold
@@ -733,6 +734,8 @@ fn respond(req: &CtlActive, answer: &Answer) {
 struct LoopCheck {
     /// Per axis, what each stage's current controller contributes.
     gains: Vec<[LoopGains; 4]>,
+    /// The same for the chain the job started with (the loop its operator accepted).
+    initial: Vec<[LoopGains; 4]>,
     /// Per axis, the transport delay of the margin check (the model's own), s.
     delays_s: Vec<f64>,
 }
@@ -835,13 +838,15 @@ fn judge(
         Some((pm, gm)) => {
             check.margins = Some((pm, gm));
             if let Some(why) = loop_model::margin_failure(pm, gm) {
-                // a loop already short of margin is not blamed on a swap that does not make it
-                // worse (a feedforward swap, a softer gain)
-                let before = margins_of(&model.gains[job.axis]);
-                let no_worse = before.is_some_and(|(p0, g0)| pm >= p0 - 0.5 && gm >= g0 - 0.1);
+                // a loop already short of margin (now, or as the job started it) is not blamed on
+                // a swap that does not make it worse (a feedforward swap, a softer gain)
+                let no_worse = [&model.gains[job.axis], &model.initial[job.axis]]
+                    .into_iter()
+                    .filter_map(|g| margins_of(g))
+                    .any(|(p0, g0)| pm >= p0 - 0.5 && gm >= g0 - 0.1);
                 if no_worse {
                     check.warnings.push(format!(
-                        "{why}: so was the loop before this swap, which does not make it worse"
+                        "{why}: no worse than the loop before this swap or as the job started it"
                     ));
                 } else if !job.force {
                     return Err(SwapError::Unsafe(why));
