@@ -842,7 +842,7 @@ fn judge(
                 // a swap that does not make it worse (a feedforward swap, a softer gain)
                 let no_worse = [&model.gains[job.axis], &model.initial[job.axis]]
                     .into_iter()
-                    .filter_map(|g| margins_of(g))
+                    .filter_map(margins_of)
                     .any(|(p0, g0)| pm >= p0 - 0.5 && gm >= g0 - 0.1);
                 if no_worse {
                     check.warnings.push(format!(
