@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use feedloop_model::job::Job;
 use feedloop_model::model::PlantParams;
+use feedloop_model::Stage;
 use nalgebra::{DMatrix, DVector};
 use num_complex::Complex64;
 
@@ -50,16 +51,17 @@ pub struct LoopGains {
 }
 
 impl LoopGains {
-    /// The loop's gains from its stages' (position stage first for Kp, velocity stage first for
-    /// Kv and Tv, as given in `stages`' order); `None` without a Kp or a Kv.
-    pub fn combine(stages: &[LoopGains]) -> Option<Gains> {
-        let kp = stages.iter().find_map(|s| s.kp_per_s)?;
-        let kv = stages.iter().find_map(|s| s.kv)?;
-        let tv = stages.iter().find_map(|s| s.tv_s).unwrap_or(0.0);
+    /// The loop's gains from an axis' stages (indexed by [`Stage::index`]): Kp from the position
+    /// stage, else another; Kv and Tv from the velocity stage, else another. `None` without a Kp
+    /// or a Kv.
+    pub fn combine(stages: &[LoopGains; 4]) -> Option<Gains> {
+        let first = |lead: Stage, get: fn(&LoopGains) -> Option<f64>| {
+            get(&stages[lead.index()]).or_else(|| stages.iter().find_map(get))
+        };
         Some(Gains {
-            kp_per_s: kp,
-            kv_nms_per_rad: kv,
-            tv_s: tv,
+            kp_per_s: first(Stage::Position, |s| s.kp_per_s)?,
+            kv_nms_per_rad: first(Stage::Velocity, |s| s.kv)?,
+            tv_s: first(Stage::Velocity, |s| s.tv_s).unwrap_or(0.0),
         })
     }
 }
@@ -380,8 +382,10 @@ mod tests {
             tv_s: Some(0.004),
             ..Default::default()
         };
-        let g = LoopGains::combine(&[p, v]).unwrap();
+        let none = LoopGains::default();
+        // stages in Stage::ALL order: position, feedforward, compensator, velocity
+        let g = LoopGains::combine(&[p, none, none, v]).unwrap();
         assert_eq!((g.kp_per_s, g.kv_nms_per_rad, g.tv_s), (40.0, 5.0, 0.004));
-        assert!(LoopGains::combine(&[v]).is_none());
+        assert!(LoopGains::combine(&[none, none, none, v]).is_none());
     }
 }

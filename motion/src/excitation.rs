@@ -252,10 +252,7 @@ pub(crate) fn random_segments(
         b.smooth_move(r, &back);
     }
     let out = finish("random_segments", ctx, b);
-    let out = match trav {
-        Some(spec) => traverse::apply(&f, ctx, &spec, out, "velocity_m_per_s", Some(&vmax))?,
-        None => out,
-    };
+    let out = traverse::apply(&f, ctx, trav, out, "velocity_m_per_s", Some(&vmax))?;
     f.finish()?;
     Ok(out)
 }
@@ -309,13 +306,8 @@ pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Conf
     }
     b.hold(dwell_s);
     let out = finish("prbs", ctx, b);
-    let out = match trav {
-        Some(spec) => {
-            let vel = is_vel.then_some(amp.as_slice());
-            traverse::apply(&f, ctx, &spec, out, amplitude_key(is_vel), vel)?
-        }
-        None => out,
-    };
+    let vel = is_vel.then_some(amp.as_slice());
+    let out = traverse::apply(&f, ctx, trav, out, amplitude_key(is_vel), vel)?;
     f.finish()?;
     Ok(out)
 }
@@ -528,13 +520,8 @@ pub(crate) fn multisine(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>,
         .fold(0.0, f64::max);
     ms.scale = amp.iter().map(|a| a / peak).collect();
     let out: Box<dyn Trajectory> = Box::new(ms);
-    let out = match trav {
-        Some(spec) => {
-            let vel = is_vel.then_some(amp.as_slice());
-            traverse::apply(&f, ctx, &spec, out, amplitude_key(is_vel), vel)?
-        }
-        None => out,
-    };
+    let vel = is_vel.then_some(amp.as_slice());
+    let out = traverse::apply(&f, ctx, trav, out, amplitude_key(is_vel), vel)?;
     f.finish()?;
     Ok(out)
 }

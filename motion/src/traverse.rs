@@ -141,17 +141,20 @@ impl Trajectory for Traversed {
     }
 }
 
-/// Puts `exc` on the traverse `spec`. Refuses (at `amplitude_key`) an excitation whose velocity
+/// Puts `exc` on the traverse `spec` (returns it as it is without one). Refuses (at `amplitude_key`) an excitation whose velocity
 /// is not below the traverse (its velocity amplitude `amplitude_per_s` when it has one, and its
 /// sampled velocity), and (at `max_travel_m`) a travel too short for a pass.
 pub(crate) fn apply(
     f: &Fields,
     ctx: &Ctx,
-    spec: &TraverseSpec,
+    spec: Option<TraverseSpec>,
     exc: Box<dyn Trajectory>,
     amplitude_key: &str,
     amplitude_per_s: Option<&[f64]>,
 ) -> Result<Box<dyn Trajectory>, ConfigError> {
+    let Some(spec) = spec else {
+        return Ok(exc);
+    };
     let n = ctx.axes.len();
     let dt = ctx.period_s;
     let d = exc.duration_s();

@@ -811,15 +811,8 @@ fn judge(
 ) -> Result<Checked, SwapError> {
     let ctx = &contexts[job.axis];
     let delay = model.delays_s[job.axis];
-    // Kp from the position stage first, Kv and Tv from the velocity stage first.
     let margins_of = |stages: &[LoopGains; 4]| {
-        let order = [
-            stages[Stage::Position.index()],
-            stages[Stage::Velocity.index()],
-            stages[Stage::Feedforward.index()],
-            stages[Stage::Compensator.index()],
-        ];
-        LoopGains::combine(&order)
+        LoopGains::combine(stages)
             .and_then(|g| loop_model::margins(&ctx.plant, g, ctx.period_s, delay))
     };
     let mut stages = model.gains[job.axis];
