@@ -258,6 +258,19 @@ fn an_unknown_grid_parameter_is_answered_with_the_nearest_one() {
 fn trace_import_errors_name_the_source_file_and_its_line() {
     let d = scratch("importline");
     let src = d.join("export.csv");
+    let out = d.join("imported.csv");
+    let import = || {
+        fails(&[
+            "trace".as_ref(),
+            "import".as_ref(),
+            "--from".as_ref(),
+            src.as_os_str(),
+            "--map".as_ref(),
+            "t=time_ms*0.001,x.cmd=pos_mm*0.001,x.load=pos_mm*0.001".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ])
+    };
     // three comment lines, a header, then rows; the time steps back on line 8 of the source
     // (line 7 of the trace it would write)
     std::fs::write(
@@ -265,17 +278,7 @@ fn trace_import_errors_name_the_source_file_and_its_line() {
         "# exported by a drive tool\n# units: ms, mm\n# axis X\ntime_ms,pos_mm\n0,0\n1,1\n2,2\n1.5,3\n4,4\n",
     )
     .unwrap();
-    let out = d.join("imported.csv");
-    let err = fails(&[
-        "trace".as_ref(),
-        "import".as_ref(),
-        "--from".as_ref(),
-        src.as_os_str(),
-        "--map".as_ref(),
-        "t=time_ms*0.001,x.cmd=pos_mm*0.001,x.load=pos_mm*0.001".as_ref(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ]);
+    let err = import();
     assert!(
         err.contains(&format!("{}: line 8:", src.display())),
         "the source and its line: {err}"
@@ -284,16 +287,7 @@ fn trace_import_errors_name_the_source_file_and_its_line() {
     assert!(!err.contains("imported.csv"), "the output is named: {err}");
     // uneven sampling: the row whose step is off, on the source's line
     std::fs::write(&src, "time_ms;pos_mm\n\n0;0\n1;1\n2;2\n3;3\n5;4\n6;5\n").unwrap();
-    let err = fails(&[
-        "trace".as_ref(),
-        "import".as_ref(),
-        "--from".as_ref(),
-        src.as_os_str(),
-        "--map".as_ref(),
-        "t=time_ms*0.001,x.cmd=pos_mm*0.001,x.load=pos_mm*0.001".as_ref(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ]);
+    let err = import();
     assert!(
         err.contains(&format!("{}: line 7:", src.display())) && err.contains("uneven"),
         "{err}"
