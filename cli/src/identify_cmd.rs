@@ -528,6 +528,12 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
                 .map(|j| format!("; JM from the response above the resonance {j:.4e} kg m^2"))
                 .unwrap_or_default()
         );
+        if let (Some(k), Some(j)) = (c.kl_ci_pct, c.jl_ci_pct) {
+            println!(
+                "two-mass fit over {} bins around the picks: KL +-{k:.2} %, JL +-{j:.2} % (95 %)",
+                c.fit_bins
+            );
+        }
         for p in &c.problems {
             println!("NOT CREDIBLE (kept with --force): {p}");
         }

@@ -17,6 +17,26 @@ pub struct Frf {
     pub coherence: Vec<f64>,
     /// Number of averaged segments.
     pub segments: usize,
+    /// With an instrument `r`: the coherences of `r` with the input and with the output
+    /// (`|S_ru|^2 / (S_rr S_uu)`, `|S_ry|^2 / (S_rr S_yy)`), the shares of each that the
+    /// instrument explains; they set the variance of `S_ry / S_ru`. Empty without instrument.
+    pub coherence_instrument: Vec<(f64, f64)>,
+}
+
+impl Frf {
+    /// How much of the estimate at bin `k` is signal, 0..1, as a coherence: the ordinary
+    /// coherence for H1; with an instrument `1 / (1 + v)`, `v = (1 - g_u) / g_u + (1 - g_y) / g_y`
+    /// the relative variance of `S_ry / S_ru` from the instrument's coherences with input and
+    /// output (feedback noise that the ordinary coherence counts as signal counts as noise).
+    pub fn quality(&self, k: usize) -> f64 {
+        match self.coherence_instrument.get(k) {
+            Some(&(gu, gy)) => {
+                let (gu, gy) = (gu.clamp(1e-12, 1.0), gy.clamp(1e-12, 1.0));
+                1.0 / (1.0 + (1.0 - gu) / gu + (1.0 - gy) / gy)
+            }
+            None => self.coherence.get(k).copied().unwrap_or(0.0),
+        }
+    }
 }
 
 /// Welch cross spectra of `u` (input), `y` (output) and optionally `r` (instrument).
@@ -66,6 +86,7 @@ pub fn welch_frf_windows(
     let mut suy = vec![Complex64::new(0.0, 0.0); nf];
     let mut sru = vec![Complex64::new(0.0, 0.0); nf];
     let mut sry = vec![Complex64::new(0.0, 0.0); nf];
+    let mut srr = vec![0.0; nf];
     let mut segments = 0;
     let seg_fft = |x: &[f64]| -> Vec<Complex64> {
         let mean = x.iter().sum::<f64>() / x.len() as f64;
@@ -93,6 +114,7 @@ pub fn welch_frf_windows(
                 if let Some(fr) = &fr {
                     sru[k] += fr[k].conj() * fu[k];
                     sry[k] += fr[k].conj() * fy[k];
+                    srr[k] += fr[k].norm_sqr();
                 }
             }
             segments += 1;
@@ -104,7 +126,18 @@ pub fn welch_frf_windows(
     let mut f_hz = Vec::with_capacity(nf);
     let mut h = Vec::with_capacity(nf);
     let mut coherence = Vec::with_capacity(nf);
+    let mut coherence_instrument = Vec::new();
     for k in 0..nf {
+        if r.is_some() {
+            let c = |s: Complex64, p: f64| {
+                if srr[k] > 0.0 && p > 0.0 {
+                    s.norm_sqr() / (srr[k] * p)
+                } else {
+                    0.0
+                }
+            };
+            coherence_instrument.push((c(sru[k], suu[k]), c(sry[k], syy[k])));
+        }
         f_hz.push(k as f64 * df);
         let hk = if r.is_some() {
             if sru[k].norm() > 0.0 {
@@ -131,6 +164,7 @@ pub fn welch_frf_windows(
             h,
             coherence,
             segments,
+            coherence_instrument,
         },
         per_window,
     ))

@@ -10,6 +10,8 @@
 use feedloop_trace::Trace;
 use serde::Serialize;
 
+use rustfft::num_complex::Complex64;
+
 use super::frf::{welch_frf_windows, Frf};
 use super::IdentifyError;
 
@@ -113,13 +115,19 @@ pub struct StiffnessResult {
 /// Least averaged Welch segments for a coherence that means something (with one segment it is
 /// 1 whatever the data).
 pub const MIN_SEGMENTS: usize = 4;
-/// Least median coherence in the band around each pick.
-pub const MIN_COHERENCE: f64 = 0.5;
+/// Largest relative standard error of the averaged response around each pick,
+/// `sqrt((1 - g) / (2 N g))` for the median coherence `g` over `N` segments: 0.25 is about
+/// 2 dB, a third of the prominence an extremum needs ([`StiffnessOptions::prominence_db`]'s
+/// default), so that the picks stand out of the scatter.
+pub const MAX_BIN_ERROR: f64 = 0.25;
 /// Least distance between the two picks, and of each pick from the band's edges, in bins.
 pub const MIN_PICK_BINS: f64 = 3.0;
 /// Largest relative difference between the KL of the two directions of a traverse (each then
 /// lies within 1 % of their mean).
 pub const MAX_DIRECTION_SPREAD: f64 = 0.02;
+/// Largest 95 % confidence half-width of KL and JL from the two-mass fit, % (the accuracy a
+/// commissioning result is asked for).
+pub const MAX_CI_PCT: f64 = 1.0;
 /// Largest factor between the given JM and the one the response shows above the resonance.
 pub const JM_FACTOR: f64 = 2.0;
 
@@ -128,10 +136,11 @@ pub const JM_FACTOR: f64 = 2.0;
 pub struct StiffnessChecks {
     /// Averaged Welch segments (at least [`MIN_SEGMENTS`]).
     pub segments: usize,
-    /// Median torque -> velocity coherence within +-20 % of the anti-resonance (its notch, +-5 %,
-    /// left out).
+    /// Median coherence of the estimate within +-20 % of the anti-resonance (its notch, +-5 %,
+    /// left out): torque -> velocity for H1; with the command as instrument, what the
+    /// instrument's coherences with torque and velocity leave (see `Frf::quality`).
     pub coherence_antiresonance: f64,
-    /// Median coherence within +-20 % of the resonance.
+    /// The same within +-20 % of the resonance.
     pub coherence_resonance: f64,
     /// How far the anti-resonance stands below the response around it (+-20 %), dB.
     pub prominence_antiresonance_db: f64,
@@ -166,6 +175,13 @@ pub struct StiffnessChecks {
     pub kl_positive_nm_per_rad: Option<f64>,
     /// KL from the windows of negative velocity alone.
     pub kl_negative_nm_per_rad: Option<f64>,
+    /// 95 % confidence half-width of KL from the two-mass fit to the response around the
+    /// picks, % of KL (null when the fit failed and the picks alone give the result).
+    pub kl_ci_pct: Option<f64>,
+    /// 95 % confidence half-width of JL, %.
+    pub jl_ci_pct: Option<f64>,
+    /// Frequency bins the two-mass model was fitted to.
+    pub fit_bins: usize,
     /// What is not credible, with the figures; empty when the result passes.
     pub problems: Vec<String>,
     /// What to change for a credible result.
@@ -504,8 +520,15 @@ pub fn identify_stiffness_windows(
     });
     let wa = 2.0 * std::f64::consts::PI * fa;
     let wr = 2.0 * std::f64::consts::PI * fr;
-    let jl = opts.jm_kgm2 * (wr * wr / (wa * wa) - 1.0);
-    let kl = jl * wa * wa;
+    let jl_pick = opts.jm_kgm2 * (wr * wr / (wa * wa) - 1.0);
+    // The picks read two bins; the two-mass model fitted to every bin around them reads the
+    // whole shape, so noise that fills the notch or tops the peak moves it far less.
+    let fit = fit_two_mass(&frf, opts.jm_kgm2, [fa, fr], [f_lo, f_hi]);
+    let (jl, kl) = fit.map_or((jl_pick, jl_pick * wa * wa), |f| {
+        (f.jl_kgm2, f.kl_nm_per_rad)
+    });
+    let fa = (kl / jl).sqrt() / (2.0 * std::f64::consts::PI);
+    let fr = (kl * (opts.jm_kgm2 + jl) / (opts.jm_kgm2 * jl)).sqrt() / (2.0 * std::f64::consts::PI);
     let c_lo = 0.8 * fa;
     let c_hi = 1.2 * fr;
     let coherence_min = frf
@@ -524,6 +547,32 @@ pub fn identify_stiffness_windows(
         [prominence_db(ka, true), prominence_db(kr, false)],
     );
     checks.per_window = per_window;
+    match fit {
+        Some(f) => {
+            checks.kl_ci_pct = Some(f.kl_ci_pct);
+            checks.jl_ci_pct = Some(f.jl_ci_pct);
+            checks.fit_bins = f.bins;
+            let worst = f.kl_ci_pct.max(f.jl_ci_pct);
+            if worst > MAX_CI_PCT {
+                checks.problems.push(format!(
+                    "the two-mass fit leaves KL uncertain by +-{:.2} % and JL by +-{:.2} % (95 %; \
+                     at most {MAX_CI_PCT} %): the data are too noisy or the plant is not two-mass \
+                     here",
+                    f.kl_ci_pct, f.jl_ci_pct
+                ));
+                checks.advice.push(
+                    "record longer or excite more (staying below the traverse), or a coarser \
+                     --resolution-hz"
+                        .into(),
+                );
+            }
+        }
+        None => checks.problems.push(
+            "the two-mass model does not fit the response around the picks (no pair inside the \
+             band): the picks alone are not a result"
+                .into(),
+        ),
+    }
     Ok(StiffnessResult {
         kl_nm_per_rad: kl,
         jl_kgm2: jl,
@@ -539,14 +588,159 @@ pub fn identify_stiffness_windows(
     })
 }
 
-/// Median of the coherence over `lo..=hi` Hz, leaving out `notch` (+-5 % about it) when given.
+/// Torque -> motor acceleration of the two-mass plant (motor inertia `jm`, load inertia `jl`,
+/// spring `kl` with damping `cl`) at `w` rad/s, behind a pure delay `delay_s` (the drive's
+/// torque path and the velocity measurement).
+fn two_mass_accel(jm: f64, jl: f64, kl: f64, cl: f64, delay_s: f64, w: f64) -> Complex64 {
+    let s = Complex64::new(0.0, w);
+    let z = s * cl + kl;
+    let num = s * s * jl + z;
+    let den = s * s * (jm * jl) + z * (jm + jl);
+    num / den * Complex64::from_polar(1.0, -w * delay_s)
+}
+
+/// Fits the load inertia, the spring and its damping of the two-mass plant (the motor inertia
+/// `jm` given), and a delay, to the complex response torque -> motor acceleration between half
+/// the anti-resonance and twice the resonance (`picks`, Hz; within `band`). Each bin's
+/// residual is its relative error `H / model - 1`, weighted by the inverse of the estimate's
+/// relative standard deviation from [`Frf::quality`] (the complex estimate is unbiased where its
+/// magnitude alone is biased upwards by noise). Levenberg-Marquardt on the logarithms of the
+/// three plant parameters, started at the picks. `None` when too few bins or the fit does not
+/// converge to a pair inside the band.
+fn fit_two_mass(frf: &Frf, jm: f64, picks: [f64; 2], band: [f64; 2]) -> Option<TwoMassFit> {
+    use nalgebra::{DMatrix, DVector, Vector4};
+    let [fa, fr] = picks;
+    let tau = 2.0 * std::f64::consts::PI;
+    let (lo, hi) = ((0.5 * fa).max(band[0]), (2.0 * fr).min(band[1]));
+    // (w, measured torque -> acceleration, weight)
+    let bins: Vec<(f64, Complex64, f64)> = frf
+        .f_hz
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| **f >= lo && **f <= hi)
+        .map(|(k, f)| {
+            let g = frf.quality(k).clamp(1e-9, 0.999);
+            let w = tau * f;
+            (w, frf.h[k] * Complex64::new(0.0, w), (g / (1.0 - g)).sqrt())
+        })
+        .filter(|b| b.1.norm().is_finite() && b.1.norm() > 0.0)
+        .collect();
+    if bins.len() < 12 {
+        return None;
+    }
+    let (wa, wr) = (tau * fa, tau * fr);
+    let jl0 = jm * (wr * wr / (wa * wa) - 1.0);
+    if jl0.is_nan() || jl0 <= 0.0 {
+        return None;
+    }
+    let kl0 = jl0 * wa * wa;
+    // damping ratio 0.05 of the spring between the two inertias as the start
+    let cl0 = 0.1 * (kl0 * jm * jl0 / (jm + jl0)).sqrt();
+    let residuals = |p: &Vector4<f64>| -> DVector<f64> {
+        let (jl, kl, cl, d) = (p[0].exp(), p[1].exp(), p[2].exp(), p[3]);
+        let mut r = DVector::zeros(2 * bins.len());
+        for (i, (w, h, wt)) in bins.iter().enumerate() {
+            let e = h / two_mass_accel(jm, jl, kl, cl, d, *w) - 1.0;
+            r[2 * i] = wt * e.re;
+            r[2 * i + 1] = wt * e.im;
+        }
+        r
+    };
+    let jacobian = |p: &Vector4<f64>| -> DMatrix<f64> {
+        let mut j = DMatrix::zeros(2 * bins.len(), 4);
+        for i in 0..4 {
+            let h = if i == 3 { 1e-9 } else { 1e-6 };
+            let (mut a, mut b) = (*p, *p);
+            a[i] += h;
+            b[i] -= h;
+            let d = (residuals(&a) - residuals(&b)) / (2.0 * h);
+            j.set_column(i, &d);
+        }
+        j
+    };
+    // the delay's start: the mean phase lag of the measured over the undelayed model
+    let lag: f64 = bins
+        .iter()
+        .map(|(w, h, _)| -(h / two_mass_accel(jm, jl0, kl0, cl0, 0.0, *w)).arg() / w)
+        .sum::<f64>()
+        / bins.len() as f64;
+    let mut p = Vector4::new(jl0.ln(), kl0.ln(), cl0.ln(), lag);
+    let mut c = residuals(&p).norm_squared();
+    let mut lambda = 1e-3;
+    for _ in 0..100 {
+        let j = jacobian(&p);
+        let jtj = j.transpose() * &j;
+        let jtr = j.transpose() * residuals(&p);
+        let mut improved = false;
+        for _ in 0..20 {
+            let mut m = jtj.clone();
+            for i in 0..4 {
+                m[(i, i)] *= 1.0 + lambda;
+            }
+            let Some(step) = m.lu().solve(&(-&jtr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let q = p + Vector4::from_column_slice(step.as_slice());
+            let cq = residuals(&q).norm_squared();
+            if cq < c {
+                let done = (c - cq) < 1e-10 * c.max(1e-300);
+                p = q;
+                c = cq;
+                lambda = (lambda / 3.0).max(1e-9);
+                improved = !done;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let (jl, kl) = (p[0].exp(), p[1].exp());
+    let fa_fit = (kl / jl).sqrt() / tau;
+    let fr_fit = (kl * (jm + jl) / (jm * jl)).sqrt() / tau;
+    if !(jl.is_finite() && kl.is_finite() && fa_fit >= lo && fr_fit <= hi && fa_fit < fr_fit) {
+        return None;
+    }
+    // Confidence: the covariance of the parameters, (J'J)^-1 times the residual variance per
+    // degree of freedom, each bin counted as 1 / 1.5 of an independent one (a Hann window's
+    // equivalent noise bandwidth is 1.5 bins); 95 % = 1.96 standard deviations.
+    let j = jacobian(&p);
+    let dof = (2.0 * bins.len() as f64 / 1.5 - 4.0).max(1.0);
+    let s2 = c / dof / 1.5;
+    let cov = (j.transpose() * j).try_inverse()? * s2;
+    let ci = |i: usize| 100.0 * 1.96 * cov[(i, i)].max(0.0).sqrt();
+    Some(TwoMassFit {
+        jl_kgm2: jl,
+        kl_nm_per_rad: kl,
+        jl_ci_pct: ci(0),
+        kl_ci_pct: ci(1),
+        bins: bins.len(),
+    })
+}
+
+/// The two-mass model fitted to the response around the picks ([`fit_two_mass`]).
+#[derive(Debug, Clone, Copy)]
+struct TwoMassFit {
+    jl_kgm2: f64,
+    kl_nm_per_rad: f64,
+    /// 95 % confidence half-widths, % of the value.
+    jl_ci_pct: f64,
+    kl_ci_pct: f64,
+    /// Bins fitted.
+    bins: usize,
+}
+
+/// Median of the estimate's quality ([`Frf::quality`]: the coherence, or with an instrument
+/// what its coherences leave of it) over `lo..=hi` Hz, leaving out `notch` (+-5 % about it) when given.
 fn median_coherence(frf: &Frf, lo: f64, hi: f64, notch: Option<f64>) -> f64 {
     let mut c: Vec<f64> = frf
         .f_hz
         .iter()
-        .zip(&frf.coherence)
-        .filter(|(f, _)| **f >= lo && **f <= hi && notch.is_none_or(|n| (**f - n).abs() > 0.05 * n))
-        .map(|(_, c)| *c)
+        .enumerate()
+        .filter(|(_, f)| **f >= lo && **f <= hi && notch.is_none_or(|n| (**f - n).abs() > 0.05 * n))
+        .map(|(k, _)| frf.quality(k))
         .collect();
     if c.is_empty() {
         return 0.0;
@@ -610,18 +804,26 @@ fn judge(
             (MIN_SEGMENTS as f64 + 1.0) / (2.0 * opts.resolution_hz)
         ));
     }
+    let bin_error = |g: f64| ((1.0 - g) / (2.0 * c.segments.max(1) as f64 * g.max(1e-12))).sqrt();
+    let mut noisy = false;
     for (what, coh) in [
         ("anti-resonance", c.coherence_antiresonance),
         ("resonance", c.coherence_resonance),
     ] {
-        if coh < MIN_COHERENCE {
+        let e = bin_error(coh);
+        if e > MAX_BIN_ERROR {
+            noisy = true;
             c.problems.push(format!(
-                "median coherence {coh:.2} around the {what} (at least {MIN_COHERENCE} needed): \
-                 the response there is mostly noise or another input"
+                "median coherence {coh:.2} around the {what} over {} segments leaves each bin \
+                 uncertain by {:.0} % (at most {:.0} %): the response there is mostly noise or \
+                 another input",
+                c.segments,
+                100.0 * e,
+                100.0 * MAX_BIN_ERROR
             ));
         }
     }
-    if c.coherence_antiresonance < MIN_COHERENCE || c.coherence_resonance < MIN_COHERENCE {
+    if noisy {
         c.advice.push(
             "excite the band with more amplitude or for longer, without reversals (a traverse \
              under the excitation)"
