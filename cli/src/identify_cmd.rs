@@ -530,8 +530,10 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
         );
         if let (Some(k), Some(j)) = (c.kl_ci_pct, c.jl_ci_pct) {
             println!(
-                "two-mass fit over {} bins around the picks: KL +-{k:.2} %, JL +-{j:.2} % (95 %)",
-                c.fit_bins
+                "two-mass fit over {} bins around the picks: KL +-{} %, JL +-{} % (95 %)",
+                c.fit_bins,
+                sig(k),
+                sig(j)
             );
         }
         for p in &c.problems {
