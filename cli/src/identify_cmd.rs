@@ -528,6 +528,11 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
                 .map(|j| format!("; JM from the response above the resonance {j:.4e} kg m^2"))
                 .unwrap_or_default()
         );
+        if let Some(e) = &r.reversal_effects {
+            for line in reversal_lines(e) {
+                println!("{line}");
+            }
+        }
         if let (Some(k), Some(j)) = (c.kl_ci_pct, c.jl_ci_pct) {
             println!(
                 "two-mass fit over {} bins around the picks: KL +-{} %, JL +-{} % (95 %)",
@@ -907,4 +912,49 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// What the traverse's reversals show, in words with sizes (friction, then backlash).
+fn reversal_lines(e: &feedloop_analysis::identify::reversals::ReversalEffects) -> Vec<String> {
+    let mut out = Vec::new();
+    let coulomb = match (e.coulomb_nm, e.coulomb_ci_nm, e.damping_nms_per_rad) {
+        (Some(fc), Some(ci), Some(d)) => format!(
+            "Coulomb {} +- {}, damping {} N m s/rad",
+            si(fc, "N m"),
+            si(ci, "N m"),
+            sig(d)
+        ),
+        _ => "Coulomb and damping not separated".into(),
+    };
+    out.push(format!(
+        "{}: the torque differs by {} between the directions at the traverse speed, over {} \
+         reversals ({coulomb}, motor side)",
+        if e.friction_seen {
+            "friction (a torque step at each reversal)"
+        } else {
+            "no friction step told apart from damping"
+        },
+        si(2.0 * e.friction_nm.abs(), "N m"),
+        e.reversals,
+    ));
+    if let (Some(lost), Some(ci), Some(el)) = (e.lost_motion_m, e.lost_motion_ci_m, e.elastic_m) {
+        out.push(if e.backlash_seen {
+            format!(
+                "backlash: a dead band of about {} (lost motion {} +- {} at each reversal, of \
+                 which the spring explains at most {})",
+                si(e.backlash_m.unwrap_or(0.0), "m"),
+                si(lost, "m"),
+                si(ci, "m"),
+                si(el, "m")
+            )
+        } else {
+            format!(
+                "backlash: none told apart (lost motion {} +- {}, the spring explains up to {})",
+                si(lost, "m"),
+                si(ci, "m"),
+                si(el, "m")
+            )
+        });
+    }
+    out
 }

@@ -828,5 +828,16 @@ fn the_shipped_stiffness_job_survives_backlash_friction_and_noise_or_refuses() {
         if must_answer {
             assert!(credible, "{tag}: {v}");
         }
+        // The effects the reversals show, named with their size whatever the verdict.
+        let e = &v["reversal_effects"];
+        let gap = [("backlash", 12e-6), ("effects", 10e-6), ("other", 18e-6)]
+            .iter()
+            .find(|(t, _)| *t == tag)
+            .unwrap()
+            .1;
+        assert_eq!(e["backlash_seen"], true, "{tag}: {e}");
+        assert!((num(e, "backlash_m") / gap - 1.0).abs() < 0.1, "{tag}: {e}");
+        // a Coulomb step where the model has one, none on the axis with damping alone
+        assert_eq!(e["friction_seen"], tag != "backlash", "{tag}: {e}");
     }
 }

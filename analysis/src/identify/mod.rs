@@ -4,6 +4,7 @@
 
 pub mod frf;
 pub mod inertia;
+pub mod reversals;
 pub mod stiffness;
 pub mod svg;
 pub mod tune;

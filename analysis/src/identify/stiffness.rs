@@ -13,6 +13,7 @@ use serde::Serialize;
 use rustfft::num_complex::Complex64;
 
 use super::frf::{welch_frf_windows, Frf};
+use super::reversals::{reversal_effects, ReversalEffects};
 use super::IdentifyError;
 
 /// Which frequency response to read.
@@ -107,6 +108,9 @@ pub struct StiffnessResult {
     pub credible: bool,
     /// How far the result can be trusted: the figures it is judged on and what fails.
     pub checks: StiffnessChecks,
+    /// Friction and backlash read at the traverse's reversals (null without reversals between
+    /// one-direction windows).
+    pub reversal_effects: Option<ReversalEffects>,
     /// The FRF (not serialised).
     #[serde(skip)]
     pub frf: Option<Frf>,
@@ -369,6 +373,16 @@ pub fn identify_stiffness(
             }
         }
         result.credible = result.checks.credible();
+        result.reversal_effects = reversal_effects(
+            u,
+            y,
+            dt,
+            opts.jm_kgm2 + result.jl_kgm2,
+            trace.column(&format!("{axis}.motor")),
+            trace.column(&format!("{axis}.load")),
+            &windows,
+            result.kl_nm_per_rad,
+        );
         return Ok(result);
     }
     let mut result = identify_stiffness_from(u, y, r.as_deref(), dt, opts)?;
@@ -584,6 +598,7 @@ pub fn identify_stiffness_windows(
         segments: frf.segments,
         credible: checks.credible(),
         checks,
+        reversal_effects: None,
         frf: Some(frf),
     })
 }
