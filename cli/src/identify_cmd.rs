@@ -53,7 +53,7 @@ pub struct InertiaArgs {
     #[arg(long)]
     pub at: f64,
     /// Half width of the least-squares window around --at, load units.
-    #[arg(long, default_value_t = 5e-4)]
+    #[arg(long, default_value_t = 2e-3)]
     pub window: f64,
     /// command-load (the patent's th - thL, command minus load position) | motor-load (the
     /// screw's twist, motor position in load units minus load position).

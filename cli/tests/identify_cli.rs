@@ -841,3 +841,61 @@ fn the_shipped_stiffness_job_survives_backlash_friction_and_noise_or_refuses() {
         assert_eq!(e["friction_seen"], tag != "backlash", "{tag}: {e}");
     }
 }
+
+#[test]
+fn sim_match_finds_workpieces_on_an_axis_with_friction_backlash_and_noise_within_1_percent() {
+    // The machine: `xy-x-effects` (Coulomb friction on both sides, 10 um backlash, 20-bit
+    // encoder, 50 nm scale, velocity noise) with a workpiece; the user's model: the same axis
+    // with the nominal inertia and a sensor seed of its own (nobody knows the machine's noise).
+    let d = scratch("inertia-effects");
+    let effects = std::fs::read_to_string(repo("examples/models/xy-x-effects.toml")).unwrap();
+    assert!(effects.contains("jl_kgm2 = 3.0e-3") && effects.contains("seed = 1 "));
+    let user = d.join("user.toml");
+    std::fs::write(&user, effects.replace("seed = 1 ", "seed = 8 ")).unwrap();
+    let job = std::fs::read_to_string(repo("examples/jobs/identify-inertia-move.toml")).unwrap();
+    let user_job = |duration: &str| {
+        let p = d.join(format!("user-{duration}.toml"));
+        let text = job
+            .replace(
+                "model = \"../models/xy-x.toml\"",
+                &format!("model = {:?}", user.display().to_string()),
+            )
+            .replace("duration_s = 0.3", &format!("duration_s = {duration}"));
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    // +100 % saturates the 30 N m drive on the 0.3 s move: it runs the move in 0.6 s
+    for (factor, duration) in [(1.3, "0.3"), (1.3, "0.6"), (2.0, "0.6")] {
+        let truth = 3e-3 * factor;
+        let m = d.join(format!("machine-{factor}-{duration}.toml"));
+        std::fs::write(
+            &m,
+            effects.replace("jl_kgm2 = 3.0e-3", &format!("jl_kgm2 = {truth:e}")),
+        )
+        .unwrap();
+        let mj = d.join(format!("machine-{factor}-{duration}-job.toml"));
+        let text = job
+            .replace(
+                "model = \"../models/xy-x.toml\"",
+                &format!("model = {:?}", m.display().to_string()),
+            )
+            .replace(
+                "params = { structure = \"split\" }",
+                "params = { structure = \"split\", jl_kgm2 = 3.0e-3 }",
+            )
+            .replace("duration_s = 0.3", &format!("duration_s = {duration}"));
+        std::fs::write(&mj, text).unwrap();
+        let trace = sim(&mj, &d.join(format!("run-{factor}-{duration}")));
+        let v = json(&cli(
+            "identify inertia --method sim-match --at 0.01",
+            &[("--trace", &trace), ("--model", &user_job(duration))],
+        ));
+        let err = num(&v, "jl_kgm2") / truth - 1.0;
+        eprintln!(
+            "+{:.0} % over {duration} s: JL {:+.2} %",
+            100.0 * (factor - 1.0),
+            100.0 * err
+        );
+        assert!(err.abs() < 0.01, "+{factor} / {duration} s: {v}");
+    }
+}

@@ -273,6 +273,11 @@ pub fn feedforward_jl(job: &Job, i: usize) -> Option<f64> {
 /// any) uses `ff_jl`.
 pub fn job_with_jl(job: &Job, i: usize, plant_jl: f64, ff_jl: f64) -> Result<Job, IdentifyError> {
     let mut j = job.clone();
+    // The model's deviation is what the mechanics do: sensor noise and quantization belong to
+    // the measurement (averaged over its window). Quantized, the simulated deviation would
+    // move in steps of the scale's quantum, and the search would read a zero slope between
+    // two inertias a quantum apart.
+    j.axes[i].model.sensor = toml::Table::new();
     match &mut j.axes[i].model.plant {
         PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
             two_mass.jl_kgm2 = plant_jl;
