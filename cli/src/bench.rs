@@ -10,13 +10,16 @@ use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
 
 use feedloop_analysis::latency::{
-    attribute_misses, hist_json, percentile_svg, reference, Attribution, ReferenceLoops, RunFigures,
+    attribute_misses, hist_json, ns_histogram_of, percentile_svg, reference, Attribution,
+    ReferenceLoops, RunFigures,
 };
 use feedloop_model::job::{Mode, WaitKind};
 use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
+use feedloop_runtime::shared::pingpong::{echo, ping, PingPong};
+use feedloop_runtime::shared::rt::{apply, RtRequest};
 
 /// Benchmark subcommands.
 #[derive(clap::Subcommand, Debug)]
@@ -47,6 +50,21 @@ pub enum BenchCmd {
         /// a bare spinning loop that counts how often the machine takes a core away. 0 skips them.
         #[arg(long, default_value_t = 10.0)]
         reference_s: f64,
+        /// Round trips of the bare iceoryx2 ping-pong of the loop's own messages, measured on
+        /// the same CPUs just before the run, back to back and again one per period (default:
+        /// --cycles, at most 100,000; 0 skips it).
+        #[arg(long)]
+        pingpong_cycles: Option<u64>,
+    },
+    /// The echoing side of `bench latency`'s ping-pong (started by it).
+    #[command(hide = true)]
+    PingEcho {
+        /// Instance name of the ping-pong.
+        #[arg(long)]
+        instance: String,
+        /// CPU to pin to.
+        #[arg(long)]
+        cpu: Option<usize>,
     },
 }
 
@@ -61,6 +79,7 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             fifo,
             out,
             reference_s,
+            pingpong_cycles,
         } => latency(
             cycles,
             period_s,
@@ -69,8 +88,64 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             fifo,
             &out,
             reference_s,
+            pingpong_cycles.unwrap_or(cycles.min(100_000)),
         ),
+        BenchCmd::PingEcho { instance, cpu } => {
+            let applied = apply(&RtRequest {
+                mlockall: true,
+                fifo_priority: None,
+                cpu,
+            });
+            let _ = applied;
+            echo(&instance, Duration::from_secs(30))
+                .map_err(|e| anyhow::anyhow!("ping-pong echo: {e}"))?;
+            Ok(ExitCode::SUCCESS)
+        }
     }
+}
+
+/// The bare iceoryx2 ping-pong of the loop's messages (`axis_count` axes) between this process
+/// (a thread pinned to the first of `cpus`) and an echo process (on the second): `n` round
+/// trips back to back, then `n` one per `period_ns`.
+fn pingpong(cpus: &[usize], period_ns: u64, n: u64, axis_count: u32) -> Result<PingPong> {
+    let instance = format!("pingpong{}", std::process::id());
+    let exe = std::env::current_exe().context("locating the feedloop binary")?;
+    let mut cmd = std::process::Command::new(exe);
+    cmd.args(["bench", "ping-echo", "--instance", &instance]);
+    if let Some(c) = cpus.get(1) {
+        cmd.args(["--cpu", &c.to_string()]);
+    }
+    crate::signals::die_with_parent(&mut cmd);
+    let mut child = cmd.spawn().context("starting the ping-pong echo process")?;
+    let first = cpus.first().copied();
+    let result = std::thread::scope(|sc| {
+        sc.spawn(|| {
+            apply(&RtRequest {
+                mlockall: true,
+                fifo_priority: None,
+                cpu: first,
+            });
+            ping(
+                &instance,
+                axis_count,
+                n,
+                n,
+                period_ns,
+                Duration::from_secs(10),
+            )
+        })
+        .join()
+    });
+    let status = child.wait();
+    let pp = result
+        .map_err(|_| anyhow::anyhow!("the ping-pong thread panicked"))?
+        .map_err(|e| anyhow::anyhow!("ping-pong: {e}"))?;
+    if let Ok(s) = status {
+        if !s.success() {
+            bail!("the ping-pong echo process failed ({s})");
+        }
+    }
+    Ok(pp)
 }
 
 const JOB: &str = include_str!("../../examples/jobs/xc-full-chain.toml");
@@ -118,6 +193,7 @@ fn latency(
     fifo: Option<i32>,
     out: &Path,
     reference_s: f64,
+    pingpong_cycles: u64,
 ) -> Result<ExitCode> {
     let wait_kind = WaitKind::parse(wait)
         .with_context(|| format!("--wait `{wait}`: expected busy, block or hybrid"))?;
@@ -151,6 +227,15 @@ fn latency(
     } else {
         (Value::Null, None)
     };
+    let pp = if pingpong_cycles > 0 {
+        eprintln!(
+            "bench latency: bare iceoryx2 ping-pong of the loop's messages, {pingpong_cycles} \
+             round trips back to back and {pingpong_cycles} one per period"
+        );
+        Some(pingpong(&probe_cpus, period_ns, pingpong_cycles, 2)?)
+    } else {
+        None
+    };
     eprintln!(
         "bench latency: {cycles} cycles at {:.1} kHz, wait {wait}, about {:.1} s",
         1e-3 / period_s,
@@ -165,6 +250,30 @@ fn latency(
         .map(|l| l.records)
         .unwrap_or_default();
     let attribution = attribute_misses(&recs, &sched, period_ns);
+    let pingpong_json = match &pp {
+        Some(pp) => {
+            let b2b = ns_histogram_of(&pp.back_to_back_ns)?;
+            let paced = ns_histogram_of(&pp.paced_ns)?;
+            let q = |h: &hdrhistogram::Histogram<u64>, p: f64| h.value_at_quantile(p) as f64;
+            let ratio = |h: &hdrhistogram::Histogram<u64>, p: f64| {
+                q(&figures.latency, p) / q(h, p).max(1.0)
+            };
+            json!({
+                "what": "the loop's own SensorSample / ActuatorCommand (2 axes) through the same \
+                         endpoints between two processes on the same CPUs, measured just before \
+                         the run",
+                "back_to_back_us": hist_json(&b2b),
+                "paced_us": hist_json(&paced),
+                "ratio": {
+                    "p50": ratio(&paced, 0.5),
+                    "p99": ratio(&paced, 0.99),
+                    "p50_back_to_back": ratio(&b2b, 0.5),
+                    "p99_back_to_back": ratio(&b2b, 0.99),
+                },
+            })
+        }
+        None => Value::Null,
+    };
     let plant_info = read_json(&out.join("plant.json")).unwrap_or(Value::Null);
     let sched_info = read_json(&out.join("scheduler.json")).unwrap_or(Value::Null);
     let v = json!({
@@ -186,6 +295,7 @@ fn latency(
         "misses_during_core_losses": attribution.explained,
         "misses_outside_stalls_and_core_losses": attribution.unexplained,
         "reference": reference,
+        "iceoryx_pingpong": pingpong_json,
         "realtime": {
             "mlockall": plant_info["realtime"]["mlockall"].as_bool().unwrap_or(false)
                 && sched_info["realtime"]["mlockall"].as_bool().unwrap_or(false),
@@ -357,6 +467,21 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
                 .as_f64()
                 .unwrap_or(0.0)),
             us(&r["spinning_loop"]["max_us"]),
+        );
+    }
+    let pp = &v["iceoryx_pingpong"];
+    if !pp.is_null() {
+        let x = |k: &str| sig(pp["ratio"][k].as_f64().unwrap_or(f64::NAN));
+        println!(
+            "bare iceoryx2 ping-pong of the same messages: one per period {}, back to back {}; \
+             the loop's round trip is {} x / {} x the paced one (p50 / p99), {} x / {} x the \
+             back-to-back one",
+            percentiles(&pp["paced_us"]),
+            percentiles(&pp["back_to_back_us"]),
+            x("p50"),
+            x("p99"),
+            x("p50_back_to_back"),
+            x("p99_back_to_back"),
         );
     }
 }

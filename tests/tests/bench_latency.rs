@@ -109,6 +109,21 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     );
     assert!(r["spinning_loop"]["interruptions"].is_u64());
     assert!(r["spinning_loop"]["max_us"].is_number());
+    // the bare iceoryx2 ping-pong of the same messages, both paces, each round trip answered,
+    // and the loop's ratio to it
+    let pp = &v["iceoryx_pingpong"];
+    for pace in ["back_to_back_us", "paced_us"] {
+        assert_eq!(pp[pace]["count"], 3000, "{pace}: {v}");
+        let (p50, p99) = (
+            pp[pace]["p50"].as_f64().unwrap(),
+            pp[pace]["p99"].as_f64().unwrap(),
+        );
+        assert!(p50 > 0.0 && p99 >= p50, "{pace}: {v}");
+    }
+    let loop_p50 = v["latency_us"]["p50"].as_f64().unwrap();
+    let ratio = pp["ratio"]["p50"].as_f64().unwrap();
+    let expected = loop_p50 / pp["paced_us"]["p50"].as_f64().unwrap();
+    assert!((ratio / expected - 1.0).abs() < 0.01, "{v}");
     // the plot: axes with units and ticks, a legend, the period and the reference loops
     let svg = std::fs::read_to_string(out.join("latency.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains(r#"class="title""#));

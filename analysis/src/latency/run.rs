@@ -66,6 +66,15 @@ impl RunFigures {
     }
 }
 
+/// A histogram of `values` (ns), as the run's figures are kept.
+pub fn ns_histogram_of(values: &[u64]) -> Result<Histogram<u64>, LatencyError> {
+    let mut h = super::ns_histogram()?;
+    for v in values {
+        h.saturating_record((*v).max(1));
+    }
+    Ok(h)
+}
+
 /// p50, p99, p99.9 and max of a histogram of ns values, in us, with the count.
 pub fn hist_json(h: &Histogram<u64>) -> Value {
     let us = |v: u64| v as f64 / 1000.0;
