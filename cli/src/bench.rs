@@ -80,16 +80,16 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             out,
             reference_s,
             pingpong_cycles,
-        } => latency(
+        } => latency(&LatencyOpts {
+            pingpong_cycles: pingpong_cycles.unwrap_or(cycles.min(100_000)),
             cycles,
             period_s,
-            &wait,
-            pin.as_deref(),
+            wait,
+            pin,
             fifo,
-            &out,
+            out,
             reference_s,
-            pingpong_cycles.unwrap_or(cycles.min(100_000)),
-        ),
+        }),
         BenchCmd::PingEcho { instance, cpu } => {
             let applied = apply(&RtRequest {
                 mlockall: true,
@@ -185,16 +185,29 @@ fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<P
     Ok(p)
 }
 
-fn latency(
+/// What `bench latency` was asked for.
+struct LatencyOpts {
     cycles: u64,
     period_s: f64,
-    wait: &str,
-    pin: Option<&str>,
+    wait: String,
+    pin: Option<String>,
     fifo: Option<i32>,
-    out: &Path,
+    out: PathBuf,
     reference_s: f64,
     pingpong_cycles: u64,
-) -> Result<ExitCode> {
+}
+
+fn latency(o: &LatencyOpts) -> Result<ExitCode> {
+    let (cycles, period_s, wait, pin, fifo, out, reference_s, pingpong_cycles) = (
+        o.cycles,
+        o.period_s,
+        o.wait.as_str(),
+        o.pin.as_deref(),
+        o.fifo,
+        o.out.as_path(),
+        o.reference_s,
+        o.pingpong_cycles,
+    );
     let wait_kind = WaitKind::parse(wait)
         .with_context(|| format!("--wait `{wait}`: expected busy, block or hybrid"))?;
     if !(period_s > 1e-6 && period_s <= 0.1) {
