@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 
 use feedloop_analysis::latency::{
     attribute_misses, hist_json, ns_histogram_of, percentile_svg, reference, Attribution,
-    ReferenceLoops, RunFigures,
+    Breakdown, ReferenceLoops, RunFigures,
 };
 use feedloop_model::job::{Mode, WaitKind};
 use feedloop_model::units::{si, sig};
@@ -263,6 +263,7 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         .map(|l| l.records)
         .unwrap_or_default();
     let attribution = attribute_misses(&recs, &sched, period_ns);
+    let parts = Breakdown::from_records(&recs, &sched)?;
     let pingpong_json = match &pp {
         Some(pp) => {
             let b2b = ns_histogram_of(&pp.back_to_back_ns)?;
@@ -309,6 +310,15 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         "misses_outside_stalls_and_core_losses": attribution.unexplained,
         "reference": reference,
         "iceoryx_pingpong": pingpong_json,
+        "breakdown_us": {
+            "what": "each answered cycle's round trip in parts, from the shared monotonic clock",
+            "cycles": parts.cycles,
+            "to_scheduler": hist_json(&parts.to_scheduler),
+            "before_compute": hist_json(&parts.before_compute),
+            "chain": hist_json(&parts.chain),
+            "publish": hist_json(&parts.publish),
+            "to_plant": hist_json(&parts.to_plant),
+        },
         "realtime": {
             "mlockall": plant_info["realtime"]["mlockall"].as_bool().unwrap_or(false)
                 && sched_info["realtime"]["mlockall"].as_bool().unwrap_or(false),
@@ -482,6 +492,17 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
             us(&r["spinning_loop"]["max_us"]),
         );
     }
+    let b = &v["breakdown_us"];
+    let part = |k: &str| format!("{} / {}", us(&b[k]["p50"]), us(&b[k]["p99"]));
+    println!(
+        "round trip in parts (p50 / p99): to the scheduler {}, before computing {}, chain {}, \
+         publish {}, back to the plant {}",
+        part("to_scheduler"),
+        part("before_compute"),
+        part("chain"),
+        part("publish"),
+        part("to_plant"),
+    );
     let pp = &v["iceoryx_pingpong"];
     if !pp.is_null() {
         let x = |k: &str| sig(pp["ratio"][k].as_f64().unwrap_or(f64::NAN));

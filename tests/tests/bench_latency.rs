@@ -120,7 +120,34 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
         );
         assert!(p50 > 0.0 && p99 >= p50, "{pace}: {v}");
     }
+    // the round trip in parts: every answered cycle split, each part measured
+    let b = &v["breakdown_us"];
+    assert_eq!(b["cycles"], v["latency_us"]["count"], "{v}");
+    for part in [
+        "to_scheduler",
+        "before_compute",
+        "chain",
+        "publish",
+        "to_plant",
+    ] {
+        assert!(b[part]["p50"].as_f64().unwrap() > 0.0, "{part}: {v}");
+    }
+    // the parts of one cycle add up to its round trip: so do their medians, roughly
+    let sum: f64 = [
+        "to_scheduler",
+        "before_compute",
+        "chain",
+        "publish",
+        "to_plant",
+    ]
+    .iter()
+    .map(|p| b[*p]["p50"].as_f64().unwrap())
+    .sum();
     let loop_p50 = v["latency_us"]["p50"].as_f64().unwrap();
+    assert!(
+        sum > 0.3 * loop_p50 && sum < 3.0 * loop_p50,
+        "{sum} vs {loop_p50}: {v}"
+    );
     let ratio = pp["ratio"]["p50"].as_f64().unwrap();
     let expected = loop_p50 / pp["paced_us"]["p50"].as_f64().unwrap();
     assert!((ratio / expected - 1.0).abs() < 0.01, "{v}");

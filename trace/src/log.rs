@@ -85,6 +85,9 @@ pub struct PlantRecord {
     pub latency_ns: u64,
     /// CPU time of the physics step (and sensing), ns.
     pub compute_ns: u32,
+    /// Monotonic clock (CLOCK_MONOTONIC, shared by the processes) just before the sample was
+    /// published, ns: with `latency_ns` and the scheduler's times it splits the round trip.
+    pub published_ns: u64,
     /// `REC_*` flags.
     pub flags: u8,
     /// Per-axis rows.
@@ -106,11 +109,22 @@ pub struct SchedRecord {
     /// hundred ns normally; tens of microseconds or more when the OS or the hypervisor took the
     /// scheduler's core away. Time blocked in a wait on purpose is not counted.
     pub poll_gap_ns: u32,
+    /// Monotonic clock (shared with the plant) at the poll that found the sample, ns.
+    pub received_ns: u64,
+    /// ... when the cycle's computation began (after the control plane's look), ns.
+    pub started_ns: u64,
+    /// ... when the command was ready (chain and vetting done), ns.
+    pub computed_ns: u64,
+    /// ... when the command's publication returned, ns.
+    pub sent_ns: u64,
     /// Per-axis torque commanded and reference, (N m or N, m or rad).
     pub axes: [(f64, f64); MAX_AXES],
 }
 
-const MAGIC: u32 = 0xFEED_100F;
+/// Log file magic; bumped with every record layout change (0xFEED_100F before the round-trip
+/// timestamps of issue 18), so an older log is refused instead of misread.
+const MAGIC: u32 = 0xFEED_1010;
+const MAGIC_BEFORE_ISSUE_18: u32 = 0xFEED_100F;
 
 fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard().with_fixed_int_encoding()
@@ -166,6 +180,16 @@ pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents
     while bytes.len() - pos >= 12 {
         let word = |o: usize| u32::from_le_bytes(bytes[pos + o..pos + o + 4].try_into().unwrap());
         if word(0) != MAGIC {
+            if pos == 0 && word(0) == MAGIC_BEFORE_ISSUE_18 {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!(
+                        "{}: a log of an older feedloop (records without the round-trip \
+                         timestamps); read it with the version that wrote it",
+                        path.display()
+                    ),
+                ));
+            }
             break;
         }
         let len = word(4) as usize;

@@ -10,7 +10,7 @@ mod run;
 
 pub use attribution::{attribute_misses, Attribution};
 pub use plot::{percentile_svg, ReferenceLoops};
-pub use run::{hist_json, ns_histogram_of, RunFigures};
+pub use run::{hist_json, ns_histogram_of, Breakdown, RunFigures};
 
 /// Errors of the latency figures.
 #[derive(Debug, thiserror::Error)]

@@ -66,6 +66,64 @@ impl RunFigures {
     }
 }
 
+/// The loop's round trip in parts (issue 18), ns, from the processes' shared monotonic clock:
+/// for each answered cycle, the plant's publication time and the scheduler's four times.
+pub struct Breakdown {
+    /// Sample published by the plant -> found by the scheduler's poll (transport out).
+    pub to_scheduler: Histogram<u64>,
+    /// Found -> computation begins (the control plane's look, the recorder's phase).
+    pub before_compute: Histogram<u64>,
+    /// The chain and the vetting of its command.
+    pub chain: Histogram<u64>,
+    /// The command's publication.
+    pub publish: Histogram<u64>,
+    /// Publication returned -> the plant holds the command (transport back).
+    pub to_plant: Histogram<u64>,
+    /// Cycles split.
+    pub cycles: u64,
+}
+
+impl Breakdown {
+    /// Joins the plant's and the scheduler's records by cycle (each in cycle order; cycles the
+    /// plant did not get an answer for, or the scheduler did not log, are left out).
+    pub fn from_records(
+        plant: &[PlantRecord],
+        sched: &[feedloop_trace::log::SchedRecord],
+    ) -> Result<Self, LatencyError> {
+        let mut b = Breakdown {
+            to_scheduler: super::ns_histogram()?,
+            before_compute: super::ns_histogram()?,
+            chain: super::ns_histogram()?,
+            publish: super::ns_histogram()?,
+            to_plant: super::ns_histogram()?,
+            cycles: 0,
+        };
+        let mut j = 0usize;
+        for p in plant {
+            if p.latency_ns == u64::MAX || p.published_ns == 0 {
+                continue;
+            }
+            while j < sched.len() && sched[j].seq < p.seq {
+                j += 1;
+            }
+            let Some(s) = sched.get(j).filter(|s| s.seq == p.seq && s.sent_ns != 0) else {
+                continue;
+            };
+            let held = p.published_ns + p.latency_ns;
+            let rec = |h: &mut Histogram<u64>, a: u64, b: u64| {
+                h.saturating_record(b.saturating_sub(a).max(1));
+            };
+            rec(&mut b.to_scheduler, p.published_ns, s.received_ns);
+            rec(&mut b.before_compute, s.received_ns, s.started_ns);
+            rec(&mut b.chain, s.started_ns, s.computed_ns);
+            rec(&mut b.publish, s.computed_ns, s.sent_ns);
+            rec(&mut b.to_plant, s.sent_ns, held);
+            b.cycles += 1;
+        }
+        Ok(b)
+    }
+}
+
 /// A histogram of `values` (ns), as the run's figures are kept.
 pub fn ns_histogram_of(values: &[u64]) -> Result<Histogram<u64>, LatencyError> {
     let mut h = super::ns_histogram()?;

@@ -431,6 +431,7 @@ pub fn run_plant<P: PlantDevice>(
             wake_late_ns,
             latency_ns,
             compute_ns,
+            published_ns: published,
             flags,
             ..Default::default()
         };

@@ -282,6 +282,10 @@ pub fn run_scheduler(
             compute_ns,
             skipped,
             poll_gap_ns: lost_ns.min(u32::MAX as u64) as u32,
+            received_ns: ep.last_poll_ns(),
+            started_ns: c0,
+            computed_ns: c1,
+            sent_ns: prev_end_ns,
             ..Default::default()
         };
         for i in 0..axis_count {
