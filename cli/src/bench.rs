@@ -56,6 +56,14 @@ pub enum BenchCmd {
         #[arg(long)]
         pingpong_cycles: Option<u64>,
     },
+    /// One table row per `latency.json` (of `bench latency` runs, e.g. from
+    /// `scripts/latency-series`): the host's state, the bare ping-pong, the loop, their ratio,
+    /// the jitter against the sleeping loop's and the misses the loop is responsible for.
+    Table {
+        /// `latency.json` files or the folders holding them.
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+    },
     /// The echoing side of `bench latency`'s ping-pong (started by it).
     #[command(hide = true)]
     PingEcho {
@@ -90,6 +98,7 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             out,
             reference_s,
         }),
+        BenchCmd::Table { runs } => table(&runs),
         BenchCmd::PingEcho { instance, cpu } => {
             let applied = apply(&RtRequest {
                 mlockall: true,
@@ -518,4 +527,40 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
             x("p99_back_to_back"),
         );
     }
+}
+
+/// Prints `bench table`'s markdown table.
+fn table(runs: &[PathBuf]) -> Result<ExitCode> {
+    println!(
+        "| run | host: spinning loop lost its core (per s, max) | ping-pong p50 / p99 (paced) | \
+         loop p50 / p99 | ratio p50 / p99 | jitter p99: loop / sleeping loop | misses outside \
+         stalls and core losses |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for r in runs {
+        let path = if r.is_dir() {
+            r.join("latency.json")
+        } else {
+            r.clone()
+        };
+        let v = read_json(&path).with_context(|| format!("reading {}", path.display()))?;
+        let f = |x: &Value| x.as_f64().unwrap_or(f64::NAN);
+        let us = |x: &Value| si(f(x) * 1e-6, "s");
+        let pair = |h: &Value| format!("{} / {}", us(&h["p50"]), us(&h["p99"]));
+        let spin = &v["reference"]["spinning_loop"];
+        println!(
+            "| {} | {} /s, max {} | {} | {} | {} x / {} x | {} / {} | {} |",
+            path.parent().unwrap_or(&path).display(),
+            sig(f(&spin["interruptions_per_s"])),
+            us(&spin["max_us"]),
+            pair(&v["iceoryx_pingpong"]["paced_us"]),
+            pair(&v["latency_us"]),
+            sig(f(&v["iceoryx_pingpong"]["ratio"]["p50"])),
+            sig(f(&v["iceoryx_pingpong"]["ratio"]["p99"])),
+            us(&v["jitter_us"]["p99"]),
+            us(&v["reference"]["sleeping_loop"]["jitter_us"]["p99"]),
+            v["misses_outside_stalls_and_core_losses"],
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }

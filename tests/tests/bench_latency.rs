@@ -148,6 +148,17 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
         sum > 0.3 * loop_p50 && sum < 3.0 * loop_p50,
         "{sum} vs {loop_p50}: {v}"
     );
+    // the series table reads the run back: one row with its ratio
+    let t = feedloop(&["bench", "table", out.to_str().unwrap()]);
+    assert!(t.status.success(), "{}", describe(&t));
+    let text = String::from_utf8_lossy(&t.stdout);
+    let rows: Vec<&str> = text.lines().filter(|l| l.contains("lat |")).collect();
+    assert_eq!(rows.len(), 1, "{text}");
+    let ratio = v["iceoryx_pingpong"]["ratio"]["p50"].as_f64().unwrap();
+    assert!(
+        rows[0].contains(&format!("{} x", feedloop_model::units::sig(ratio))),
+        "{text}"
+    );
     let ratio = pp["ratio"]["p50"].as_f64().unwrap();
     let expected = loop_p50 / pp["paced_us"]["p50"].as_f64().unwrap();
     assert!((ratio / expected - 1.0).abs() < 0.01, "{v}");
