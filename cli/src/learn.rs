@@ -113,7 +113,14 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
             println!("pass {}: {}", p.pass, cells.join(", "));
         }
         println!("wrote {}", report.table_path.display());
-        if report.table_path != report.job_table {
+        let same = |a: &std::path::Path, b: &std::path::Path| {
+            a == b
+                || matches!(
+                    (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+                    (Ok(x), Ok(y)) if x == y
+                )
+        };
+        if !same(&report.table_path, &report.job_table) {
             println!(
                 "the job's own table {} is unchanged: copy the new one over it, or learn with --table {} to write it there",
                 report.job_table.display(),
