@@ -437,11 +437,21 @@ pub fn lobes(curve: &[f64], a: usize, b: usize, threshold: f64) -> Vec<(usize, u
     out
 }
 
+/// Where pass 1 starts the pulse of the spike after the reversal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SpikeStart {
+    /// Where the error (against its value at the reversal) last stays within `threshold` of
+    /// the maximum (the seed's start point).
+    Threshold,
+    /// At the reversal, where the friction flips, if that is earlier.
+    Reversal,
+}
+
 /// The pulses of one learning pass for one axis and direction, fitted to the mean error `curve`
 /// (grid step `period_s`, `curve[j]` at tau = (j - lead) T; pulse times are in tau).
 ///
 /// Pass 1 (`span` None) fits one pulse to the spike after the reversal (the error against its
-/// value at the reversal), then, to what that pulse leaves, one pulse to each lobe at least
+/// value at the reversal; its start point as `start` says), then, to what that pulse leaves, one pulse to each lobe at least
 /// `lobe_fraction` of the largest: the approach (the error before the reversal, which stays
 /// while the spike is played) and what the spike's pulse missed. Later passes fit one pulse to
 /// each lobe of the residual in `span` (the whole curve) at least `lobe_fraction` of the largest
@@ -451,7 +461,7 @@ pub fn lobes(curve: &[f64], a: usize, b: usize, threshold: f64) -> Vec<(usize, u
 pub fn fit_pass(
     curve: &[f64],
     (period_s, lead): (f64, usize),
-    pass: u32,
+    (pass, start): (u32, SpikeStart),
     span: Option<(usize, usize)>,
     options: &LearnOptions,
 ) -> (Vec<Pulse>, Option<(usize, usize)>) {
@@ -485,15 +495,15 @@ pub fn fit_pass(
                         (false, _) => rest[j],
                     })
                     .collect();
-                spike = fit_pulse(
-                    &target,
-                    period_s,
-                    (lead, usize::MAX),
-                    options.threshold,
-                    pass,
-                    shape,
-                )
-                .map(|x| x.0);
+                spike = spike_points(&target, lead, usize::MAX, options.threshold).and_then(
+                    |(s, m, e)| {
+                        let s = match start {
+                            SpikeStart::Threshold => s,
+                            SpikeStart::Reversal => s.min(lead),
+                        };
+                        fit_pulse_at(&target, period_s, (s, m, e), pass, shape)
+                    },
+                );
                 let Some(sp) = spike else {
                     return (Vec::new(), None);
                 };
@@ -661,7 +671,29 @@ pub fn learn_quadrant(
         if spikes.iter().all(|a| a.spike <= options.accept) {
             break;
         }
-        let fitted = fit_axes(&curves, pass, &mut spans, options);
+        let before = spans.clone();
+        let mut fitted = fit_axes(&curves, pass, &mut spans, options, SpikeStart::Threshold);
+        let mut tried = 0;
+        if pass == 1 {
+            // Where the spike's pulse starts is tried both ways (at the threshold point and at
+            // the reversal, where the friction flips), and kept per axis as it ran better.
+            let other = fit_axes(
+                &curves,
+                pass,
+                &mut before.clone(),
+                options,
+                SpikeStart::Reversal,
+            );
+            let ones = vec![1.0; axes.len()];
+            let (s_a, _) = evaluate(&candidate(&table, &axes, &fitted, &ones))?;
+            let (s_b, _) = evaluate(&candidate(&table, &axes, &other, &ones))?;
+            tried = 2;
+            for (i, o) in other.into_iter().enumerate() {
+                if s_b[i].spike < s_a[i].spike {
+                    fitted[i] = o;
+                }
+            }
+        }
         // Step (6) with a guard: an axis whose spike grows gets its new pulses halved (twice),
         // then dropped, so a pass never leaves an axis worse than the pass before.
         let mut scale = vec![1.0; axes.len()];
@@ -678,7 +710,7 @@ pub fn learn_quadrant(
                 reports.push(PassReport {
                     pass,
                     axes: spikes.clone(),
-                    runs: attempt + 1,
+                    runs: tried + attempt + 1,
                 });
                 break;
             }
@@ -743,6 +775,7 @@ fn fit_axes(
     pass: usize,
     spans: &mut [[Option<(usize, usize)>; 2]],
     options: &LearnOptions,
+    start: SpikeStart,
 ) -> Vec<[Vec<Pulse>; 2]> {
     let mut fitted: Vec<[Vec<Pulse>; 2]> = Vec::new();
     for (i, c) in curves.iter().enumerate() {
@@ -752,7 +785,7 @@ fn fit_axes(
             let (pulses, span) = fit_pass(
                 &c.curves[d],
                 (c.period_s, c.lead),
-                pass as u32,
+                (pass as u32, start),
                 spans[i][d],
                 options,
             );
