@@ -2,19 +2,28 @@
 //!
 //! 1. Reversals are found in the commanded velocity with the compensator's own
 //!    [`ReversalDetector`]; around each one the following error e = th - thL (load units) is
-//!    resampled on tau = 0, T, 2T, ... after the interpolated reversal instant, its value at
-//!    tau = 0 subtracted, and the curves of all reversals of one direction averaged.
+//!    resampled on tau = -L, ..., 0, T, 2T, ... about the interpolated reversal instant (the
+//!    approach, `lead_s` = L before it, and `window_s` after it), its value at tau = -L
+//!    subtracted (the error in steady motion, before the friction's Stribeck rise), and the
+//!    curves of all reversals of one direction averaged. The spike is the largest |e(tau) -
+//!    e(-L)| of any single reversal. (Measured from e(0) instead, the approach error at the
+//!    reversal, -66 nm on the shipped circle, reappears as +62 nm at the end of every window,
+//!    where no pulse after the reversal can reach it.)
 //! 2. In a region of that curve the maximum |e| is the "max point"; the start point is the last
 //!    sample before it, and the end point the first after it, where |e| falls to `threshold` of
 //!    the maximum (or changes sign); otherwise the region's bounds.
-//! 3. Two acceleration-planned models (see [`feedloop_plugins::quadrant`]) span start->max and max->end;
-//!    their rise/fall splits are chosen by bisection on the sign of the least-squares residual's
-//!    slope, with the amplitude at the measured maximum; the common amplitude is then the
+//! 3. Two acceleration-planned models (see [`feedloop_plugins::quadrant`]) span start->max and
+//!    max->end; their rise/fall splits are chosen by bisection on the sign of the least-squares
+//!    residual's slope, with the amplitude at the measured maximum, and kept so that every
+//!    acceleration phase lasts at least `min_phase_s`; the common amplitude is then the
 //!    least-squares fit of both models to the curve.
-//! 4. The pulses are written to the table, the job is run again with them, and the residual is
-//!    fitted in the two sub-regions (start->max, max->end) of every pulse of the previous pass
-//!    (so pass n adds up to 2^(n-1) pulses per direction), until the spike is below `accept` or
-//!    the pass count is reached.
+//! 4. Pass 1 fits the spike after the reversal (against e(0), its start point tried at the
+//!    threshold and at the reversal, kept per axis as it ran better) and the approach, the lobe
+//!    of what is left through the reversal, played from the predicted reversal instant. The
+//!    pulses are written to the table, the job is run again with them, and later passes fit one
+//!    pulse to each lobe of the residual (one sign between zero crossings, so each pulse leaves
+//!    and returns to zero where its lobe does), until the spike is below `accept` or the pass
+//!    count is reached.
 //!
 //! [`learn_quadrant`] runs that loop. It does not know how to run a job: the caller passes a
 //! closure (the CLI's `feedloop learn quadrant` passes the in-process simulation), so the

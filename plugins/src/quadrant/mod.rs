@@ -4,19 +4,30 @@
 //!
 //! At a reversal of the commanded velocity the axis lags: friction flips sign and the loop needs
 //! time to rebuild the torque. The following error e = th - thL (load units, m or rad) then shows
-//! a spike: it leaves zero at a start point, reaches a maximum and returns at an end point. Each
+//! a spike: it leaves zero at a start point, reaches a maximum and returns at an end point (and
+//! with Stribeck friction it already drifts during the approach, as the speed falls). Each
 //! learned pulse is a position offset delta(tau) (load units) over tau = t - t_r, the time since
 //! the reversal, made of two acceleration-planned models:
 //!
 //! - start -> max (rise, split a): delta = A s(u; a), u = (tau - t_s) / (t_m - t_s);
 //! - max -> end (fall, split b): delta = A (1 - s(u; b)), u = (tau - t_m) / (t_e - t_m);
-//! - s(u; a) = u^2 / a for u <= a, 1 - (1 - u)^2 / (1 - a) above: a velocity that rises with
-//!   constant acceleration until the split, then falls with constant deceleration to zero.
+//! - `profile = "constant_acceleration"` ([`planned_rise`]): s(u; a) = u^2 / a for u <= a,
+//!   1 - (1 - u)^2 / (1 - a) above: a velocity that rises with constant acceleration until the
+//!   split, then falls with constant deceleration to zero;
+//! - `profile = "sine_acceleration"` ([`sine_rise`], what the learner writes): the velocity
+//!   rises to its peak at the split with acceleration (4/a) sin^2(pi u / a) and falls the same
+//!   way, so acceleration and jerk are continuous.
 //!
-//! The offset is fed forward like an extra reference the load must follow: the velocity command
-//! w = g (Kp delta + delta') and the torque g J delta'' (J = JM + JL, or the mass; converted to
-//! motor units), so with the loop following its references exactly the learned error is
-//! cancelled exactly (a linear plant; friction makes it only approximately so, hence the passes).
+//! The offset is fed forward like an extra reference the load must follow, through the axis'
+//! 2-mass inverse (as `inverse_feedforward`'s split structure plays the trajectory): the motor
+//! leads the load by the twist (JL/KL) delta'', so the velocity command gets
+//! w = g (Kp delta + delta' + (JL/KL) delta''') and the torque g (J delta'' + JM (JL/KL) delta'''')
+//! (J = JM + JL, or the mass; converted to motor units). With the loop following its references
+//! exactly the learned error is cancelled exactly (a linear plant; friction makes it only
+//! approximately so, hence the passes). Played as a rigid body instead, the steps of a
+//! constant-acceleration pulse wind up the screw and the table rings against the motor (on the
+//! X-Y table's screw, 159 Hz, up to 174 nm after a 761 nm pulse); a constant-acceleration pulse
+//! has zero jerk between its joints, so old tables play exactly as they did.
 //! With `inject = "torque"` the velocity part is turned into the torque the PI velocity loop
 //! would have produced from it, torque_ff += Kv (w + (1/Tv) int w dt).
 //! Pulses of every learning pass add up (see `feedloop_analysis::learn::quadrant`, which finds
@@ -25,14 +36,19 @@
 //!
 //! Trigger: the sign change of the commanded velocity (`reference[1]`, |v| <= 1 nm/s counting as
 //! rest); the reversal instant t_r is interpolated between the two samples (`ReversalDetector`,
-//! shared with the learner so both use the same clock). A reversal to positive velocity plays the table's `to_positive` pulses,
-//! one to negative the `to_negative` pulses.
+//! shared with the learner so both use the same clock). A reversal to positive velocity plays
+//! the table's `to_positive` pulses, one to negative the `to_negative` pulses. Pulses with
+//! `start_s < 0` (the approach) start before the crossing: while no reversal plays, t_r is
+//! predicted from the reference velocity, acceleration and jerk ([`time_to_reversal`]) once it
+//! is at most the earliest `-start_s` away; the detected crossing then takes over. A predicted
+//! reversal that has not come two periods after its instant (the axis stopped) is dropped.
 //!
 //! Keys: `table` (path of the learned table, relative to the job file; required), `gain`
 //! (dimensionless, default 1), `kp_per_s` (1/s, default the model's), `inject` (`"velocity"`
 //! default, or `"torque"` with `kv_nms_per_rad` / `kv_ns_per_m` and `tv_s` defaulting to the
 //! model's `[controller]`), `inertia_kgm2` (`mass_kg` on a rigid axis; default the model's
-//! JM + JL or mass), `axis` (which axis entry of the table to play, default this axis' name).
+//! JM + JL or mass), `jl_kgm2` and `kl_nm_per_rad` (the twist JL/KL; default the model's, 0 on a
+//! rigid axis), `axis` (which axis entry of the table to play, default this axis' name).
 //! The table's file format is in [`table`].
 pub mod table;
 
