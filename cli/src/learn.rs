@@ -91,7 +91,8 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
         })
         .collect();
     let v = json!({"table": report.table_path.display().to_string(),
-        "job_table": report.job_table.display().to_string(), "passes": passes_json});
+        "job_table": report.job_table.display().to_string(), "passes": passes_json,
+        "lead_s": options.lead_s, "window_s": options.window_s});
     if json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
@@ -112,8 +113,21 @@ pub fn run(cmd: LearnCmd) -> Result<ExitCode> {
                 .collect();
             println!("pass {}: {}", p.pass, cells.join(", "));
         }
+        println!(
+            "(spike: the largest |e - e(t_r - {})| of one reversal from {} before to {} after it)",
+            si(options.lead_s, "s"),
+            si(options.lead_s, "s"),
+            si(options.window_s, "s")
+        );
         println!("wrote {}", report.table_path.display());
-        if report.table_path != report.job_table {
+        let same = |a: &std::path::Path, b: &std::path::Path| {
+            a == b
+                || matches!(
+                    (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+                    (Ok(x), Ok(y)) if x == y
+                )
+        };
+        if !same(&report.table_path, &report.job_table) {
             println!(
                 "the job's own table {} is unchanged: copy the new one over it, or learn with --table {} to write it there",
                 report.job_table.display(),

@@ -2,19 +2,28 @@
 //!
 //! 1. Reversals are found in the commanded velocity with the compensator's own
 //!    [`ReversalDetector`]; around each one the following error e = th - thL (load units) is
-//!    resampled on tau = 0, T, 2T, ... after the interpolated reversal instant, its value at
-//!    tau = 0 subtracted, and the curves of all reversals of one direction averaged.
+//!    resampled on tau = -L, ..., 0, T, 2T, ... about the interpolated reversal instant (the
+//!    approach, `lead_s` = L before it, and `window_s` after it), its value at tau = -L
+//!    subtracted (the error in steady motion, before the friction's Stribeck rise), and the
+//!    curves of all reversals of one direction averaged. The spike is the largest |e(tau) -
+//!    e(-L)| of any single reversal. (Measured from e(0) instead, the approach error at the
+//!    reversal, -66 nm on the shipped circle, reappears as +62 nm at the end of every window,
+//!    where no pulse after the reversal can reach it.)
 //! 2. In a region of that curve the maximum |e| is the "max point"; the start point is the last
 //!    sample before it, and the end point the first after it, where |e| falls to `threshold` of
 //!    the maximum (or changes sign); otherwise the region's bounds.
-//! 3. Two acceleration-planned models (see [`feedloop_plugins::quadrant`]) span start->max and max->end;
-//!    their rise/fall splits are chosen by bisection on the sign of the least-squares residual's
-//!    slope, with the amplitude at the measured maximum; the common amplitude is then the
+//! 3. Two acceleration-planned models (see [`feedloop_plugins::quadrant`]) span start->max and
+//!    max->end; their rise/fall splits are chosen by bisection on the sign of the least-squares
+//!    residual's slope, with the amplitude at the measured maximum, and kept so that every
+//!    acceleration phase lasts at least `min_phase_s`; the common amplitude is then the
 //!    least-squares fit of both models to the curve.
-//! 4. The pulses are written to the table, the job is run again with them, and the residual is
-//!    fitted in the two sub-regions (start->max, max->end) of every pulse of the previous pass
-//!    (so pass n adds up to 2^(n-1) pulses per direction), until the spike is below `accept` or
-//!    the pass count is reached.
+//! 4. Pass 1 fits the spike after the reversal (against e(0), its start point tried at the
+//!    threshold and at the reversal, kept per axis as it ran better) and the approach, the lobe
+//!    of what is left through the reversal, played from the predicted reversal instant. The
+//!    pulses are written to the table, the job is run again with them, and later passes fit one
+//!    pulse to each lobe of the residual (one sign between zero crossings, so each pulse leaves
+//!    and returns to zero where its lobe does), until the spike is below `accept` or the pass
+//!    count is reached.
 //!
 //! [`learn_quadrant`] runs that loop. It does not know how to run a job: the caller passes a
 //! closure (the CLI's `feedloop learn quadrant` passes the in-process simulation), so the
@@ -28,8 +37,8 @@ use feedloop_model::params::ConfigError;
 use feedloop_trace::log::AxisRecord;
 
 use feedloop_plugins::quadrant::{
-    planned_rise, AxisPulses, Direction, Pulse, QuadrantCompensator, QuadrantTable,
-    ReversalDetector, MAX_PULSES,
+    AxisPulses, Direction, Profile, Pulse, QuadrantCompensator, QuadrantTable, ReversalDetector,
+    MAX_PULSES,
 };
 
 /// Records of one run, per axis (`records[axis][cycle]`, job axis order, load units).
@@ -43,6 +52,9 @@ pub type RunJob<'a> = dyn FnMut(&Job) -> Result<RunRecords, String> + 'a;
 pub struct LearnOptions {
     /// Error window after each reversal, s (also cut at the next reversal). Default 0.08.
     pub window_s: f64,
+    /// Error window before each reversal (the approach), s; pulses may start that early, played
+    /// from the reversal instant the compensator predicts. Default 0.08.
+    pub lead_s: f64,
     /// Start/end points: where |e| falls to this fraction of the maximum. Default 0.01.
     pub threshold: f64,
     /// Stop when every axis' spike is at or below this, load units (m or rad). Default 0.
@@ -59,12 +71,18 @@ pub struct LearnOptions {
     pub refine_gain: f64,
     /// Later passes fit residual lobes at least this fraction of the largest. Default 0.3.
     pub lobe_fraction: f64,
+    /// Shape of the learned pulses. Default [`Profile::SineAcceleration`].
+    pub profile: Profile,
+    /// Shortest acceleration or deceleration phase of a learned pulse, s: the splits are kept
+    /// so, and a lobe too short for two phases gets no pulse. Default 1 ms.
+    pub min_phase_s: f64,
 }
 
 impl Default for LearnOptions {
     fn default() -> Self {
         Self {
             window_s: 0.08,
+            lead_s: 0.08,
             threshold: 0.01,
             accept: 0.0,
             table: None,
@@ -72,6 +90,8 @@ impl Default for LearnOptions {
             gain: 1.0,
             refine_gain: 0.5,
             lobe_fraction: 0.3,
+            profile: Profile::SineAcceleration,
+            min_phase_s: 0.001,
         }
     }
 }
@@ -155,22 +175,35 @@ pub struct LearnReport {
 pub struct ReversalCurves {
     /// Grid step, s.
     pub period_s: f64,
-    /// Mean curve e(j T) - e(0) per direction (`Direction::index`); empty without reversals.
+    /// Samples before the reversal at the start of every curve: `curves[d][j]` is at
+    /// tau = (j - lead) T.
+    pub lead: usize,
+    /// Mean curve e(tau) - e(-lead T) per direction (`Direction::index`): the error against
+    /// the error before the approach; empty without reversals.
     pub curves: [Vec<f64>; 2],
     /// Reversals per direction.
     pub events: [usize; 2],
-    /// Largest |e(tau) - e(0)| of any single reversal window.
+    /// Largest |e(tau) - e(-lead T)| of any single reversal, approach included.
     pub spike: f64,
 }
 
+impl ReversalCurves {
+    /// Time after the reversal of grid index `j`, s.
+    pub fn tau(&self, j: usize) -> f64 {
+        (j as f64 - self.lead as f64) * self.period_s
+    }
+}
+
 /// Finds the reversals in `vel` (commanded velocity, one sample per period from t = 0) and
-/// averages the error `cmd - load` after them (see the module docs).
+/// averages the error `cmd - load` around them: from `lead_s` before each reversal (the
+/// approach, cut to half the time since the previous reversal) to `window_s` after it (cut at
+/// the next one), against the error where the approach window starts.
 pub fn reversal_curves(
     cmd: &[f64],
     load: &[f64],
     vel: &[f64],
     period_s: f64,
-    window_s: f64,
+    (lead_s, window_s): (f64, f64),
 ) -> ReversalCurves {
     let n = cmd.len().min(load.len()).min(vel.len());
     let mut det = ReversalDetector::new();
@@ -182,6 +215,7 @@ pub fn reversal_curves(
     }
     let e = |k: usize| cmd[k] - load[k];
     let max_len = (window_s / period_s).floor() as usize + 1;
+    let lead = (lead_s.max(0.0) / period_s).floor() as usize;
     let mut sums: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
     let mut counts: [Vec<usize>; 2] = [Vec::new(), Vec::new()];
     let mut events = [0usize; 2];
@@ -198,20 +232,24 @@ pub fn reversal_curves(
         if len < 2 {
             continue;
         }
-        let at = |j: usize| {
-            let hi = e(k + j);
-            let lo = if k + j >= 1 { e(k + j - 1) } else { hi };
+        let prev_k = if i > 0 { revs[i - 1].0 } else { 0 };
+        // samples before the reversal this event has (the rest of the lead is not averaged)
+        let pre = lead.min((k - prev_k) / 2).min(k.saturating_sub(1));
+        let at = |j: isize| {
+            let kk = (k as isize + j) as usize;
+            let hi = e(kk);
+            let lo = if kk >= 1 { e(kk - 1) } else { hi };
             (1.0 - f) * lo + f * hi
         };
-        let e0 = at(0);
+        let base = at(-(pre as isize));
         let d = r.direction.index();
         events[d] += 1;
-        if sums[d].len() < len {
-            sums[d].resize(len, 0.0);
-            counts[d].resize(len, 0);
+        if sums[d].len() < lead + len {
+            sums[d].resize(lead + len, 0.0);
+            counts[d].resize(lead + len, 0);
         }
-        for j in 0..len {
-            let x = at(j) - e0;
+        for j in (lead - pre)..(lead + len) {
+            let x = at(j as isize - lead as isize) - base;
             if x.is_finite() {
                 spike = spike.max(x.abs());
                 sums[d][j] += x;
@@ -228,6 +266,7 @@ pub fn reversal_curves(
     });
     ReversalCurves {
         period_s,
+        lead,
         curves,
         events,
         spike,
@@ -259,10 +298,9 @@ pub fn spike_points(
     Some((s, m, e))
 }
 
-/// Bisection for the split in [0.01, 0.99] minimising `sse` (assumed unimodal): halves the
+/// Bisection for the split in [lo, hi] minimising `sse` (assumed unimodal): halves the
 /// interval on the sign of the slope, 40 times.
-fn bisect_split(sse: impl Fn(f64) -> f64) -> f64 {
-    let (mut lo, mut hi) = (0.01, 0.99);
+fn bisect_split(sse: impl Fn(f64) -> f64, (mut lo, mut hi): (f64, f64)) -> f64 {
     let h = 1e-5;
     for _ in 0..40 {
         let mid = 0.5 * (lo + hi);
@@ -280,13 +318,13 @@ fn bisect_split(sse: impl Fn(f64) -> f64) -> f64 {
 pub fn fit_pulse(
     curve: &[f64],
     period_s: f64,
-    a: usize,
-    b: usize,
+    (a, b): (usize, usize),
     threshold: f64,
     pass: u32,
+    (profile, min_phase_s): (Profile, f64),
 ) -> Option<(Pulse, (usize, usize, usize))> {
     let (s, m, e) = spike_points(curve, a, b, threshold)?;
-    fit_pulse_at(curve, period_s, (s, m, e), pass).map(|p| (p, (s, m, e)))
+    fit_pulse_at(curve, period_s, (s, m, e), pass, (profile, min_phase_s)).map(|p| (p, (s, m, e)))
 }
 
 /// Fits one pulse to `curve` with given start, max and end indices.
@@ -295,12 +333,27 @@ pub fn fit_pulse_at(
     period_s: f64,
     (s, m, e): (usize, usize, usize),
     pass: u32,
+    (profile, min_phase_s): (Profile, f64),
 ) -> Option<Pulse> {
     if e <= s || e >= curve.len() || m < s || m > e {
         return None;
     }
+    // Splits that keep both phases of a model at least `min_phase_s` long (the whole range
+    // when the model is too short for that; such a pulse is refused below).
+    let bounds = |span: f64| {
+        let f = (min_phase_s / span).max(0.01);
+        if f <= 0.5 {
+            (f, 1.0 - f)
+        } else {
+            (0.01, 0.99)
+        }
+    };
     let peak = curve[m];
     let t = |j: usize| j as f64 * period_s;
+    // a model shorter than two phases cannot be played smoothly enough: no pulse
+    if t(m) - t(s) < 2.0 * min_phase_s || t(e) - t(m) < 2.0 * min_phase_s {
+        return None;
+    }
     let rise_sse = |split: f64| -> f64 {
         if m <= s {
             return 0.0;
@@ -308,7 +361,7 @@ pub fn fit_pulse_at(
         let span = t(m) - t(s);
         (s..=m)
             .map(|j| {
-                let (g, _, _) = planned_rise((t(j) - t(s)) / span, split);
+                let g = profile.rise((t(j) - t(s)) / span, split)[0];
                 (curve[j] - peak * g).powi(2)
             })
             .sum()
@@ -320,7 +373,7 @@ pub fn fit_pulse_at(
         let span = t(e) - t(m);
         (m..=e)
             .map(|j| {
-                let (g, _, _) = planned_rise((t(j) - t(m)) / span, split);
+                let g = profile.rise((t(j) - t(m)) / span, split)[0];
                 (curve[j] - peak * (1.0 - g)).powi(2)
             })
             .sum()
@@ -330,9 +383,10 @@ pub fn fit_pulse_at(
         start_s: t(s),
         peak_s: t(m),
         end_s: t(e),
-        rise_split: bisect_split(rise_sse),
-        fall_split: bisect_split(fall_sse),
+        rise_split: bisect_split(rise_sse, bounds(t(m) - t(s))),
+        fall_split: bisect_split(fall_sse, bounds(t(e) - t(m))),
         amplitude: 1.0,
+        profile,
     };
     // Least-squares amplitude of both models together.
     let (mut num, mut den) = (0.0, 0.0);
@@ -345,9 +399,11 @@ pub fn fit_pulse_at(
     pulse.amplitude.is_finite().then_some(pulse)
 }
 
-/// The lobes of `curve[a..=b]`: runs of one sign whose |value| exceeds `threshold` of the
-/// largest |value| there, as (start, max, end) indices (start/end one sample outside the run,
-/// within the bounds), largest first.
+/// The lobes of `curve[a..=b]`: runs of one sign between zero crossings whose largest |value|
+/// is at least `threshold` of the largest |value| there, as (start, max, end) indices (start
+/// and end are the last sample before and the first after the run, where the curve has
+/// crossed zero, or the bounds), largest first. A pulse fitted from start to end then leaves
+/// and returns to zero where the lobe does.
 pub fn lobes(curve: &[f64], a: usize, b: usize, threshold: f64) -> Vec<(usize, usize, usize)> {
     let b = b.min(curve.len().saturating_sub(1));
     if curve.is_empty() || a > b {
@@ -358,12 +414,12 @@ pub fn lobes(curve: &[f64], a: usize, b: usize, threshold: f64) -> Vec<(usize, u
         return Vec::new();
     }
     let sign = |j: usize| {
-        if curve[j].abs() <= threshold * big {
-            0
-        } else if curve[j] > 0.0 {
+        if curve[j] > 0.0 {
             1
-        } else {
+        } else if curve[j] < 0.0 {
             -1
+        } else {
+            0
         }
     };
     let mut out = Vec::new();
@@ -382,52 +438,117 @@ pub fn lobes(curve: &[f64], a: usize, b: usize, threshold: f64) -> Vec<(usize, u
         let m = (first..=last)
             .max_by(|&x, &y| curve[x].abs().total_cmp(&curve[y].abs()))
             .unwrap_or(first);
-        out.push((first.saturating_sub(1).max(a), m, (last + 1).min(b)));
+        if curve[m].abs() >= threshold * big {
+            out.push((first.saturating_sub(1).max(a), m, (last + 1).min(b)));
+        }
     }
     out.sort_by(|x, y| curve[y.1].abs().total_cmp(&curve[x.1].abs()));
     out
 }
 
-/// The pulses of one learning pass for one axis and direction, fitted to the mean error `curve`.
+/// Where pass 1 starts the pulse of the spike after the reversal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SpikeStart {
+    /// Where the error (against its value at the reversal) last stays within `threshold` of
+    /// the maximum (the seed's start point).
+    Threshold,
+    /// At the reversal, where the friction flips, if that is earlier.
+    Reversal,
+}
+
+/// The pulses of one learning pass for one axis and direction, fitted to the mean error `curve`
+/// (grid step `period_s`, `curve[j]` at tau = (j - lead) T; pulse times are in tau).
 ///
-/// Pass 1 fits one pulse to the spike of the whole window. Later passes fit, inside the span
-/// [start, end] of the first pass' pulse (`span`), one pulse to each lobe of the residual whose
-/// size is at least `lobe_fraction` of the largest (the residual of a compensated spike changes
-/// sign, and one pulse cannot model both signs); each fitted pulse is taken off before the next
-/// is fitted. Amplitudes are scaled by the pass' learning gain. Returns the pulses and the span.
+/// Pass 1 (`span` None) fits one pulse to the spike after the reversal (the error against its
+/// value at the reversal; its start point as `start` says), then, to what that pulse leaves, one pulse to each lobe at least
+/// `lobe_fraction` of the largest: the approach (the error before the reversal, which stays
+/// while the spike is played) and what the spike's pulse missed. Later passes fit one pulse to
+/// each lobe of the residual in `span` (the whole curve) at least `lobe_fraction` of the largest
+/// (the residual of a compensated spike changes sign, and one pulse cannot model both signs).
+/// Each fitted pulse is taken off before the next is fitted. Amplitudes are scaled by the
+/// pass' learning gain. Returns the pulses and the span for the next pass.
 pub fn fit_pass(
     curve: &[f64],
-    period_s: f64,
-    pass: u32,
+    (period_s, lead): (f64, usize),
+    (pass, start): (u32, SpikeStart),
     span: Option<(usize, usize)>,
     options: &LearnOptions,
 ) -> (Vec<Pulse>, Option<(usize, usize)>) {
     if curve.is_empty() {
         return (Vec::new(), span);
     }
+    let last = curve.len() - 1;
+    let shape = (options.profile, options.min_phase_s);
+    // Pulses are fitted on the grid's own clock (index j at j T) and shifted to tau at the end.
+    let minus = |c: &[f64], p: Option<&Pulse>| -> Vec<f64> {
+        c.iter()
+            .enumerate()
+            .map(|(j, v)| v - p.map_or(0.0, |p| p.eval(j as f64 * period_s)[0]))
+            .collect()
+    };
+    let mut fitted: Vec<Pulse> = Vec::new();
     match span {
-        None => match fit_pulse(curve, period_s, 0, usize::MAX, options.threshold, pass) {
-            Some((mut p, (s, _, e))) => {
-                p.amplitude *= options.gain;
-                (vec![p], Some((s, e)))
+        None => {
+            // The spike after the reversal and the approach through it overlap: fitted in turn,
+            // each to the curve less the other. The first spike fit takes the error after the
+            // reversal against its value there (the approach error at the reversal).
+            let e0 = curve.get(lead).copied().unwrap_or(0.0);
+            let mut approach: Option<Pulse> = None;
+            let mut spike: Option<Pulse> = None;
+            for round in 0..1 {
+                let rest = minus(curve, approach.as_ref());
+                let target: Vec<f64> = (0..=last)
+                    .map(|j| match (j < lead, round) {
+                        (true, _) => 0.0,
+                        (false, 0) => rest[j] - e0,
+                        (false, _) => rest[j],
+                    })
+                    .collect();
+                spike = spike_points(&target, lead, usize::MAX, options.threshold).and_then(
+                    |(s, m, e)| {
+                        let s = match start {
+                            SpikeStart::Threshold => s,
+                            SpikeStart::Reversal => s.min(lead),
+                        };
+                        fit_pulse_at(&target, period_s, (s, m, e), pass, shape)
+                    },
+                );
+                let Some(sp) = spike else {
+                    return (Vec::new(), None);
+                };
+                let rest = minus(curve, Some(&sp));
+                approach = lobes(&rest, 0, last, 0.0)
+                    .into_iter()
+                    .find(|&(s, _, e)| s < lead && lead < e)
+                    .and_then(|pts| fit_pulse_at(&rest, period_s, pts, pass, shape));
             }
-            None => (Vec::new(), None),
-        },
+            fitted.extend(spike.into_iter().chain(approach).map(|p| Pulse {
+                amplitude: p.amplitude * options.gain,
+                ..p
+            }));
+        }
         Some((a, b)) => {
             let mut work = curve.to_vec();
-            let mut out = Vec::new();
-            for (s, m, e) in lobes(curve, a, b, options.lobe_fraction) {
-                if let Some(mut p) = fit_pulse_at(&work, period_s, (s, m, e), pass) {
+            for pts in lobes(curve, a, b, options.lobe_fraction) {
+                if let Some(mut p) = fit_pulse_at(&work, period_s, pts, pass, shape) {
                     p.amplitude *= options.refine_gain;
-                    for (j, v) in work.iter_mut().enumerate() {
-                        *v -= p.eval(j as f64 * period_s)[0];
-                    }
-                    out.push(p);
+                    work = minus(&work, Some(&p));
+                    fitted.push(p);
                 }
             }
-            (out, span)
         }
     }
+    let shift = lead as f64 * period_s;
+    let out = fitted
+        .into_iter()
+        .map(|p| Pulse {
+            start_s: p.start_s - shift,
+            peak_s: p.peak_s - shift,
+            end_s: p.end_s - shift,
+            ..p
+        })
+        .collect();
+    (out, Some((0, last)))
 }
 
 /// A quadrant_compensator stage of the job: (axis index, table axis name, table path).
@@ -559,7 +680,29 @@ pub fn learn_quadrant(
         if spikes.iter().all(|a| a.spike <= options.accept) {
             break;
         }
-        let fitted = fit_axes(&curves, pass, &mut spans, options);
+        let before = spans.clone();
+        let mut fitted = fit_axes(&curves, pass, &mut spans, options, SpikeStart::Threshold);
+        let mut tried = 0;
+        if pass == 1 {
+            // Where the spike's pulse starts is tried both ways (at the threshold point and at
+            // the reversal, where the friction flips), and kept per axis as it ran better.
+            let other = fit_axes(
+                &curves,
+                pass,
+                &mut before.clone(),
+                options,
+                SpikeStart::Reversal,
+            );
+            let ones = vec![1.0; axes.len()];
+            let (s_a, _) = evaluate(&candidate(&table, &axes, &fitted, &ones))?;
+            let (s_b, _) = evaluate(&candidate(&table, &axes, &other, &ones))?;
+            tried = 2;
+            for (i, o) in other.into_iter().enumerate() {
+                if s_b[i].spike < s_a[i].spike {
+                    fitted[i] = o;
+                }
+            }
+        }
         // Step (6) with a guard: an axis whose spike grows gets its new pulses halved (twice),
         // then dropped, so a pass never leaves an axis worse than the pass before.
         let mut scale = vec![1.0; axes.len()];
@@ -576,7 +719,7 @@ pub fn learn_quadrant(
                 reports.push(PassReport {
                     pass,
                     axes: spikes.clone(),
-                    runs: attempt + 1,
+                    runs: tried + attempt + 1,
                 });
                 break;
             }
@@ -613,7 +756,13 @@ fn measure(
         let rec = &records[*ax];
         let cmd: Vec<f64> = rec.iter().map(|r| r.cmd).collect();
         let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
-        let c = reversal_curves(&cmd, &load, &vel[*ax], job.period_s, options.window_s);
+        let c = reversal_curves(
+            &cmd,
+            &load,
+            &vel[*ax],
+            job.period_s,
+            (options.lead_s, options.window_s),
+        );
         spikes.push(AxisSpike {
             axis: job.axes[*ax].name.clone(),
             spike: c.spike,
@@ -635,14 +784,20 @@ fn fit_axes(
     pass: usize,
     spans: &mut [[Option<(usize, usize)>; 2]],
     options: &LearnOptions,
+    start: SpikeStart,
 ) -> Vec<[Vec<Pulse>; 2]> {
     let mut fitted: Vec<[Vec<Pulse>; 2]> = Vec::new();
     for (i, c) in curves.iter().enumerate() {
         let mut per_dir: [Vec<Pulse>; 2] = [Vec::new(), Vec::new()];
         for dir in Direction::ALL {
             let d = dir.index();
-            let (pulses, span) =
-                fit_pass(&c.curves[d], c.period_s, pass as u32, spans[i][d], options);
+            let (pulses, span) = fit_pass(
+                &c.curves[d],
+                (c.period_s, c.lead),
+                (pass as u32, start),
+                spans[i][d],
+                options,
+            );
             spans[i][d] = span;
             per_dir[d] = pulses;
         }
@@ -720,7 +875,15 @@ mod tests {
     fn fitted_pulse_leaves_less_than_a_fifth_of_a_friction_like_spike() {
         let t = 1e-4;
         let c: Vec<f64> = (0..800).map(|j| spike(j as f64 * t)).collect();
-        let (p, _) = fit_pulse(&c, t, 0, usize::MAX, 0.05, 1).unwrap();
+        let (p, _) = fit_pulse(
+            &c,
+            t,
+            (0, usize::MAX),
+            0.05,
+            1,
+            (Profile::SineAcceleration, 0.0),
+        )
+        .unwrap();
         let peak = c.iter().cloned().fold(0.0, f64::max);
         let resid = c
             .iter()
@@ -742,9 +905,18 @@ mod tests {
             rise_split: 0.3,
             fall_split: 0.7,
             amplitude: -4e-6,
+            profile: Profile::ConstantAcceleration,
         };
         let c: Vec<f64> = (0..=200).map(|j| truth.eval(j as f64 * t)[0]).collect();
-        let (p, _) = fit_pulse(&c, t, 0, 200, 0.0, 1).unwrap();
+        let (p, _) = fit_pulse(
+            &c,
+            t,
+            (0, 200),
+            0.0,
+            1,
+            (Profile::ConstantAcceleration, 0.0),
+        )
+        .unwrap();
         assert!((p.rise_split - 0.3).abs() < 1e-3, "{p:?}");
         assert!((p.fall_split - 0.7).abs() < 1e-3, "{p:?}");
         assert!((p.amplitude + 4e-6).abs() < 1e-10, "{p:?}");
@@ -771,7 +943,7 @@ mod tests {
                 }
             })
             .collect();
-        let c = reversal_curves(&cmd, &load, &vel, t, 0.08);
+        let c = reversal_curves(&cmd, &load, &vel, t, (0.0, 0.08));
         assert_eq!(c.events, [1, 1]);
         let peak = (0..800).map(|j| spike(j as f64 * 1e-4)).fold(0.0, f64::max);
         assert!(

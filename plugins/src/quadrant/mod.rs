@@ -4,19 +4,30 @@
 //!
 //! At a reversal of the commanded velocity the axis lags: friction flips sign and the loop needs
 //! time to rebuild the torque. The following error e = th - thL (load units, m or rad) then shows
-//! a spike: it leaves zero at a start point, reaches a maximum and returns at an end point. Each
+//! a spike: it leaves zero at a start point, reaches a maximum and returns at an end point (and
+//! with Stribeck friction it already drifts during the approach, as the speed falls). Each
 //! learned pulse is a position offset delta(tau) (load units) over tau = t - t_r, the time since
 //! the reversal, made of two acceleration-planned models:
 //!
 //! - start -> max (rise, split a): delta = A s(u; a), u = (tau - t_s) / (t_m - t_s);
 //! - max -> end (fall, split b): delta = A (1 - s(u; b)), u = (tau - t_m) / (t_e - t_m);
-//! - s(u; a) = u^2 / a for u <= a, 1 - (1 - u)^2 / (1 - a) above: a velocity that rises with
-//!   constant acceleration until the split, then falls with constant deceleration to zero.
+//! - `profile = "constant_acceleration"` ([`planned_rise`]): s(u; a) = u^2 / a for u <= a,
+//!   1 - (1 - u)^2 / (1 - a) above: a velocity that rises with constant acceleration until the
+//!   split, then falls with constant deceleration to zero;
+//! - `profile = "sine_acceleration"` ([`sine_rise`], what the learner writes): the velocity
+//!   rises to its peak at the split with acceleration (4/a) sin^2(pi u / a) and falls the same
+//!   way, so acceleration and jerk are continuous.
 //!
-//! The offset is fed forward like an extra reference the load must follow: the velocity command
-//! w = g (Kp delta + delta') and the torque g J delta'' (J = JM + JL, or the mass; converted to
-//! motor units), so with the loop following its references exactly the learned error is
-//! cancelled exactly (a linear plant; friction makes it only approximately so, hence the passes).
+//! The offset is fed forward like an extra reference the load must follow, through the axis'
+//! 2-mass inverse (as `inverse_feedforward`'s split structure plays the trajectory): the motor
+//! leads the load by the twist (JL/KL) delta'', so the velocity command gets
+//! w = g (Kp delta + delta' + (JL/KL) delta''') and the torque g (J delta'' + JM (JL/KL) delta'''')
+//! (J = JM + JL, or the mass; converted to motor units). With the loop following its references
+//! exactly the learned error is cancelled exactly (a linear plant; friction makes it only
+//! approximately so, hence the passes). Played as a rigid body instead, the steps of a
+//! constant-acceleration pulse wind up the screw and the table rings against the motor (on the
+//! X-Y table's screw, 159 Hz, up to 174 nm after a 761 nm pulse); a constant-acceleration pulse
+//! has zero jerk between its joints, so old tables play exactly as they did.
 //! With `inject = "torque"` the velocity part is turned into the torque the PI velocity loop
 //! would have produced from it, torque_ff += Kv (w + (1/Tv) int w dt).
 //! Pulses of every learning pass add up (see `feedloop_analysis::learn::quadrant`, which finds
@@ -25,14 +36,19 @@
 //!
 //! Trigger: the sign change of the commanded velocity (`reference[1]`, |v| <= 1 nm/s counting as
 //! rest); the reversal instant t_r is interpolated between the two samples (`ReversalDetector`,
-//! shared with the learner so both use the same clock). A reversal to positive velocity plays the table's `to_positive` pulses,
-//! one to negative the `to_negative` pulses.
+//! shared with the learner so both use the same clock). A reversal to positive velocity plays
+//! the table's `to_positive` pulses, one to negative the `to_negative` pulses. Pulses with
+//! `start_s < 0` (the approach) start before the crossing: while no reversal plays, t_r is
+//! predicted from the reference velocity, acceleration and jerk ([`time_to_reversal`]) once it
+//! is at most the earliest `-start_s` away; the detected crossing then takes over. A predicted
+//! reversal that has not come two periods after its instant (the axis stopped) is dropped.
 //!
 //! Keys: `table` (path of the learned table, relative to the job file; required), `gain`
 //! (dimensionless, default 1), `kp_per_s` (1/s, default the model's), `inject` (`"velocity"`
 //! default, or `"torque"` with `kv_nms_per_rad` / `kv_ns_per_m` and `tv_s` defaulting to the
 //! model's `[controller]`), `inertia_kgm2` (`mass_kg` on a rigid axis; default the model's
-//! JM + JL or mass), `axis` (which axis entry of the table to play, default this axis' name).
+//! JM + JL or mass), `jl_kgm2` and `kl_nm_per_rad` (the twist JL/KL; default the model's, 0 on a
+//! rigid axis), `axis` (which axis entry of the table to play, default this axis' name).
 //! The table's file format is in [`table`].
 pub mod table;
 
@@ -154,8 +170,33 @@ impl ReversalDetector {
     }
 }
 
+/// Time until the commanded velocity `v` (acceleration `a`, jerk `j`; load units) crosses zero,
+/// s, and the direction it will then have; `None` unless it is moving and decelerating. The root
+/// of v + a t + j t^2 / 2 nearest to -v/a (two Newton steps from there).
+#[inline]
+pub fn time_to_reversal(v: f64, a: f64, j: f64) -> Option<(f64, usize)> {
+    if !(v.abs() > REST_VELOCITY && a.is_finite() && j.is_finite()) || v * a >= 0.0 {
+        return None;
+    }
+    let mut t = -v / a;
+    for _ in 0..2 {
+        let slope = a + j * t;
+        if slope * a <= 0.0 {
+            break;
+        }
+        t -= (v + a * t + 0.5 * j * t * t) / slope;
+    }
+    let d = if v > 0.0 {
+        Direction::ToNegative
+    } else {
+        Direction::ToPositive
+    };
+    (t.is_finite() && t >= 0.0).then_some((t, d.index()))
+}
+
 /// Normalised acceleration-planned rise s(u; split) on u in [0, 1], its slope ds/du and its
-/// curvature d2s/du2 (constant acceleration 2/split, then constant deceleration).
+/// curvature d2s/du2 (constant acceleration 2/split, then constant deceleration): the
+/// [`Profile::ConstantAcceleration`] rise.
 #[inline]
 pub fn planned_rise(u: f64, split: f64) -> (f64, f64, f64) {
     let u = u.clamp(0.0, 1.0);
@@ -168,6 +209,89 @@ pub fn planned_rise(u: f64, split: f64) -> (f64, f64, f64) {
             2.0 * w / (1.0 - split),
             -2.0 / (1.0 - split),
         )
+    }
+}
+
+/// Normalised rise with sine-squared acceleration on u in [0, 1] and its first four derivatives
+/// (the [`Profile::SineAcceleration`] rise): the velocity ds/du rises from 0 to its peak 2 at
+/// `split` with acceleration (4/a) sin^2(pi u / a), a = split, then falls back to 0 at u = 1 the
+/// same way over 1 - a. Velocity, acceleration and jerk are continuous everywhere (zero at both
+/// ends and at the split), so the pulse can be played through the 2-mass inverse (its twist
+/// needs the jerk, its torque the fourth derivative).
+#[inline]
+pub fn sine_rise(u: f64, split: f64) -> [f64; 5] {
+    use std::f64::consts::TAU;
+    let u = u.clamp(0.0, 1.0);
+    if u <= split {
+        let a = split;
+        let p = TAU / a;
+        let (sn, cs) = (p * u).sin_cos();
+        let k = 2.0 / a;
+        [
+            k * (0.5 * u * u - (1.0 - cs) / (p * p)),
+            k * (u - sn / p),
+            k * (1.0 - cs),
+            k * p * sn,
+            k * p * p * cs,
+        ]
+    } else {
+        let b = 1.0 - split;
+        let w = 1.0 - u;
+        let q = TAU / b;
+        let (sn, cs) = (q * w).sin_cos();
+        let k = 2.0 / b;
+        [
+            1.0 - k * (0.5 * w * w - (1.0 - cs) / (q * q)),
+            k * (w - sn / q),
+            -k * (1.0 - cs),
+            k * q * sn,
+            -k * q * q * cs,
+        ]
+    }
+}
+
+/// How a pulse's rise and fall models move between 0 and 1 (both acceleration-planned: the
+/// velocity peaks at the model's split).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Profile {
+    /// Constant acceleration up to the split, constant deceleration after ([`planned_rise`]).
+    /// Its acceleration jumps, so the spring of a 2-mass axis rings after every joint; tables
+    /// written before 2026-11-25 hold only this profile (the default when `profile` is absent).
+    #[default]
+    ConstantAcceleration,
+    /// Sine-squared acceleration and deceleration ([`sine_rise`]): continuous acceleration and
+    /// jerk, so the compensator can play the pulse through the 2-mass inverse.
+    SineAcceleration,
+}
+
+impl Profile {
+    /// Both profiles.
+    pub const ALL: [Profile; 2] = [Profile::ConstantAcceleration, Profile::SineAcceleration];
+
+    /// Name in table files.
+    pub fn id(self) -> &'static str {
+        match self {
+            Profile::ConstantAcceleration => "constant_acceleration",
+            Profile::SineAcceleration => "sine_acceleration",
+        }
+    }
+
+    /// The profile named `id`.
+    pub fn from_id(id: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.id() == id)
+    }
+
+    /// Normalised rise s(u; split) and its first four derivatives by u (for the constant
+    /// acceleration the third and fourth are zero between the joints).
+    #[inline]
+    pub fn rise(self, u: f64, split: f64) -> [f64; 5] {
+        match self {
+            Profile::ConstantAcceleration => {
+                let (s, ds, dds) = planned_rise(u, split);
+                [s, ds, dds, 0.0, 0.0]
+            }
+            Profile::SineAcceleration => sine_rise(u, split),
+        }
     }
 }
 
@@ -188,34 +312,51 @@ pub struct Pulse {
     pub fall_split: f64,
     /// Offset at the peak, load units (m or rad).
     pub amplitude: f64,
+    /// Shape of the rise and fall models.
+    pub profile: Profile,
 }
 
 impl Pulse {
-    /// Shape (offset / amplitude) and its first and second time derivatives at `tau` s after
-    /// the reversal.
+    /// Shape (offset / amplitude) and its first four time derivatives at `tau` s after the
+    /// reversal.
     #[inline]
-    pub fn shape(&self, tau: f64) -> [f64; 3] {
+    pub fn shape(&self, tau: f64) -> [f64; 5] {
         if tau <= self.start_s || tau >= self.end_s {
-            return [0.0; 3];
+            return [0.0; 5];
         }
+        let scaled = |r: [f64; 5], span: f64, sign: f64| {
+            let mut out = [0.0; 5];
+            let mut f = 1.0;
+            for (o, x) in out.iter_mut().zip(r) {
+                *o = sign * x * f;
+                f /= span;
+            }
+            out
+        };
         if tau < self.peak_s {
             let span = self.peak_s - self.start_s;
-            let (s, ds, dds) = planned_rise((tau - self.start_s) / span, self.rise_split);
-            [s, ds / span, dds / (span * span)]
+            let r = self
+                .profile
+                .rise((tau - self.start_s) / span, self.rise_split);
+            scaled(r, span, 1.0)
         } else {
             let span = self.end_s - self.peak_s;
             if span <= 0.0 {
-                return [0.0; 3];
+                return [0.0; 5];
             }
-            let (s, ds, dds) = planned_rise((tau - self.peak_s) / span, self.fall_split);
-            [1.0 - s, -ds / span, -dds / (span * span)]
+            let r = self
+                .profile
+                .rise((tau - self.peak_s) / span, self.fall_split);
+            let mut out = scaled(r, span, -1.0);
+            out[0] += 1.0;
+            out
         }
     }
 
-    /// Offset (load units), its rate (load units/s) and acceleration (load units/s^2) at `tau`
-    /// s after the reversal.
+    /// Offset (load units) and its first four time derivatives (load units/s, /s^2, /s^3,
+    /// /s^4) at `tau` s after the reversal.
     #[inline]
-    pub fn eval(&self, tau: f64) -> [f64; 3] {
+    pub fn eval(&self, tau: f64) -> [f64; 5] {
         self.shape(tau).map(|x| self.amplitude * x)
     }
 }
@@ -252,6 +393,11 @@ pub struct QuadrantParams {
     pub inject: Injection,
     /// Inertia (kg m^2) or mass (kg) the motor accelerates, for the torque J delta''.
     pub inertia: f64,
+    /// Load-side inertia over the screw stiffness, JL / KL, s^2 (0 on a rigid axis): the motor
+    /// leads the load by the twist (JL/KL) delta'' (about 1e-6 s^2 on the X-Y table).
+    pub twist_s2: f64,
+    /// Load-side inertia JL, kg m^2 (0 on a rigid axis).
+    pub load_inertia: f64,
 }
 
 impl QuadrantParams {
@@ -280,6 +426,24 @@ impl QuadrantParams {
             Range::Within(0.0, 1e9),
             axis.plant.total_inertia(),
         )?;
+        let two_mass = axis.plant.two_mass();
+        let jl = f.f64_or(
+            "jl_kgm2",
+            Range::Within(0.0, 1e9),
+            two_mass.map_or(0.0, |t| t.jl_kgm2),
+        )?;
+        let kl = f.opt_f64("kl_nm_per_rad", Range::Within(1e-9, 1e15))?;
+        let kl = kl.or(two_mass.map(|t| t.kl_nm_per_rad));
+        let twist_s2 = match kl {
+            Some(kl) if kl.is_finite() && kl > 0.0 => jl / kl,
+            _ => 0.0,
+        };
+        if twist_s2 > 0.0 && jl > inertia {
+            return Err(f.error(
+                "jl_kgm2",
+                format!("must not exceed the total inertia {inertia_key} = {inertia}, got {jl}"),
+            ));
+        }
         let inject = match inject {
             "velocity" => Injection::Velocity,
             "torque" => Injection::Torque {
@@ -322,7 +486,18 @@ impl QuadrantParams {
             motor_per_load: axis.plant.motor_per_load(),
             inject,
             inertia,
+            twist_s2,
+            load_inertia: jl,
         })
+    }
+
+    /// The motor-side inertia JM = J - JL (kg m^2; the mass on a rigid axis).
+    pub fn motor_inertia(&self) -> f64 {
+        if self.twist_s2 > 0.0 {
+            (self.inertia - self.load_inertia).max(0.0)
+        } else {
+            self.inertia
+        }
     }
 }
 
@@ -337,6 +512,10 @@ pub struct QuadrantCompensator {
     detector: ReversalDetector,
     /// Reversal being played: (t_r, direction index).
     active: Option<(f64, usize)>,
+    /// `active` is an anticipated reversal (t_r predicted from the reference), not yet seen.
+    predicted: bool,
+    /// How long before the reversal the earliest pulse starts, per direction, s (>= 0).
+    lead: [f64; 2],
     /// Integral of the injected velocity (torque injection), motor units.
     integral: f64,
 }
@@ -352,12 +531,15 @@ impl QuadrantCompensator {
             params.pulses.to_negative.clone(),
         ];
         let horizon = [0, 1].map(|i| pulses[i].iter().map(|p| p.end_s).fold(0.0, f64::max));
+        let lead = [0, 1].map(|i| pulses[i].iter().map(|p| -p.start_s).fold(0.0, f64::max));
         Self {
             params,
             pulses,
             horizon,
             detector: ReversalDetector::new(),
             active: None,
+            predicted: false,
+            lead,
             integral: 0.0,
         }
     }
@@ -367,17 +549,20 @@ impl QuadrantCompensator {
         &self.params
     }
 
-    /// Offset (load units), rate and acceleration at `t_s`, given the active reversal.
+    /// Offset (load units) and its first four derivatives at `t_s`, given the active reversal.
     #[inline]
-    fn offset(&self, t_s: f64) -> [f64; 3] {
+    fn offset(&self, t_s: f64) -> [f64; 5] {
+        let mut sum = [0.0; 5];
         let Some((t_r, d)) = self.active else {
-            return [0.0; 3];
+            return sum;
         };
         let tau = t_s - t_r;
-        self.pulses[d]
-            .iter()
-            .map(|p| p.eval(tau))
-            .fold([0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+        for p in &self.pulses[d] {
+            for (s, x) in sum.iter_mut().zip(p.eval(tau)) {
+                *s += x;
+            }
+        }
+        sum
     }
 }
 
@@ -387,21 +572,39 @@ impl Controller for QuadrantCompensator {
     }
 
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
-        let v = io.reference[1] / self.params.motor_per_load;
+        let mpl = self.params.motor_per_load;
+        let v = io.reference[1] / mpl;
         if let Some(r) = self.detector.update(ctx.t_s, v) {
             self.active = Some((r.t_s, r.direction.index()));
-        }
-        if let Some((t_r, d)) = self.active {
-            if ctx.t_s - t_r > self.horizon[d] {
-                self.active = None;
+            self.predicted = false;
+        } else if self.active.is_none() || self.predicted {
+            // Pulses that start before the reversal play from its predicted instant.
+            if let Some((t_to, d)) =
+                time_to_reversal(v, io.reference[2] / mpl, io.reference[3] / mpl)
+            {
+                if t_to <= self.lead[d] {
+                    self.active = Some((ctx.t_s + t_to, d));
+                    self.predicted = true;
+                }
             }
         }
-        let [delta, rate, acc] = self.offset(ctx.t_s);
+        if let Some((t_r, d)) = self.active {
+            let tau = ctx.t_s - t_r;
+            // a predicted reversal that did not come (the axis stopped) is dropped
+            if tau > self.horizon[d] || (self.predicted && tau > 2.0 * ctx.period_s) {
+                self.active = None;
+                self.predicted = false;
+            }
+        }
+        let [delta, rate, acc, jerk, snap] = self.offset(ctx.t_s);
         let p = &self.params;
-        let w = p.gain * (p.kp_per_s * delta + rate) * p.motor_per_load;
-        let tau = p.gain * p.inertia * acc * p.motor_per_load;
+        // load offset delta; the motor moves delta + twist, twist = (JL/KL) delta''
+        let w = p.gain * (p.kp_per_s * delta + rate + p.twist_s2 * jerk) * p.motor_per_load;
+        let tau =
+            p.gain * (p.inertia * acc + p.motor_inertia() * p.twist_s2 * snap) * p.motor_per_load;
         if !(w.is_finite() && tau.is_finite()) {
             self.active = None;
+            self.predicted = false;
             return;
         }
         io.torque_ff += tau;
@@ -423,7 +626,7 @@ impl Controller for QuadrantCompensator {
     }
 
     /// Snapshot layout: [detector sign, last velocity, last time, active (0/1), t_r, direction,
-    /// torque-injection integral].
+    /// torque-injection integral, predicted (0/1)].
     fn snapshot(&self) -> ControllerState {
         let d = &self.detector;
         let (act, t_r, dir) = match self.active {
@@ -438,6 +641,7 @@ impl Controller for QuadrantCompensator {
             t_r,
             dir,
             self.integral,
+            self.predicted as u8 as f64,
         ])
     }
 
@@ -450,6 +654,7 @@ impl Controller for QuadrantCompensator {
         };
         self.active = (at(3) != 0.0).then(|| (at(4), (at(5) as usize).min(1)));
         self.integral = at(6);
+        self.predicted = self.active.is_some() && at(7) != 0.0;
     }
 
     fn initialize_from(&mut self, last: &AxisSignals) {
@@ -477,19 +682,20 @@ mod tests {
             rise_split: 0.3,
             fall_split: 0.6,
             amplitude: 2e-6,
+            profile: Profile::ConstantAcceleration,
         }
     }
 
     #[test]
     fn pulse_rises_to_its_amplitude_at_the_peak_and_returns_to_zero_with_zero_velocity() {
         let p = pulse();
-        assert_eq!(p.eval(0.0005), [0.0; 3]);
-        let [d, r, _] = p.eval(0.004);
+        assert_eq!(p.eval(0.0005), [0.0; 5]);
+        let [d, r, ..] = p.eval(0.004);
         assert!((d - 2e-6).abs() < 1e-15 && r.abs() < 1e-12, "{d} {r}");
-        let [d, r, _] = p.eval(0.014 - 1e-9);
+        let [d, r, ..] = p.eval(0.014 - 1e-9);
         assert!(d.abs() < 1e-15 && r.abs() < 1e-9, "{d} {r}");
         // the rise's velocity peaks at its split: 2 A / span, after an acceleration 2 A / (a span^2)
-        let [_, r, a] = p.eval(0.001 + 0.3 * 0.003 - 1e-9);
+        let [_, r, a, ..] = p.eval(0.001 + 0.3 * 0.003 - 1e-9);
         assert!((r - 2.0 * 2e-6 / 0.003).abs() < 1e-8, "{r}");
         assert!((a - 2.0 * 2e-6 / (0.3 * 0.003 * 0.003)).abs() < 1e-6, "{a}");
     }
@@ -511,6 +717,46 @@ mod tests {
                 (a - p.eval(t)[2]).abs() < 1e-6 * a.abs().max(1.0),
                 "t {t}: {a}"
             );
+        }
+    }
+
+    #[test]
+    fn sine_acceleration_pulse_has_continuous_derivatives_up_to_the_jerk() {
+        let p = Pulse {
+            profile: Profile::SineAcceleration,
+            ..pulse()
+        };
+        let [d, r, a, j, _] = p.eval(0.004);
+        assert!((d - 2e-6).abs() < 1e-15, "{d}");
+        assert!(
+            r.abs() < 1e-12 && a.abs() < 1e-6 && j.abs() < 1e-3,
+            "{r} {a} {j}"
+        );
+        // each derivative is the central difference of the one before, across the joints too
+        let h = 1e-8;
+        for k in 1..1500 {
+            let t = k as f64 * 1e-5 + 3e-7;
+            let (lo, hi, mid) = (p.eval(t - h), p.eval(t + h), p.eval(t));
+            for n in 0..4 {
+                let fd = (hi[n] - lo[n]) / (2.0 * h);
+                let scale = mid[n + 1].abs().max(p.eval(0.0025)[n + 1].abs());
+                assert!(
+                    (fd - mid[n + 1]).abs() <= 1e-4 * scale,
+                    "t {t} order {}: {fd} vs {}",
+                    n + 1,
+                    mid[n + 1]
+                );
+            }
+        }
+        // velocity, acceleration and jerk vanish at the start, the peak and the end
+        for t in [0.001, 0.004, 0.014] {
+            for side in [-1e-9, 1e-9] {
+                let v = p.eval(t + side);
+                assert!(
+                    v[1].abs() < 1e-9 && v[2].abs() < 1e-3 && v[3].abs() < 1.0,
+                    "{t}: {v:?}"
+                );
+            }
         }
     }
 
@@ -547,6 +793,8 @@ mod tests {
             motor_per_load: 100.0,
             inject,
             inertia: 0.0,
+            twist_s2: 0.0,
+            load_inertia: 0.0,
         })
     }
 
@@ -608,6 +856,109 @@ mod tests {
             assert!((a.torque - b.torque_ff).abs() < 1e-9, "k {k}");
         }
         assert!(integ != 0.0);
+    }
+
+    #[test]
+    fn time_to_reversal_solves_the_zero_crossing_of_a_decelerating_command() {
+        // v = 0.02 - 0.5 t + 0.4 t^2 / 2: the root nearest to v / |a| = 40 ms
+        let (t, d) = time_to_reversal(0.02, -0.5, 0.4).unwrap();
+        assert!((0.02 - 0.5 * t + 0.2 * t * t).abs() < 1e-12, "{t}");
+        assert!((t - 0.04).abs() < 0.002, "{t}");
+        assert_eq!(d, Direction::ToNegative.index());
+        assert_eq!(time_to_reversal(-0.02, 0.5, 0.0).unwrap().1, 0);
+        // accelerating away from zero, at rest, or not finite: no reversal ahead
+        assert_eq!(time_to_reversal(0.02, 0.5, 0.0), None);
+        assert_eq!(time_to_reversal(0.0, -0.5, 0.0), None);
+        assert_eq!(time_to_reversal(0.02, f64::NAN, 0.0), None);
+    }
+
+    #[test]
+    fn pulse_starting_before_the_reversal_plays_from_the_predicted_instant() {
+        let early = Pulse {
+            start_s: -0.004,
+            peak_s: 0.0,
+            end_s: 0.003,
+            profile: Profile::SineAcceleration,
+            ..pulse()
+        };
+        let mut c = QuadrantCompensator::new(QuadrantParams {
+            pulses: AxisPulses {
+                to_positive: vec![early],
+                to_negative: vec![],
+            },
+            ..compensator(Injection::Velocity).params
+        });
+        let t = 1e-4;
+        // reference velocity (motor units) (k - 100.5) * 0.1: crosses zero at k = 100.5
+        let t_r = 100.5 * t;
+        let mut played_before = 0;
+        for k in 0..200u64 {
+            let ts = k as f64 * t;
+            let mut io = AxisSignals::default();
+            io.reference[1] = (k as f64 - 100.5) * 0.1;
+            io.reference[2] = 0.1 / t;
+            c.step(
+                &CycleContext {
+                    period_s: t,
+                    cycle: k,
+                    t_s: ts,
+                },
+                &mut io,
+            );
+            let [d, r, ..] = early.eval(ts - t_r);
+            let expect = (50.0 * d + r) * 100.0;
+            assert!(
+                (io.vel_cmd - expect).abs() <= 1e-9 * expect.abs().max(1e-3),
+                "k {k}: {} vs {expect}",
+                io.vel_cmd
+            );
+            played_before += (ts < t_r && io.vel_cmd != 0.0) as usize;
+        }
+        assert!(played_before >= 39, "{played_before}");
+    }
+
+    #[test]
+    fn pulse_on_a_two_mass_axis_moves_the_motor_ahead_by_the_twist() {
+        let p = Pulse {
+            profile: Profile::SineAcceleration,
+            ..pulse()
+        };
+        let params = |twist_s2| QuadrantParams {
+            pulses: AxisPulses {
+                to_positive: vec![p],
+                to_negative: vec![],
+            },
+            inertia: 5e-3,
+            twist_s2,
+            load_inertia: 3e-3,
+            ..compensator(Injection::Velocity).params
+        };
+        let (mut rigid, mut two) = (
+            QuadrantCompensator::new(params(0.0)),
+            QuadrantCompensator::new(params(1e-6)),
+        );
+        let t = 1e-4;
+        let mut twisted = 0;
+        for k in 0..300u64 {
+            let ctx = CycleContext {
+                period_s: t,
+                cycle: k,
+                t_s: k as f64 * t,
+            };
+            let mut a = AxisSignals::default();
+            a.reference[1] = (k as f64 - 100.0) * 1e-3 * 100.0;
+            let mut b = a;
+            rigid.step(&ctx, &mut a);
+            two.step(&ctx, &mut b);
+            let e = p.eval(ctx.t_s - 0.01);
+            // velocity + (JL/KL) jerk, torque + JM (JL/KL) snap (motor units: x 100)
+            let dv = 1e-6 * e[3] * 100.0;
+            let dt = 2e-3 * 1e-6 * e[4] * 100.0;
+            assert!((b.vel_cmd - a.vel_cmd - dv).abs() < 1e-12, "k {k}");
+            assert!((b.torque_ff - a.torque_ff - dt).abs() < 1e-12, "k {k}");
+            twisted += (dv != 0.0) as usize;
+        }
+        assert!(twisted > 100, "{twisted}");
     }
 
     #[test]

@@ -11,6 +11,8 @@
 //! rise_split = 0.31   # where the rise model's velocity peaks, fraction of its span
 //! fall_split = 0.22   # where the fall model's velocity peaks, fraction of its span
 //! amplitude = 2.1e-6  # offset at the peak, m (rad on a rotary axis)
+//! profile = "sine_acceleration"  # shape of both models; optional, default
+//!                                # "constant_acceleration" (tables learned before 2026-11-25)
 //! ```
 //!
 //! A table holds, per axis name, the pulses played after a reversal to positive and to negative
@@ -22,7 +24,7 @@ use std::path::Path;
 
 use feedloop_model::params::{read_toml_file, ConfigError, Fields, Range};
 
-use super::{Direction, Pulse};
+use super::{Direction, Profile, Pulse};
 
 /// The `format` value of a table file.
 pub const TABLE_FORMAT: &str = "feedloop-quadrant-table-1";
@@ -143,6 +145,7 @@ impl QuadrantTable {
                     let _ = writeln!(s, "rise_split = {:?}", p.rise_split);
                     let _ = writeln!(s, "fall_split = {:?}", p.fall_split);
                     let _ = writeln!(s, "amplitude = {:?}", p.amplitude);
+                    let _ = writeln!(s, "profile = \"{}\"", p.profile.id());
                 }
             }
         }
@@ -164,6 +167,16 @@ fn parse_pulse(t: &toml::Table, path: &Path, key: &str) -> Result<Pulse, ConfigE
     let rise_split = f.f64("rise_split", Range::Within(1e-3, 1.0 - 1e-3))?;
     let fall_split = f.f64("fall_split", Range::Within(1e-3, 1.0 - 1e-3))?;
     let amplitude = f.f64("amplitude", Range::Within(-1e3, 1e3))?;
+    let profile = match f.opt_str("profile")? {
+        None => Profile::default(),
+        Some(id) => Profile::from_id(id).ok_or_else(|| {
+            let known: Vec<&str> = Profile::ALL.iter().map(|p| p.id()).collect();
+            f.error(
+                "profile",
+                format!("unknown profile `{id}` ({})", known.join(", ")),
+            )
+        })?,
+    };
     if peak_s < start_s {
         return Err(f.error(
             "peak_s",
@@ -185,6 +198,7 @@ fn parse_pulse(t: &toml::Table, path: &Path, key: &str) -> Result<Pulse, ConfigE
         rise_split,
         fall_split,
         amplitude,
+        profile,
     })
 }
 
@@ -201,6 +215,7 @@ mod tests {
         ap.to_negative.push(Pulse {
             amplitude: -1.234567890123e-6,
             pass: 2,
+            profile: Profile::SineAcceleration,
             ..pulse()
         });
         t.axes.insert("x".into(), ap);
@@ -219,5 +234,20 @@ mod tests {
         let parsed: toml::Table = text.parse().unwrap();
         let e = QuadrantTable::from_table(&parsed, Path::new("t.toml")).unwrap_err();
         assert_eq!(e.key, "axes.x.to_positive[0].end_s");
+    }
+
+    #[test]
+    fn table_without_profile_keys_reads_as_constant_acceleration_and_an_unknown_one_is_named() {
+        let body = "[[axes.x.to_positive]]\nstart_s = 0\npeak_s = 0.005\nend_s = 0.01\nrise_split = 0.5\nfall_split = 0.5\namplitude = 1e-6\n";
+        let text = format!("format = \"{TABLE_FORMAT}\"\n{body}");
+        let t = QuadrantTable::from_table(&text.parse().unwrap(), Path::new("t.toml")).unwrap();
+        assert_eq!(
+            t.axes["x"].to_positive[0].profile,
+            Profile::ConstantAcceleration
+        );
+        let text = format!("format = \"{TABLE_FORMAT}\"\n{body}profile = \"cubic\"\n");
+        let e = QuadrantTable::from_table(&text.parse().unwrap(), Path::new("t.toml")).unwrap_err();
+        assert_eq!(e.key, "axes.x.to_positive[0].profile");
+        assert!(e.to_string().contains("sine_acceleration"), "{e}");
     }
 }
