@@ -937,6 +937,19 @@ fn reversal_lines(e: &feedloop_analysis::identify::reversals::ReversalEffects) -
         si(2.0 * e.friction_nm.abs(), "N m"),
         e.reversals,
     ));
+    if let Some(sw) = e.flank_swing_m {
+        out.push(format!(
+            "contact: the deflection swings {} within a direction, {} times further one way \
+             than the other ({})",
+            si(sw, "m"),
+            sig(e.flank_lopsided.unwrap_or(f64::NAN)),
+            if e.flank_lifted {
+                "the excitation lifts the nut off its flank"
+            } else {
+                "the nut stays on its flank"
+            }
+        ));
+    }
     if let (Some(lost), Some(ci), Some(el)) = (e.lost_motion_m, e.lost_motion_ci_m, e.elastic_m) {
         out.push(if e.backlash_seen {
             format!(

@@ -754,12 +754,24 @@ fn identify_inertia_linear_refuses_absurd_inertias_and_far_extrapolations() {
 /// The shipped stiffness job with only its model file changed (written here, not shipped):
 /// `(tag, model text, JM, KL, JL)`.
 fn stiffness_axis(d: &Path, tag: &str, model: &str) -> PathBuf {
+    stiffness_axis_at(d, tag, model, None)
+}
+
+/// [`stiffness_axis`] with another excitation amplitude (m/s) when given.
+fn stiffness_axis_at(d: &Path, tag: &str, model: &str, amplitude: Option<f64>) -> PathBuf {
     let dir = d.join(tag);
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("model.toml"), model).unwrap();
     let job = std::fs::read_to_string(repo("examples/jobs/identify-stiffness.toml")).unwrap();
     assert!(job.contains("\"../models/xy-x.toml\""));
-    let job = job.replace("\"../models/xy-x.toml\"", "\"model.toml\"");
+    let mut job = job.replace("\"../models/xy-x.toml\"", "\"model.toml\"");
+    if let Some(a) = amplitude {
+        assert!(job.contains("velocity_m_per_s = { x = 2.0e-4 }"));
+        job = job.replace(
+            "velocity_m_per_s = { x = 2.0e-4 }",
+            &format!("velocity_m_per_s = {{ x = {a:e} }}"),
+        );
+    }
     std::fs::write(dir.join("job.toml"), job).unwrap();
     sim(&dir.join("job.toml"), &dir.join("out"))
 }
@@ -839,7 +851,24 @@ fn the_shipped_stiffness_job_survives_backlash_friction_and_noise_or_refuses() {
         assert!((num(e, "backlash_m") / gap - 1.0).abs() < 0.1, "{tag}: {e}");
         // a Coulomb step where the model has one, none on the axis with damping alone
         assert_eq!(e["friction_seen"], tag != "backlash", "{tag}: {e}");
+        assert_eq!(e["flank_lifted"], false, "{tag}: {e}");
     }
+    // Five times the shipped amplitude lifts the nut off its flank on `xy-x-effects`: the fit
+    // still looks tight, the result is wrong (KL about -11 %), and it is refused for that.
+    let effects = std::fs::read_to_string(repo("examples/models/xy-x-effects.toml")).unwrap();
+    let trace = stiffness_axis_at(&d, "lifted", &effects, Some(1e-3));
+    let v = json(&cli(
+        "identify stiffness --jm-kgm2 2e-3 --force",
+        &[("--trace", &trace)],
+    ));
+    assert_eq!(v["credible"], false, "{v}");
+    assert_eq!(v["reversal_effects"]["flank_lifted"], true, "{v}");
+    assert!(
+        v["checks"]["problems"]
+            .to_string()
+            .contains("lifts the nut off its flank"),
+        "{v}"
+    );
 }
 
 #[test]

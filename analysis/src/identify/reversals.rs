@@ -50,10 +50,30 @@ pub struct ReversalEffects {
     pub backlash_seen: bool,
     /// Estimated dead band (lost motion less the spring's share, at least 0), m.
     pub backlash_m: Option<f64>,
+    /// How far the deflection (motor less load position, load units, averaged over 1 ms)
+    /// swings within a one-direction window (median over the windows of the range holding
+    /// 99 % of its samples, the window's middle half), m. With the nut on one flank it is the
+    /// spring's elastic swing; when the excitation lifts the nut off its flank it grows towards
+    /// the dead band.
+    pub flank_swing_m: Option<f64>,
+    /// How one-sided that swing is: the longer side of the range about the median over the
+    /// shorter (median over the windows; 1 for a symmetric elastic swing).
+    pub flank_lopsided: Option<f64>,
+    /// Whether the excitation lifted the nut off its flank: the swing is lopsided beyond
+    /// [`MAX_LOPSIDED`], or larger than half the dead band read at the reversals. The response
+    /// then mixes contact and free flight, and a two-mass fit to it can look tight and be wrong
+    /// (on `xy-x-effects` with +-1 mm/s: KL -11 %, fit +-1 %).
+    pub flank_lifted: bool,
     /// The smallest dead band the load measurement tells apart: twice its quantum, at least
     /// [`MIN_DEAD_BAND_M`], m.
     pub resolution_m: Option<f64>,
 }
+
+/// Largest lopsidedness of the deflection's swing within a direction that still counts as the
+/// spring's own (symmetric) swing: lifted off its flank, the nut moves the deflection one way
+/// only, half as far again as the other way at least (measured 1.02..1.03 in contact, 2.2 on an
+/// axis whose nut lifted).
+pub const MAX_LOPSIDED: f64 = 1.5;
 
 /// Below a nanometre no lost motion is called a dead band (far below any scale's resolution and
 /// any real backlash, above the rounding of positions in metres).
@@ -149,6 +169,29 @@ pub fn reversal_effects(
         })
         .collect();
     let (lm, lm_ci) = mean_ci(&lost);
+    let mut swings: Vec<(f64, f64)> = windows
+        .iter()
+        .filter_map(|&(a, b, _)| {
+            let (a, b) = (a + (b - a) / 4, b - (b - a) / 4);
+            let defl: Vec<f64> = (a..b).map(|k| (m[k] - r * l[k]) / r).collect();
+            let len = ((0.001 / dt).round() as usize).max(1);
+            let mut d = moving_average(&defl, len);
+            if d.len() < 100 {
+                return None;
+            }
+            d.sort_by(f64::total_cmp);
+            let q = |p: f64| d[((d.len() - 1) as f64 * p).round() as usize];
+            let (lo, mid, hi) = (q(0.005), q(0.5), q(0.995));
+            // lifting off the flank moves the deflection one way only: towards the gap's middle
+            let lopsided = (hi - mid).max(mid - lo) / (hi - mid).min(mid - lo).max(1e-15);
+            Some((hi - lo, lopsided))
+        })
+        .collect();
+    swings.sort_by(|a, b| a.0.total_cmp(&b.0));
+    e.flank_swing_m = swings.get(swings.len() / 2).map(|s| s.0);
+    let mut lop: Vec<f64> = swings.iter().map(|s| s.1).collect();
+    lop.sort_by(f64::total_cmp);
+    e.flank_lopsided = lop.get(lop.len() / 2).copied();
     let elastic = if kl > 0.0 {
         2.0 * friction.abs() / kl / r.abs()
     } else {
@@ -171,6 +214,11 @@ pub fn reversal_effects(
     e.resolution_m = Some(floor);
     e.backlash_seen = lm - lm_ci > elastic + floor;
     e.backlash_m = Some((lm - elastic).max(0.0));
+    e.flank_lifted = e.flank_lopsided.is_some_and(|x| x > MAX_LOPSIDED)
+        || (e.backlash_seen
+            && e.flank_swing_m
+                .zip(e.backlash_m)
+                .is_some_and(|(sw, gap)| sw > 0.5 * gap));
     Some(e)
 }
 

@@ -383,6 +383,22 @@ pub fn identify_stiffness(
             &windows,
             result.kl_nm_per_rad,
         );
+        if let Some(e) = result.reversal_effects.as_ref().filter(|e| e.flank_lifted) {
+            result.checks.problems.push(format!(
+                "the excitation lifts the nut off its flank: the deflection swings {:.3} um within \
+                 a direction, {:.2} times further one way than the other (the dead band is \
+                 {:.3} um): the response mixes contact and free flight",
+                e.flank_swing_m.unwrap_or(f64::NAN) * 1e6,
+                e.flank_lopsided.unwrap_or(f64::NAN),
+                e.backlash_m.unwrap_or(0.0) * 1e6
+            ));
+            result.checks.advice.push(
+                "lower the excitation's amplitude (velocity_m_per_s) until the load's inertia \
+                 force stays below the friction that holds the nut on one flank"
+                    .into(),
+            );
+            result.credible = false;
+        }
         return Ok(result);
     }
     let mut result = identify_stiffness_from(u, y, r.as_deref(), dt, opts)?;
