@@ -204,6 +204,16 @@ impl XcGeometry {
     /// Jets of the X (m) and C (rad) commands for the contact-angle jet `phi` (any length `L`
     /// up to 6: 6 for the references, 2 for a Newton step on the contact angle).
     pub fn axis_jets<const L: usize>(&self, phi: &[f64; L]) -> ([f64; L], [f64; L]) {
+        let (x, c, _) = self.axis_jets_and_gains(phi);
+        (x, c)
+    }
+
+    /// [`XcGeometry::axis_jets`] and the coupling gains at `phi[0]` ([`XcGeometry::gains`])
+    /// from the same evaluation of the profile.
+    pub fn axis_jets_and_gains<const L: usize>(
+        &self,
+        phi: &[f64; L],
+    ) -> ([f64; L], [f64; L], (f64, f64)) {
         let rw = self.wheel_radius_m;
         let (r, dr) = self.profile.jets(phi);
         let r2 = jet::mul(&r, &r);
@@ -216,7 +226,8 @@ impl XcGeometry {
         let num = jet::scale(&dr, rw);
         let den = jet::mul(&r, &jet::add_const(&s, rw));
         let c = jet::sub(&jet::atan2(&num, &den), phi);
-        (x, c)
+        let gains = ((rw + r2[0] / s[0]) / x[0], r[0] * dr[0] / s[0]);
+        (x, c, gains)
     }
 
     /// X (m) and C (rad) that put the wheel on contact angle `phi_rad`.
