@@ -10,7 +10,7 @@
 //!
 //! Profile error (m, positive = material left), key `contact`:
 //! - `"measured"` (default): at the contact angle phi_m of the measured C (Newton's method on
-//!   C(phi) = C, warm-started from the last cycle), eps = Gx(phi_m) (X - X(phi_m)) - eps*, where
+//!   C(phi) = C, [`XcGeometry::contact_of_c`], warm-started from the last cycle), eps = Gx(phi_m) (X - X(phi_m)) - eps*, where
 //!   eps* = Gx(phi*) (X* - X(phi*)) is the command's own distance from the profile (phi* the
 //!   contact angle of the commanded C; 0 while grinding, not on an approach move). Exact in the C
 //!   error, first order in the X error (the wheel moves along the X line).
@@ -345,12 +345,12 @@ impl Coupler for NlPidCoupler {
         let (x_m, c_m) = (sx.load_pos / kx, sc.load_pos / kc);
         let (vx, vc) = (sx.motor_vel / kx, sc.motor_vel / kc);
         let geometry = &self.params.geometry;
-        let (phi_c, x_on_c, (gxc, gcc)) = contact_angle(geometry, c_ref, self.warm[0].guess());
+        let (phi_c, x_on_c, (gxc, gcc)) = geometry.contact_of_c(c_ref, self.warm[0].guess());
         // the normal rate of the command (0 on the profile)
         let ref_rate = gxc * vx_ref + gcc * vc_ref;
         let (phi_m, gx, gc, eps) = match self.params.contact {
             Contact::Measured => {
-                let (phi, x_on, (gx, gc)) = contact_angle(geometry, c_m, self.warm[1].guess());
+                let (phi, x_on, (gx, gc)) = geometry.contact_of_c(c_m, self.warm[1].guess());
                 // how far the wheel is off the profile minus how far the command is (0 when
                 // grinding; not 0 on an approach move)
                 (phi, gx, gc, gx * (x_m - x_on) - gxc * (x_ref - x_on_c))
@@ -389,37 +389,6 @@ impl Coupler for NlPidCoupler {
         axes[ix].vel_cmd -= kx * gx * total / g2;
         axes[ic].vel_cmd -= kc * gc * total / g2;
     }
-}
-
-/// Contact angle whose C command is `c_rad`, by Newton's method from `guess`, the X command
-/// there (m) and the coupling gains (Gx, Gc) there.
-///
-/// Newton converges quadratically here (`c(phi)` is smooth and monotonic): once a step is below
-/// 1e-5 rad, the error left after taking it is of the order of C''/C' times the step squared
-/// (< 1e-10 rad, under 1e-12 m on the profile), so it is taken without a further check. With the
-/// warm start extrapolated from the last two cycles that is usually the first step. X is carried
-/// through the last step to first order (an error of the step squared times X'', < 1e-12 m); the
-/// gains are those before it (relative error about the step, 1e-5, of an error of a few um).
-fn contact_angle(geometry: &XcGeometry, c_rad: f64, guess: f64) -> (f64, f64, (f64, f64)) {
-    let mut phi = if guess.is_finite() { guess } else { -c_rad };
-    let (mut x_m, mut gains) = (f64::NAN, (f64::NAN, f64::NAN));
-    for _ in 0..6 {
-        // value and first derivative are all Newton needs
-        let (x, c, g) = geometry.axis_jets_and_gains::<2>(&[phi, 1.0]);
-        gains = g;
-        let dc = c[1];
-        if !(dc.is_finite() && dc.abs() > 1e-6) {
-            x_m = x[0];
-            break;
-        }
-        let step = ((c[0] - c_rad) / dc).clamp(-0.5, 0.5);
-        phi -= step;
-        x_m = x[0] - x[1] * step;
-        if step.abs() < 1e-5 {
-            break;
-        }
-    }
-    (phi, x_m, gains)
 }
 
 /// Warm start of a contact-angle solve: the last angle and its change over the last cycle.
@@ -498,7 +467,7 @@ mod tests {
         for i in 0..24 {
             let phi = std::f64::consts::TAU * i as f64 / 24.0 + 0.1;
             let (_, cc) = c.params.geometry.axes_at(phi);
-            let (got, x, gains) = contact_angle(&c.params.geometry, cc, f64::NAN);
+            let (got, x, gains) = c.params.geometry.contact_of_c(cc, f64::NAN);
             assert!((got - phi).abs() < 1e-10, "{phi}: {got}");
             let (gx, gc) = c.params.geometry.gains(phi);
             assert!((x - c.params.geometry.axes_at(phi).0).abs() < 1e-12);
