@@ -89,7 +89,7 @@ fn coupler_cuts_the_max_profile_error_of_mismatched_x_c_axes_from_777_um_to_unde
     let before = figures(&xc_job(
         ("", ""),
         ("", ""),
-        Some("contact = \"commanded\"\naxis_loops = \"full\""),
+        Some("contact = \"commanded\"\naxis_loops = \"full\"\nx_bandwidth_share = 0"),
     ));
     let (a, b, old) = (
         without.max_profile_error_m,
@@ -137,13 +137,14 @@ fn coupler_at_the_ends_of_its_gain_ranges_never_destabilises_stable_axes() {
     for (kpx, kpc) in [(60, 25), (150, 50)] {
         let (x, c) = (gains(kpx), gains(kpc));
         assert!(figures(&xc_job((&x, ""), (&c, ""), None)).settles);
-        // with the axes' loops kept along the profile only, the coupler's Kp is at least 30 1/s
+        // with the axes' loops kept along the profile only, the coupler's Kp is at least 30 1/s;
+        // the gains as given (not slowed for the X velocity loop)
         for (loops, kps) in [("tangential", [30, 200]), ("full", [0, 200])] {
             for kp in kps {
                 for ki in [0, 20000] {
                     for kd in [0.0, 0.5] {
                         let p = format!(
-                            "axis_loops = \"{loops}\"\nkp_min_per_s = {kp}\nkp_max_per_s = {kp}\nki_max_per_s2 = {ki}\nkd_min = {kd}\nkd_max = {kd}\nmax_correction_m_per_s = 10"
+                            "axis_loops = \"{loops}\"\nx_bandwidth_share = 0\nkp_min_per_s = {kp}\nkp_max_per_s = {kp}\nki_max_per_s2 = {ki}\nkd_min = {kd}\nkd_max = {kd}\nmax_correction_m_per_s = 10"
                         );
                         let f = figures(&xc_job((&x, ""), (&c, ""), Some(&p)));
                         assert!(
@@ -198,7 +199,7 @@ fn unseen_case(models: (String, String), geometry: &str, run: &str) -> [f64; 3] 
     for (i, c) in [
         String::new(),
         coupler(""),
-        coupler("contact = \"commanded\"\naxis_loops = \"full\""),
+        coupler("contact = \"commanded\"\naxis_loops = \"full\"\nx_bandwidth_share = 0"),
     ]
     .iter()
     .enumerate()
@@ -209,7 +210,8 @@ fn unseen_case(models: (String, String), geometry: &str, run: &str) -> [f64; 3] 
             &format!("{axes}{c}{trajectory}"),
         );
         let f = figures(&job);
-        assert!(f.settles, "{geometry}: run {i} does not settle");
+        // (the coupler before issue 20 did not always settle)
+        assert!(f.settles || i == 2, "{geometry}: run {i} does not settle");
         out[i] = f.max_profile_error_m;
     }
     out
@@ -222,8 +224,9 @@ const DRIVE: &str = "[effects.delay]\ndelay_cycles = 1\n[effects.current_lag]\nt
 fn coupler_cuts_the_profile_error_of_cams_and_axis_mismatches_not_shipped_at_least_3x() {
     // a rise-dwell-fall cam on a heavier X (Kp 40, 200 rad/s) and a slow heavy C (Kp 15,
     // 133 rad/s), and a three-lobed rotor (Fourier table) with the mismatch the other way: a slow
-    // X (Kp 20, 150 rad/s) and a quick C (Kp 60, 900 rad/s); and the shipped pair with the
-    // imperfections of real drives
+    // X (Kp 20, 150 rad/s) and a quick C (Kp 60, 900 rad/s); the rise-dwell cam faster on an X
+    // whose velocity loop is slower than the coupler's Kp (its schedule is slowed); and the
+    // shipped pair with the imperfections of real drives
     let rise_dwell = "wheel_radius_m = 0.15\nprofile = \"rise_dwell\"\nbase_radius_m = 0.025\nlift_m = 0.006\nrise_start_rad = 0.3\nrise_rad = 1.6\ndwell_rad = 0.4\nfall_rad = 1.6";
     let radii: Vec<String> = (0..72)
         .map(|i| {
@@ -252,6 +255,12 @@ fn coupler_cuts_the_profile_error_of_cams_and_axis_mismatches_not_shipped_at_lea
             xc_models((80.0, 12000.0, 20.0), (0.05, 0.1, 45.0, 60.0), ["", ""]),
             lobes,
             "speed_rad_per_s = 3.0\nturns = 1.2\nramp_s = 0.3\ndwell_after_s = 0.4",
+        ),
+        (
+            "rise-dwell cam at 1 rev/s, slow X velocity loop (60 rad/s)",
+            xc_models((100.0, 6000.0, 20.0), (0.05, 0.1, 30.0, 25.0), ["", ""]),
+            rise_dwell.to_string(),
+            "speed_rad_per_s = 6.283185307179586\nturns = 1.5\nramp_s = 0.3\ndwell_after_s = 1.0",
         ),
         (
             "shipped cam and axes with friction, delay, quantisation and noise",

@@ -52,6 +52,12 @@
 //! `kp_max_per_s` (150), `kp_width_m` (50e-6), `ki_max_per_s2` (2000), `ki_width_m` (50e-6),
 //! `kd_min` (0), `kd_max` (0.3), `kd_width_m` (20e-6), `max_correction_m_per_s` (0.1),
 //! `contact` (`"measured"` | `"commanded"`), `axis_loops` (`"tangential"` | `"full"`).
+//! `x_bandwidth_share` (0.25): the largest Kp is at most this share of X's velocity-loop
+//! bandwidth (the `[controller]` Kv of X's model over the mass or inertia it moves; 0 = no
+//! limit); above it Kp is clamped and Ki slowed with it ([`NlPidGains::slowed_to`]):
+//! the loop normal to the profile is a position loop around X's velocity loop, and with the
+//! shipped schedule it went unstable on a 60 rad/s X velocity loop (rise-dwell cam: 938 um
+//! independent, 1485 um coupled and growing; slowed: 174 um, settling).
 //! Ranges: Kp <= 200 1/s (>= 30 with `"tangential"`), Ki <= 2e4 1/s^2, Kd <= 0.5 (a derivative gain g on the error rate
 //! scales the axes' velocity loop gain by up to 1 + g: 0.5 keeps any velocity loop with 3.5 dB
 //! of gain margin stable).
@@ -106,6 +112,24 @@ fn sech(x: f64) -> f64 {
 }
 
 impl NlPidGains {
+    /// The schedule with Kp at most `kp_limit_per_s` (kp_min and kp_max clamped to it) and
+    /// Ki times s^2, s = kp_limit / kp_min (when below 1), Kd unchanged: near zero error, where
+    /// Ki acts, the loop normal to the profile keeps its damping (Kp^2 / Ki) and runs s times
+    /// slower.
+    pub fn slowed_to(self, kp_limit_per_s: f64) -> Self {
+        // (a limit that is not a positive number leaves the schedule as it is)
+        if kp_limit_per_s.is_nan() || kp_limit_per_s <= 0.0 {
+            return self;
+        }
+        let s = (kp_limit_per_s / self.kp_min_per_s).min(1.0);
+        Self {
+            kp_min_per_s: self.kp_min_per_s.min(kp_limit_per_s),
+            kp_max_per_s: self.kp_max_per_s.min(kp_limit_per_s),
+            ki_max_per_s2: self.ki_max_per_s2 * s * s,
+            ..self
+        }
+    }
+
     /// (Kp, Ki, Kd) at profile error `eps` (m).
     pub fn at(&self, eps: f64) -> (f64, f64, f64) {
         let a = eps.abs();
@@ -149,6 +173,8 @@ pub struct NlPidCouplerParams {
     pub contact: Contact,
     /// What the axes' own loops still command (`axis_loops`).
     pub axis_loops: AxisLoops,
+    /// Largest Kp as a share of X's velocity-loop bandwidth (`x_bandwidth_share`; 0 = no limit).
+    pub x_bandwidth_share: f64,
 }
 
 /// Lowest Kp (1/s) of the schedule with [`AxisLoops::Tangential`]: the profile error then
@@ -209,6 +235,7 @@ impl NlPidCouplerParams {
                 ))
             }
         };
+        let share = f.f64_or("x_bandwidth_share", Range::Within(0.0, 1.0), 0.25)?;
         let axis_loops = match f.opt_str("axis_loops")? {
             None | Some("tangential") => AxisLoops::Tangential,
             Some("full") => AxisLoops::Full,
@@ -249,6 +276,7 @@ impl NlPidCouplerParams {
             max_correction_m_per_s: max,
             contact,
             axis_loops,
+            x_bandwidth_share: share,
         })
     }
 }
@@ -301,6 +329,12 @@ impl NlPidCoupler {
                 c.plant.kind().id()
             )));
         }
+        let mut params = params;
+        if params.x_bandwidth_share > 0.0 {
+            params.gains = params
+                .gains
+                .slowed_to(x_velocity_bandwidth_per_s(x) * params.x_bandwidth_share);
+        }
         Ok(Self {
             params,
             axes: [axes[0], axes[1]],
@@ -309,6 +343,11 @@ impl NlPidCoupler {
             integral: 0.0,
             terms: CouplerTerms::default(),
         })
+    }
+
+    /// The gain schedule in use (slowed for a slow X velocity loop, [`NlPidGains::slowed_to`]).
+    pub fn gains(&self) -> NlPidGains {
+        self.params.gains
     }
 
     /// Terms of the last cycle.
@@ -388,6 +427,15 @@ impl Coupler for NlPidCoupler {
         let total = u + upstream;
         axes[ix].vel_cmd -= kx * gx * total / g2;
         axes[ic].vel_cmd -= kc * gc * total / g2;
+    }
+}
+
+/// X's velocity-loop bandwidth, 1/s: the model's `[controller]` velocity gain over the inertia
+/// (or mass) the motor moves; infinite when the model gives no gain.
+fn x_velocity_bandwidth_per_s(x: &AxisContext) -> f64 {
+    match x.defaults.kv {
+        Some(kv) if kv > 0.0 => kv / x.plant.total_inertia(),
+        _ => f64::INFINITY,
     }
 }
 
@@ -628,6 +676,31 @@ mod tests {
         assert_eq!(e.key, "axis_loops");
         let e = params_err("max_correction_m_per_s = 0.0");
         assert_eq!(e.key, "max_correction_m_per_s");
+    }
+
+    #[test]
+    fn a_slow_x_velocity_loop_slows_the_schedule_keeping_its_damping() {
+        // test X: kv 8000 N s/m on 20 kg = 400 rad/s; a quarter is 100 1/s < kp_max 150
+        let d = NlPidGains::default();
+        let g = coupler("").gains();
+        assert_eq!(
+            g,
+            NlPidGains {
+                kp_max_per_s: 100.0,
+                ..d
+            }
+        );
+        // a tenth: 40 1/s, below kp_min as well
+        let g = coupler("x_bandwidth_share = 0.1").gains();
+        let s = 40.0 / 60.0;
+        assert!(g.kp_min_per_s == 40.0 && g.kp_max_per_s == 40.0 && g.kd_max == 0.3);
+        assert!((g.ki_max_per_s2 - 2000.0 * s * s).abs() < 1e-9);
+        // Kp^2 / Ki, the damping of the loop normal to the profile near zero error, is kept
+        let ratio = |g: NlPidGains| g.kp_min_per_s * g.kp_min_per_s / g.ki_max_per_s2;
+        assert!((ratio(g) - ratio(d)).abs() < 1e-9);
+        // off, or a share the gains stay under
+        assert_eq!(coupler("x_bandwidth_share = 0").gains(), d);
+        assert_eq!(coupler("x_bandwidth_share = 0.5").gains(), d);
     }
 
     fn params_err(extra: &str) -> ConfigError {
