@@ -241,6 +241,7 @@ impl XcGeometry {
     /// check. Warm-started from the last control cycle that is usually the first step. X is
     /// carried through the last step to first order (an error of the step squared times X'',
     /// < 1e-12 m); the gains are those before it (relative error about the step, 1e-5).
+    #[inline]
     pub fn contact_of_c(&self, c_rad: f64, guess_rad: f64) -> (f64, f64, (f64, f64)) {
         let mut phi = if guess_rad.is_finite() {
             guess_rad
