@@ -10,7 +10,8 @@
 //!
 //! Profile error (m, positive = material left), key `contact`:
 //! - `"measured"` (default): at the contact angle phi_m of the measured C (Newton's method on
-//!   C(phi) = C, [`XcGeometry::contact_of_c`], warm-started from the last cycle), eps = Gx(phi_m) (X - X(phi_m)) - eps*, where
+//!   C(phi) = C, [`XcGeometry::contact_of_c`], warm-started from the last cycle),
+//!   eps = Gx(phi_m) (X - X(phi_m)) - eps*, where
 //!   eps* = Gx(phi*) (X* - X(phi*)) is the command's own distance from the profile (phi* the
 //!   contact angle of the commanded C; 0 while grinding, not on an approach move). Exact in the C
 //!   error, first order in the X error (the wheel moves along the X line).
@@ -57,10 +58,11 @@
 //! limit); above it Kp is clamped and Ki slowed with it ([`NlPidGains::slowed_to`]):
 //! the loop normal to the profile is a position loop around X's velocity loop, and with the
 //! shipped schedule it went unstable on a 60 rad/s X velocity loop (rise-dwell cam: 938 um
-//! independent, 1485 um coupled and growing; slowed: 174 um, settling).
-//! Ranges: Kp <= 200 1/s (>= 30 with `"tangential"`), Ki <= 2e4 1/s^2, Kd <= 0.5 (a derivative gain g on the error rate
-//! scales the axes' velocity loop gain by up to 1 + g: 0.5 keeps any velocity loop with 3.5 dB
-//! of gain margin stable).
+//! independent, 1485 um coupled and growing; clamped to 15 1/s: 164 um, settling).
+//!
+//! Ranges: Kp <= 200 1/s (>= 30 with `"tangential"`, before the clamp for a slow X), Ki <= 2e4
+//! 1/s^2, Kd <= 0.5 (a derivative gain g on the error rate scales the axes' velocity loop gain
+//! by up to 1 + g: 0.5 keeps any velocity loop with 3.5 dB of gain margin stable).
 
 use std::path::Path;
 
