@@ -284,3 +284,32 @@ fn coupler_cuts_the_profile_error_of_cams_and_axis_mismatches_not_shipped_at_lea
         assert!(coupled <= alone / 3.0, "{name}: {coupled} vs {alone}");
     }
 }
+
+#[test]
+fn coupler_keeps_below_the_velocity_gain_the_chain_runs_with_not_the_models() {
+    // X's model says Kv 60000 N s/m on 100 kg (600 rad/s: the shipped schedule fits under a
+    // quarter of it); its chain runs 6000 (60 rad/s), where that schedule is unstable
+    let dir = controllers_util::temp_dir("xc-chain-kv");
+    let (x, c) = xc_models((100.0, 60000.0, 20.0), (0.05, 0.1, 30.0, 25.0), ["", ""]);
+    std::fs::write(dir.join("x.toml"), x).unwrap();
+    std::fs::write(dir.join("c.toml"), c).unwrap();
+    let geometry = "wheel_radius_m = 0.15\nprofile = \"rise_dwell\"\nbase_radius_m = 0.025\nlift_m = 0.006\nrise_start_rad = 0.3\nrise_rad = 1.6\ndwell_rad = 0.4\nfall_rad = 1.6";
+    let mut text = String::from(
+        "period_s = 1.0e-4\n[axes.x]\nmodel = \"x.toml\"\n[axes.c]\nmodel = \"c.toml\"\n",
+    );
+    for (axis, kv) in [("x", "params = { kv_ns_per_m = 6000.0 }\n"), ("c", "")] {
+        text += &format!("[[chain]]\naxis = \"{axis}\"\nstage = \"position\"\nplugin = \"position_p\"\n[[chain]]\naxis = \"{axis}\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\n{kv}");
+    }
+    text += &format!("[trajectory]\nkind = \"xc_cam\"\naxes = [\"x\", \"c\"]\n{geometry}\nspeed_rad_per_s = 6.283185307179586\nturns = 1.5\nramp_s = 0.3\ndwell_after_s = 1.0\n");
+    let coupler = format!("[[couplers]]\nplugin = \"nl_pid_coupler\"\naxes = [\"x\", \"c\"]\n[couplers.params]\n{geometry}\n");
+    let alone = figures(&controllers_util::write_job(&dir, "a.toml", &text));
+    let coupled = figures(&controllers_util::write_job(
+        &dir,
+        "b.toml",
+        &format!("{text}{coupler}"),
+    ));
+    let (a, b) = (alone.max_profile_error_m, coupled.max_profile_error_m);
+    eprintln!("X velocity loop 60 rad/s by its chain: {a:.3e} m independent, {b:.3e} m coupled");
+    assert!(coupled.settles, "{b}");
+    assert!(b <= a / 3.0, "{b} vs {a}");
+}

@@ -54,8 +54,8 @@
 //! `kd_min` (0), `kd_max` (0.3), `kd_width_m` (20e-6), `max_correction_m_per_s` (0.1),
 //! `contact` (`"measured"` | `"commanded"`), `axis_loops` (`"tangential"` | `"full"`).
 //! `x_bandwidth_share` (0.25): the largest Kp is at most this share of X's velocity-loop
-//! bandwidth (the `[controller]` Kv of X's model over the mass or inertia it moves; 0 = no
-//! limit); above it Kp is clamped and Ki slowed with it ([`NlPidGains::slowed_to`]):
+//! bandwidth (X's velocity gain Kv, as its chain's velocity stage runs it, else its model's
+//! `[controller]`, over the mass or inertia the motor moves; 0 = no limit); above it Kp is clamped and Ki slowed with it ([`NlPidGains::slowed_to`]):
 //! the loop normal to the profile is a position loop around X's velocity loop, and with the
 //! shipped schedule it went unstable on a 60 rad/s X velocity loop (rise-dwell cam: 938 um
 //! independent, 1485 um coupled and growing; clamped to 15 1/s: 164 um, settling).
@@ -432,8 +432,8 @@ impl Coupler for NlPidCoupler {
     }
 }
 
-/// X's velocity-loop bandwidth, 1/s: the model's `[controller]` velocity gain over the inertia
-/// (or mass) the motor moves; infinite when the model gives no gain.
+/// X's velocity-loop bandwidth, 1/s: its velocity gain (the runtime hands couplers the gains the
+/// chain runs with) over the inertia (or mass) the motor moves; infinite when none is known.
 fn x_velocity_bandwidth_per_s(x: &AxisContext) -> f64 {
     match x.defaults.kv {
         Some(kv) if kv > 0.0 => kv / x.plant.total_inertia(),
