@@ -204,6 +204,16 @@ impl XcGeometry {
     /// Jets of the X (m) and C (rad) commands for the contact-angle jet `phi` (any length `L`
     /// up to 6: 6 for the references, 2 for a Newton step on the contact angle).
     pub fn axis_jets<const L: usize>(&self, phi: &[f64; L]) -> ([f64; L], [f64; L]) {
+        let (x, c, _) = self.axis_jets_and_gains(phi);
+        (x, c)
+    }
+
+    /// [`XcGeometry::axis_jets`] and the coupling gains at `phi[0]` ([`XcGeometry::gains`])
+    /// from the same evaluation of the profile.
+    pub fn axis_jets_and_gains<const L: usize>(
+        &self,
+        phi: &[f64; L],
+    ) -> ([f64; L], [f64; L], (f64, f64)) {
         let rw = self.wheel_radius_m;
         let (r, dr) = self.profile.jets(phi);
         let r2 = jet::mul(&r, &r);
@@ -216,7 +226,46 @@ impl XcGeometry {
         let num = jet::scale(&dr, rw);
         let den = jet::mul(&r, &jet::add_const(&s, rw));
         let c = jet::sub(&jet::atan2(&num, &den), phi);
-        (x, c)
+        let gains = ((rw + r2[0] / s[0]) / x[0], r[0] * dr[0] / s[0]);
+        (x, c, gains)
+    }
+
+    /// The contact angle whose C command is `c_rad` (rad), the X command there (m) and the
+    /// coupling gains (Gx, Gc) there: where the wheel touches when C stands at `c_rad` and X is
+    /// on the profile. Newton's method from `guess_rad` (from `-c_rad` when it is NaN), steps
+    /// clamped to 0.5 rad, at most 8 evaluations; no allocation.
+    ///
+    /// Newton converges quadratically here (`c(phi)` is smooth and monotonic): once a step is
+    /// below 1e-5 rad, the error left after taking it is of the order of C''/C' times the step
+    /// squared (< 1e-10 rad, under 1e-12 m on the profile), so it is taken without a further
+    /// check. Warm-started from the last control cycle that is usually the first step. X is
+    /// carried through the last step to first order (an error of the step squared times X'',
+    /// < 1e-12 m); the gains are those before it (relative error about the step, 1e-5).
+    #[inline]
+    pub fn contact_of_c(&self, c_rad: f64, guess_rad: f64) -> (f64, f64, (f64, f64)) {
+        let mut phi = if guess_rad.is_finite() {
+            guess_rad
+        } else {
+            -c_rad
+        };
+        let (mut x_m, mut gains) = (f64::NAN, (f64::NAN, f64::NAN));
+        for _ in 0..8 {
+            // value and first derivative are all Newton needs
+            let (x, c, g) = self.axis_jets_and_gains::<2>(&[phi, 1.0]);
+            gains = g;
+            let dc = c[1];
+            if !(dc.is_finite() && dc.abs() > 1e-6) {
+                x_m = x[0];
+                break;
+            }
+            let step = ((c[0] - c_rad) / dc).clamp(-0.5, 0.5);
+            phi -= step;
+            x_m = x[0] - x[1] * step;
+            if step.abs() < 1e-5 {
+                break;
+            }
+        }
+        (phi, x_m, gains)
     }
 
     /// X (m) and C (rad) that put the wheel on contact angle `phi_rad`.
@@ -414,10 +463,10 @@ impl Trajectory for XcCam {
     fn contour_error_m(&self, t_s: f64, actual: &[f64]) -> Option<f64> {
         let x = *actual.get(self.ix)?;
         let c = *actual.get(self.ic)?;
-        Some(
-            self.geometry
-                .profile_error_m(x, c, self.contact_angle_rad(t_s)),
-        )
+        // Newton on the distance starts where the wheel is, at the contact angle of the measured
+        // C: from the commanded angle it can end on another branch when C lags by a radian
+        let (guess, _, _) = self.geometry.contact_of_c(c, self.contact_angle_rad(t_s));
+        Some(self.geometry.profile_error_m(x, c, guess))
     }
 
     fn steady_windows_s(&self) -> Vec<[f64; 2]> {
@@ -738,6 +787,35 @@ dwell_after_s = 0.1
         assert_eq!(w.len(), 1);
         assert!((w[0][0] - 0.5).abs() < 1e-12);
         check_final_hold(tr.as_ref());
+    }
+
+    #[test]
+    fn profile_error_is_exact_when_c_lags_by_more_than_a_radian() {
+        let tr = built(CAM, &["x", "c"]);
+        let g = XcGeometry {
+            profile: CamProfile::Eccentric {
+                eccentricity_m: 0.005,
+                disc_radius_m: 0.03,
+            },
+            wheel_radius_m: 0.2,
+        };
+        let mut from_command: f64 = 0.0;
+        for k in 0..40 {
+            let t = 0.6 + 1.5 * k as f64 / 40.0;
+            let s = at(tr.as_ref(), t);
+            let (phi_cmd, _, _) = g.contact_of_c(s[1][0], f64::NAN);
+            for lag in [0.25, 0.7, 1.0, 1.3, 1.6] {
+                // the wheel 10 um off the profile where C stands, `lag` behind the command
+                let phi = phi_cmd - lag;
+                let (x, c) = g.axes_at(phi);
+                let x = x + 10e-6 / g.gains(phi).0;
+                let e = tr.contour_error_m(t, &[x, c]).unwrap();
+                assert!((e - 10e-6).abs() < 1e-9, "t {t} lag {lag}: {e}");
+                from_command = from_command.max((g.profile_error_m(x, c, phi_cmd) - 10e-6).abs());
+            }
+        }
+        // Newton on the distance started at the commanded angle finds another branch
+        assert!(from_command > 1e-3, "{from_command}");
     }
 
     #[test]

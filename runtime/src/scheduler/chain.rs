@@ -27,6 +27,26 @@ pub struct AxisChain {
     pub stages: [Option<Box<dyn Controller>>; 4],
 }
 
+impl AxisChain {
+    /// The axis context with the position and velocity gains the chain's stages report
+    /// ([`Controller::loop_gains`]) in place of the model's defaults where they give one.
+    fn running_context(&self) -> AxisContext {
+        let mut ctx = self.context.clone();
+        let gains = |stage: Stage| {
+            self.stages[stage.index()]
+                .as_ref()
+                .map(|c| c.loop_gains())
+                .unwrap_or_default()
+        };
+        let (position, velocity) = (gains(Stage::Position), gains(Stage::Velocity));
+        let d = &mut ctx.defaults;
+        d.kp_per_s = position.kp_per_s.or(d.kp_per_s);
+        d.kv = velocity.kv.or(d.kv);
+        d.tv_s = velocity.tv_s.or(d.tv_s);
+        ctx
+    }
+}
+
 /// All axes' chains plus couplers.
 pub struct Chain {
     axes: Vec<AxisChain>,
@@ -121,11 +141,15 @@ impl Chain {
                 stages,
             });
         }
+        // couplers see the gains each axis' chain runs with (a chain's params override the
+        // model's `[controller]`), e.g. to keep their own loop below the velocity loop
+        let coupler_contexts: Vec<AxisContext> =
+            axes.iter().map(AxisChain::running_context).collect();
         let mut couplers = Vec::new();
         for c in &job.couplers {
             couplers.push(
                 registry
-                    .create_coupler(&c.plugin, &c.params, &contexts, &c.axes, &job.path)
+                    .create_coupler(&c.plugin, &c.params, &coupler_contexts, &c.axes, &job.path)
                     .map_err(|err| prefix_key(err, &c.key))?,
             );
         }
