@@ -264,6 +264,13 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         cycles as f64 * period_s
     );
     run_processes(&job, out, wait_kind, cycles, &cpus, fifo)?;
+    // the same ping-pong again just after: how far the host's state moved during the run
+    let pp_after = if pingpong_cycles > 0 {
+        eprintln!("bench latency: the ping-pong again, after the run");
+        Some(pingpong(&probe_cpus, period_ns, pingpong_cycles, 2)?)
+    } else {
+        None
+    };
     let recs = read_log::<PlantRecord>(&out.join("plant.log"))?.records;
     let figures = RunFigures::from_records(&recs)?;
     // Which misses fell while the scheduler had lost its core (it records, per answered cycle,
@@ -273,8 +280,10 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         .unwrap_or_default();
     let attribution = attribute_misses(&recs, &sched, period_ns);
     let parts = Breakdown::from_records(&recs, &sched)?;
-    let pingpong_json = match &pp {
-        Some(pp) => {
+    let pingpong_json = match (&pp, &pp_after) {
+        (Some(pp), Some(after)) => {
+            let after_paced = ns_histogram_of(&after.paced_ns)?;
+            let after_b2b = ns_histogram_of(&after.back_to_back_ns)?;
             let b2b = ns_histogram_of(&pp.back_to_back_ns)?;
             let paced = ns_histogram_of(&pp.paced_ns)?;
             let q = |h: &hdrhistogram::Histogram<u64>, p: f64| h.value_at_quantile(p) as f64;
@@ -292,10 +301,17 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
                     "p99": ratio(&paced, 0.99),
                     "p50_back_to_back": ratio(&b2b, 0.5),
                     "p99_back_to_back": ratio(&b2b, 0.99),
+                    "p50_after": ratio(&after_paced, 0.5),
+                    "p99_after": ratio(&after_paced, 0.99),
+                },
+                "after": {
+                    "what": "the same ping-pong just after the run (the host's drift)",
+                    "back_to_back_us": hist_json(&after_b2b),
+                    "paced_us": hist_json(&after_paced),
                 },
             })
         }
-        None => Value::Null,
+        _ => Value::Null,
     };
     let plant_info = read_json(&out.join("plant.json")).unwrap_or(Value::Null);
     let sched_info = read_json(&out.join("scheduler.json")).unwrap_or(Value::Null);
@@ -518,13 +534,16 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
         println!(
             "bare iceoryx2 ping-pong of the same messages: one per period {}, back to back {}; \
              the loop's round trip is {} x / {} x the paced one (p50 / p99), {} x / {} x the \
-             back-to-back one",
+             back-to-back one; after the run the paced ping-pong was {} ({} x / {} x)",
             percentiles(&pp["paced_us"]),
             percentiles(&pp["back_to_back_us"]),
             x("p50"),
             x("p99"),
             x("p50_back_to_back"),
             x("p99_back_to_back"),
+            percentiles(&pp["after"]["paced_us"]),
+            x("p50_after"),
+            x("p99_after"),
         );
     }
 }

@@ -114,6 +114,7 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     let pp = &v["iceoryx_pingpong"];
     for pace in ["back_to_back_us", "paced_us"] {
         assert_eq!(pp[pace]["count"], 3000, "{pace}: {v}");
+        assert_eq!(pp["after"][pace]["count"], 3000, "after, {pace}: {v}");
         let (p50, p99) = (
             pp[pace]["p50"].as_f64().unwrap(),
             pp[pace]["p99"].as_f64().unwrap(),
