@@ -56,8 +56,14 @@ fn model(dir: &Path, name: &str, text: &str) -> PathBuf {
     p
 }
 
-fn run(args: &[&std::ffi::OsStr]) -> Output {
-    Command::new(bin()).args(args).output().unwrap()
+/// `feedloop CMD --trace TRACE --model MODEL REST...`.
+fn wb(cmd: &str, trace: &Path, model: &Path, rest: &[&std::ffi::OsStr]) -> Output {
+    Command::new(bin())
+        .args([cmd.as_ref(), "--trace".as_ref(), trace.as_os_str()])
+        .args(["--model".as_ref(), model.as_os_str()])
+        .args(rest)
+        .output()
+        .unwrap()
 }
 
 fn text(b: &[u8]) -> String {
@@ -81,17 +87,17 @@ fn a_window_or_cutoff_outside_its_range_is_refused_naming_the_flag() {
         ("--cutoff-hz", "2000", "Nyquist"),
     ] {
         for cmd in ["compare", "fit", "diagnose"] {
-            let o = run(&[
-                cmd.as_ref(),
-                "--trace".as_ref(),
-                tr.as_os_str(),
-                "--model".as_ref(),
-                m.as_os_str(),
-                "--out".as_ref(),
-                out.as_os_str(),
-                flag.as_ref(),
-                value.as_ref(),
-            ]);
+            let o = wb(
+                cmd,
+                &tr,
+                &m,
+                &[
+                    "--out".as_ref(),
+                    out.as_os_str(),
+                    flag.as_ref(),
+                    value.as_ref(),
+                ],
+            );
             let err = text(&o.stderr);
             assert!(!o.status.success(), "{cmd} {flag} {value} was accepted");
             assert!(
@@ -102,32 +108,32 @@ fn a_window_or_cutoff_outside_its_range_is_refused_naming_the_flag() {
         }
     }
     // the Nyquist limit is the trace's: 0.5 / 1 ms
-    let o = run(&[
-        "compare".as_ref(),
-        "--trace".as_ref(),
-        tr.as_os_str(),
-        "--model".as_ref(),
-        m.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-        "--cutoff-hz".as_ref(),
-        "600".as_ref(),
-    ]);
+    let o = wb(
+        "compare",
+        &tr,
+        &m,
+        &[
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--cutoff-hz".as_ref(),
+            "600".as_ref(),
+        ],
+    );
     assert!(text(&o.stderr).contains("500 Hz"), "{}", text(&o.stderr));
     // in range, the same command runs
-    let o = run(&[
-        "compare".as_ref(),
-        "--trace".as_ref(),
-        tr.as_os_str(),
-        "--model".as_ref(),
-        m.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-        "--cutoff-hz".as_ref(),
-        "50".as_ref(),
-        "--window-s".as_ref(),
-        "0.002".as_ref(),
-    ]);
+    let o = wb(
+        "compare",
+        &tr,
+        &m,
+        &[
+            "--out".as_ref(),
+            out.as_os_str(),
+            "--cutoff-hz".as_ref(),
+            "50".as_ref(),
+            "--window-s".as_ref(),
+            "0.002".as_ref(),
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
 }
 
@@ -139,21 +145,14 @@ fn a_two_body_model_against_a_one_position_trace_is_warned_about() {
     let m = model(&d, "bs.toml", BALLSCREW);
     let go = |tr: &Path, cmd: &str| {
         let out = d.join(format!("out-{cmd}"));
-        let mut args: Vec<&std::ffi::OsStr> = vec![
-            cmd.as_ref(),
-            "--trace".as_ref(),
-            tr.as_os_str(),
-            "--model".as_ref(),
-            m.as_os_str(),
-            "--json".as_ref(),
-        ];
+        let mut args: Vec<&std::ffi::OsStr> = vec!["--json".as_ref()];
         let f = d.join("fit.toml");
         if cmd == "fit" {
             args.extend(["--out".as_ref(), f.as_os_str()]);
         } else {
             args.extend(["--out".as_ref(), out.as_os_str()]);
         }
-        let o = run(&args);
+        let o = wb(cmd, tr, &m, &args);
         assert!(o.status.success(), "{cmd}: {}", text(&o.stderr));
         // the warning goes to standard error (standard output stays pure JSON) and into the
         // JSON's `warnings`
@@ -186,19 +185,11 @@ fn compare_without_a_torque_column_says_what_its_headline_figure_is() {
     let m = model(&d, "m.toml", RIGID);
     let compare = |tr: &Path, json: bool| {
         let out = d.join("out");
-        let mut args: Vec<&std::ffi::OsStr> = vec![
-            "compare".as_ref(),
-            "--trace".as_ref(),
-            tr.as_os_str(),
-            "--model".as_ref(),
-            m.as_os_str(),
-            "--out".as_ref(),
-            out.as_os_str(),
-        ];
+        let mut args: Vec<&std::ffi::OsStr> = vec!["--out".as_ref(), out.as_os_str()];
         if json {
             args.push("--json".as_ref());
         }
-        let o = run(&args);
+        let o = wb("compare", tr, &m, &args);
         assert!(o.status.success(), "{}", text(&o.stderr));
         text(&o.stdout)
     };
@@ -236,17 +227,17 @@ fn fit_without_a_torque_column_lists_the_columns_it_has() {
     let tr = trace(&d, "without.csv", false, false);
     let m = model(&d, "m.toml", RIGID);
     let out = d.join("fit.toml");
-    let o = run(&[
-        "fit".as_ref(),
-        "--trace".as_ref(),
-        tr.as_os_str(),
-        "--model".as_ref(),
-        m.as_os_str(),
-        "--add".as_ref(),
-        "coulomb_friction".as_ref(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ]);
+    let o = wb(
+        "fit",
+        &tr,
+        &m,
+        &[
+            "--add".as_ref(),
+            "coulomb_friction".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ],
+    );
     let err = text(&o.stderr);
     assert!(!o.status.success(), "fit without torque succeeded");
     assert!(
@@ -271,14 +262,7 @@ fn diagnose_and_fit_give_the_emps_offset_with_one_sign() {
     };
     let m = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/emps-nominal.toml");
     let d = scratch("emps-sign");
-    let o = run(&[
-        "diagnose".as_ref(),
-        "--trace".as_ref(),
-        tr.as_os_str(),
-        "--model".as_ref(),
-        m.as_os_str(),
-        "--json".as_ref(),
-    ]);
+    let o = wb("diagnose", &tr, &m, &["--json".as_ref()]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let top = &j["candidates"][0];
@@ -286,18 +270,18 @@ fn diagnose_and_fit_give_the_emps_offset_with_one_sign() {
     let diag_offset = top["params"]["offset_n"].as_f64().unwrap();
     let evidence = top["evidence"].as_str().unwrap().to_string();
     let fitted = d.join("fitted.toml");
-    let o = run(&[
-        "fit".as_ref(),
-        "--trace".as_ref(),
-        tr.as_os_str(),
-        "--model".as_ref(),
-        m.as_os_str(),
-        "--add".as_ref(),
-        "coulomb_friction,constant_force".as_ref(),
-        "--out".as_ref(),
-        fitted.as_os_str(),
-        "--json".as_ref(),
-    ]);
+    let o = wb(
+        "fit",
+        &tr,
+        &m,
+        &[
+            "--add".as_ref(),
+            "coulomb_friction,constant_force".as_ref(),
+            "--out".as_ref(),
+            fitted.as_os_str(),
+            "--json".as_ref(),
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
     let f: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let force_n = f["params"]["force_n"].as_f64().unwrap();
