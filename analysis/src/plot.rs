@@ -454,7 +454,7 @@ impl Plot {
             esc(&self.title)
         );
         draw_legend(s, &self.legend_entries(), x0, oy + MT + 2.0, x1 - x0);
-        let (xr, yr) = match (self.x_range(), self.y_range()) {
+        let (xr, yr) = match (self.range(true), self.range(false)) {
             (Some(xr), Some(yr)) => (xr, yr),
             _ => {
                 let _ = write!(
@@ -532,36 +532,29 @@ impl Plot {
         s.push_str("</g>");
     }
 
-    /// The x range in transformed units: the axis's, else the data's (with the vertical
-    /// reference lines).
-    fn x_range(&self) -> Option<(f64, f64)> {
-        if let Some((a, b)) = self.x.range {
-            return Some((self.x.tf(a), self.x.tf(b)));
+    /// The range along x (`along_x`) or y in transformed units: the axis's own, else the
+    /// data's where the other coordinate is drawable, with the reference lines across it
+    /// (vertical for x, horizontal for y); y gets 5 % added at each end.
+    fn range(&self, along_x: bool) -> Option<(f64, f64)> {
+        let (own, other, lines, pad) = if along_x {
+            (&self.x, &self.y, &self.vlines, 0.0)
+        } else {
+            (&self.y, &self.x, &self.hlines, 0.05)
+        };
+        if let Some((a, b)) = own.range {
+            return Some((own.tf(a), own.tf(b)));
         }
         let vals = self
             .series
             .iter()
-            .flat_map(|s| s.x.iter().zip(&s.y))
-            .filter(|(_, y)| self.y.tf(**y).is_finite())
-            .map(|(x, _)| self.x.tf(*x))
-            .chain(self.vlines.iter().map(|m| self.x.tf(m.value)));
-        span(vals, 0.0)
-    }
-
-    /// The y range in transformed units: the axis's, else the data's (with the horizontal
-    /// reference lines), 5 % added at each end.
-    fn y_range(&self) -> Option<(f64, f64)> {
-        if let Some((a, b)) = self.y.range {
-            return Some((self.y.tf(a), self.y.tf(b)));
-        }
-        let vals = self
-            .series
-            .iter()
-            .flat_map(|s| s.x.iter().zip(&s.y))
-            .filter(|(x, _)| self.x.tf(**x).is_finite())
-            .map(|(_, y)| self.y.tf(*y))
-            .chain(self.hlines.iter().map(|m| self.y.tf(m.value)));
-        span(vals, 0.05)
+            .flat_map(|s| {
+                let (mine, theirs) = if along_x { (&s.x, &s.y) } else { (&s.y, &s.x) };
+                mine.iter().zip(theirs)
+            })
+            .filter(|(_, o)| other.tf(**o).is_finite())
+            .map(|(v, _)| own.tf(*v))
+            .chain(lines.iter().map(|m| own.tf(m.value)));
+        span(vals, pad)
     }
 }
 
