@@ -673,6 +673,15 @@ impl Controller for QuadrantCompensator {
 mod tests {
     use super::*;
 
+    /// The context of cycle `k` at period `t` (time = k t).
+    fn at(k: u64, t: f64) -> CycleContext {
+        CycleContext {
+            period_s: t,
+            cycle: k,
+            t_s: k as f64 * t,
+        }
+    }
+
     pub(super) fn pulse() -> Pulse {
         Pulse {
             pass: 1,
@@ -841,11 +850,7 @@ mod tests {
         let t = 1e-4;
         let mut integ = 0.0;
         for k in 0..300u64 {
-            let ctx = CycleContext {
-                period_s: t,
-                cycle: k,
-                t_s: k as f64 * t,
-            };
+            let ctx = at(k, t);
             let mut a = AxisSignals::default();
             a.reference[1] = 50.5 - k as f64;
             let mut b = a;
@@ -940,11 +945,7 @@ mod tests {
         let t = 1e-4;
         let mut twisted = 0;
         for k in 0..300u64 {
-            let ctx = CycleContext {
-                period_s: t,
-                cycle: k,
-                t_s: k as f64 * t,
-            };
+            let ctx = at(k, t);
             let mut a = AxisSignals::default();
             a.reference[1] = (k as f64 - 100.0) * 1e-3 * 100.0;
             let mut b = a;
@@ -965,11 +966,7 @@ mod tests {
     fn snapshot_restores_a_reversal_in_progress() {
         let mut a = compensator(Injection::Velocity);
         let t = 1e-4;
-        let ctx = |k: u64| CycleContext {
-            period_s: t,
-            cycle: k,
-            t_s: k as f64 * t,
-        };
+        let ctx = |k: u64| at(k, t);
         for k in 0..120 {
             let mut io = AxisSignals::default();
             io.reference[1] = 100.5 - k as f64;
