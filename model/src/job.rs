@@ -429,16 +429,15 @@ fn safety_options(
 ) -> Result<SafetyOptions, ConfigError> {
     let empty = toml::Table::new();
     let mut f = Fields::new(t.unwrap_or(&empty), path, "safety");
-    let safe_stop = match f.opt_str("safe_stop")? {
-        None | Some("brake_ramp") => SafeStop::BrakeRamp,
-        Some("torque_off") => SafeStop::TorqueOff,
-        Some(o) => {
-            return Err(f.error(
-                "safe_stop",
-                format!("unknown safe stop `{o}` (torque_off, brake_ramp)"),
-            ))
-        }
-    };
+    let safe_stop = f.choice(
+        "safe_stop",
+        "safe stop",
+        &[
+            ("torque_off", SafeStop::TorqueOff),
+            ("brake_ramp", SafeStop::BrakeRamp),
+        ],
+        SafeStop::BrakeRamp,
+    )?;
     let brake_time_s = f.f64_or("brake_time_s", Range::Within(0.0, 60.0), 0.2)?;
     let max_following_error = f.opt_f64("max_following_error_m", Range::Positive)?;
     let max_saturation_s = f.opt_f64("max_saturation_s", Range::Positive)?;

@@ -319,6 +319,30 @@ impl<'a> Fields<'a> {
         }
     }
 
+    /// One of a few named options: `default` when `key` is absent, else the value paired with
+    /// its name in `options`; another name is refused as `unknown WHAT `name` (the names)`.
+    pub fn choice<T: Copy>(
+        &mut self,
+        key: &str,
+        what: &str,
+        options: &[(&str, T)],
+        default: T,
+    ) -> Result<T, ConfigError> {
+        let Some(name) = self.opt_str(key)? else {
+            return Ok(default);
+        };
+        match options.iter().find(|(n, _)| *n == name) {
+            Some((_, v)) => Ok(*v),
+            None => {
+                let names: Vec<&str> = options.iter().map(|(n, _)| *n).collect();
+                Err(self.error(
+                    key,
+                    format!("unknown {what} `{name}` ({})", names.join(", ")),
+                ))
+            }
+        }
+    }
+
     /// A required string.
     pub fn str(&mut self, key: &str) -> Result<&'a str, ConfigError> {
         self.opt_str(key)?.ok_or_else(|| self.missing(key))
@@ -710,6 +734,23 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "m.toml: key `jm_kgm2`: is required but missing"
+        );
+    }
+    #[test]
+    fn a_choice_is_its_default_when_absent_and_names_the_options_when_unknown() {
+        let t: toml::Table = "a = \"two\"\nb = \"five\"\nc = 3".parse().unwrap();
+        let mut f = Fields::new(&t, Path::new("j.toml"), "");
+        let opts = [("one", 1), ("two", 2)];
+        assert_eq!(f.choice("a", "count", &opts, 1).unwrap(), 2);
+        assert_eq!(f.choice("z", "count", &opts, 1).unwrap(), 1);
+        let e = f.choice("b", "count", &opts, 1).unwrap_err().to_string();
+        assert!(
+            e.contains("unknown count `five` (one, two)") && e.contains("b"),
+            "{e}"
+        );
+        assert_eq!(
+            kind(f.choice("c", "count", &opts, 1)),
+            ConfigErrorKind::WrongType
         );
     }
 }

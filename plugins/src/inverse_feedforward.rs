@@ -250,16 +250,12 @@ impl InverseFeedforwardParams {
         file: &Path,
     ) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
-        let structure = match f.opt_str("structure")? {
-            None | Some("split") => Structure::Split,
-            Some("literal") => Structure::Literal,
-            Some(other) => {
-                return Err(f.error(
-                    "structure",
-                    format!("unknown structure `{other}` (split, literal)"),
-                ))
-            }
-        };
+        let structure = f.choice(
+            "structure",
+            "structure",
+            &[("split", Structure::Split), ("literal", Structure::Literal)],
+            Structure::Split,
+        )?;
         let mut model = TwoMassModel::of_plant(&axis.plant);
         let pos = Range::Within(1e-12, 1e9);
         let nonneg = Range::Within(0.0, 1e9);
@@ -281,26 +277,24 @@ impl InverseFeedforwardParams {
             "torque_advance_s",
             Range::Within(-axis.period_s * 10.0, axis.period_s * 10.0),
         )?;
-        let motor_vel = match f.opt_str("velocity_estimate")? {
-            None | Some("exact") => MotorVelMeasure::Sampled,
-            Some("difference") => MotorVelMeasure::Difference,
-            Some(other) => {
-                return Err(f.error(
-                    "velocity_estimate",
-                    format!("unknown velocity estimate `{other}` (exact, difference)"),
-                ))
-            }
-        };
-        let lag = match f.opt_str("lag_discretisation")? {
-            None | Some("tustin") => LagDiscretisation::Tustin,
-            Some("backward_euler") => LagDiscretisation::BackwardEuler,
-            Some(other) => {
-                return Err(f.error(
-                    "lag_discretisation",
-                    format!("unknown lag discretisation `{other}` (tustin, backward_euler)"),
-                ))
-            }
-        };
+        let motor_vel = f.choice(
+            "velocity_estimate",
+            "velocity estimate",
+            &[
+                ("exact", MotorVelMeasure::Sampled),
+                ("difference", MotorVelMeasure::Difference),
+            ],
+            MotorVelMeasure::Sampled,
+        )?;
+        let lag = f.choice(
+            "lag_discretisation",
+            "lag discretisation",
+            &[
+                ("tustin", LagDiscretisation::Tustin),
+                ("backward_euler", LagDiscretisation::BackwardEuler),
+            ],
+            LagDiscretisation::Tustin,
+        )?;
         f.finish()?;
         let kv = kv.or(axis.defaults.kv);
         let kv = match (structure, kv) {

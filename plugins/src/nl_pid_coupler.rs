@@ -227,27 +227,25 @@ impl NlPidCouplerParams {
             kd_width_m: f.f64_or("kd_width_m", width, d.kd_width_m)?,
         };
         let max = f.f64_or("max_correction_m_per_s", Range::Within(0.0, 10.0), 0.1)?;
-        let contact = match f.opt_str("contact")? {
-            None | Some("measured") => Contact::Measured,
-            Some("commanded") => Contact::Commanded,
-            Some(other) => {
-                return Err(f.error(
-                    "contact",
-                    format!("unknown contact `{other}` (measured, commanded)"),
-                ))
-            }
-        };
+        let contact = f.choice(
+            "contact",
+            "contact",
+            &[
+                ("measured", Contact::Measured),
+                ("commanded", Contact::Commanded),
+            ],
+            Contact::Measured,
+        )?;
         let share = f.f64_or("x_bandwidth_share", Range::Within(0.0, 1.0), 0.25)?;
-        let axis_loops = match f.opt_str("axis_loops")? {
-            None | Some("tangential") => AxisLoops::Tangential,
-            Some("full") => AxisLoops::Full,
-            Some(other) => {
-                return Err(f.error(
-                    "axis_loops",
-                    format!("unknown axis_loops `{other}` (tangential, full)"),
-                ))
-            }
-        };
+        let axis_loops = f.choice(
+            "axis_loops",
+            "axis_loops",
+            &[
+                ("tangential", AxisLoops::Tangential),
+                ("full", AxisLoops::Full),
+            ],
+            AxisLoops::Tangential,
+        )?;
         if axis_loops == AxisLoops::Tangential {
             // the coupler is then the only position feedback normal to the profile
             for (key, kp) in [

@@ -167,16 +167,8 @@ fn parse_pulse(t: &toml::Table, path: &Path, key: &str) -> Result<Pulse, ConfigE
     let rise_split = f.f64("rise_split", Range::Within(1e-3, 1.0 - 1e-3))?;
     let fall_split = f.f64("fall_split", Range::Within(1e-3, 1.0 - 1e-3))?;
     let amplitude = f.f64("amplitude", Range::Within(-1e3, 1e3))?;
-    let profile = match f.opt_str("profile")? {
-        None => Profile::default(),
-        Some(id) => Profile::from_id(id).ok_or_else(|| {
-            let known: Vec<&str> = Profile::ALL.iter().map(|p| p.id()).collect();
-            f.error(
-                "profile",
-                format!("unknown profile `{id}` ({})", known.join(", ")),
-            )
-        })?,
-    };
+    let options = Profile::ALL.map(|p| (p.id(), p));
+    let profile = f.choice("profile", "profile", &options, Profile::default())?;
     if peak_s < start_s {
         return Err(f.error(
             "peak_s",
