@@ -15,6 +15,8 @@
 
 use serde::Serialize;
 
+use crate::workbench::signal::{mean, quantile};
+
 /// Effects seen at the reversals of a traverse.
 #[derive(Debug, Clone, Serialize, Default)]
 pub struct ReversalEffects {
@@ -88,10 +90,6 @@ fn mean_ci(x: &[f64]) -> (f64, f64) {
     }
     let var = x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0);
     (m, 1.96 * (var / n).sqrt())
-}
-
-fn mean(x: &[f64]) -> f64 {
-    x.iter().sum::<f64>() / x.len().max(1) as f64
 }
 
 /// Reads friction and backlash at the reversals between the one-direction `windows`
@@ -169,29 +167,26 @@ pub fn reversal_effects(
         })
         .collect();
     let (lm, lm_ci) = mean_ci(&lost);
-    let mut swings: Vec<(f64, f64)> = windows
+    let len = ((0.001 / dt).round() as usize).max(1);
+    let (swings, lopsided): (Vec<f64>, Vec<f64>) = windows
         .iter()
         .filter_map(|&(a, b, _)| {
             let (a, b) = (a + (b - a) / 4, b - (b - a) / 4);
             let defl: Vec<f64> = (a..b).map(|k| (m[k] - r * l[k]) / r).collect();
-            let len = ((0.001 / dt).round() as usize).max(1);
-            let mut d = moving_average(&defl, len);
+            let d = moving_average(&defl, len);
             if d.len() < 100 {
                 return None;
             }
-            d.sort_by(f64::total_cmp);
-            let q = |p: f64| d[((d.len() - 1) as f64 * p).round() as usize];
-            let (lo, mid, hi) = (q(0.005), q(0.5), q(0.995));
+            let (lo, mid, hi) = (quantile(&d, 0.005), quantile(&d, 0.5), quantile(&d, 0.995));
             // lifting off the flank moves the deflection one way only: towards the gap's middle
             let lopsided = (hi - mid).max(mid - lo) / (hi - mid).min(mid - lo).max(1e-15);
             Some((hi - lo, lopsided))
         })
-        .collect();
-    swings.sort_by(|a, b| a.0.total_cmp(&b.0));
-    e.flank_swing_m = swings.get(swings.len() / 2).map(|s| s.0);
-    let mut lop: Vec<f64> = swings.iter().map(|s| s.1).collect();
-    lop.sort_by(f64::total_cmp);
-    e.flank_lopsided = lop.get(lop.len() / 2).copied();
+        .unzip();
+    if !swings.is_empty() {
+        e.flank_swing_m = Some(quantile(&swings, 0.5));
+        e.flank_lopsided = Some(quantile(&lopsided, 0.5));
+    }
     let elastic = if kl > 0.0 {
         2.0 * friction.abs() / kl / r.abs()
     } else {
