@@ -9,6 +9,7 @@ mod control;
 mod identify_cmd;
 mod learn;
 mod processes;
+mod scope;
 mod signals;
 mod workbench_cmd;
 
@@ -89,6 +90,8 @@ enum Command {
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
     },
+    /// Live scope of a running loop (or of recorded traces) in the browser.
+    Scope(scope::ScopeArgs),
     /// Identification of seeds 000/001: load inertia, screw stiffness.
     #[command(subcommand)]
     Identify(identify_cmd::IdentifyCmd),
@@ -151,6 +154,7 @@ fn main() -> ExitCode {
         Command::Tune(a) => identify_cmd::tune(a),
         Command::Excite(a) => identify_cmd::excite(a),
         Command::Swap(a) => control::swap(&a),
+        Command::Scope(a) => scope::run(&a),
         Command::Status {
             instance,
             timeout_s,

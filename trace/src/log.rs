@@ -65,6 +65,9 @@ pub const REC_DUP_CMD: u8 = 32;
 /// for at least half a period (realtime runs; a spinning plant polls every few hundred ns), so
 /// a miss of this cycle may be the plant's own lateness in looking.
 pub const REC_WAIT_INTERRUPTED: u8 = 64;
+/// `PlantRecord::flags`: the plant is bringing the axes to a safe stop in this cycle (a limit,
+/// a plugin fault or an operator stop); the first such cycle is where the stop began.
+pub const REC_STOPPING: u8 = 128;
 
 /// Whether a cycle's `flags` make it a deadline miss: no command arrived in time while the plant
 /// itself was on time (a late plant is an overrun, not a miss). The one definition used by the
@@ -119,12 +122,20 @@ pub struct SchedRecord {
     pub sent_ns: u64,
     /// Per-axis torque commanded and reference, (N m or N, m or rad).
     pub axes: [(f64, f64); MAX_AXES],
+    /// Per-axis stage outputs: the velocity command the velocity stage followed (position stage
+    /// plus feedforward, motor units/s) and the torque feedforward added to its output
+    /// (feedforward and compensator stages, N m or N).
+    pub stages: [(f64, f64); MAX_AXES],
 }
 
 /// Log file magic; bumped with every record layout change (0xFEED_100F before the round-trip
-/// timestamps of issue 18), so an older log is refused instead of misread.
-const MAGIC: u32 = 0xFEED_1010;
-const MAGIC_BEFORE_ISSUE_18: u32 = 0xFEED_100F;
+/// timestamps of issue 18, 0xFEED_1010 before the stage outputs of issue 16), so an older log
+/// is refused instead of misread.
+const MAGIC: u32 = 0xFEED_1011;
+const OLDER_MAGICS: [(u32, &str); 2] = [
+    (0xFEED_100F, "records without the round-trip timestamps"),
+    (0xFEED_1010, "scheduler records without the stage outputs"),
+];
 
 fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard().with_fixed_int_encoding()
@@ -162,6 +173,19 @@ impl LogWriter {
     }
 }
 
+/// Encodes `records` into `out` in the log's record encoding (what a log block's payload holds);
+/// returns the bytes used, or `None` when they do not fit.
+pub fn encode_records<T: Serialize>(records: &[T], out: &mut [u8]) -> Option<usize> {
+    bincode::serde::encode_into_slice(records, out, bincode_config()).ok()
+}
+
+/// Decodes records written by [`encode_records`].
+pub fn decode_records<T: DeserializeOwned>(bytes: &[u8]) -> Option<Vec<T>> {
+    bincode::serde::decode_from_slice(bytes, bincode_config())
+        .ok()
+        .map(|(v, _)| v)
+}
+
 /// Result of reading a log: the records of all intact blocks, and whether a torn tail was dropped.
 #[derive(Debug, Clone)]
 pub struct LogContents<T> {
@@ -180,12 +204,12 @@ pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents
     while bytes.len() - pos >= 12 {
         let word = |o: usize| u32::from_le_bytes(bytes[pos + o..pos + o + 4].try_into().unwrap());
         if word(0) != MAGIC {
-            if pos == 0 && word(0) == MAGIC_BEFORE_ISSUE_18 {
+            if let Some((_, what)) = OLDER_MAGICS.iter().find(|(m, _)| pos == 0 && word(0) == *m) {
                 return Err(std::io::Error::new(
                     std::io::ErrorKind::InvalidData,
                     format!(
-                        "{}: a log of an older feedloop (records without the round-trip \
-                         timestamps); read it with the version that wrote it",
+                        "{}: a log of an older feedloop ({what}); read it with the version \
+                         that wrote it",
                         path.display()
                     ),
                 ));

@@ -18,13 +18,14 @@ use std::time::Duration;
 use crate::shared::clock::{now_ns, wait_until_ns};
 use crate::shared::ipc::{IpcError, PlantEndpoint, WaitOutcome};
 use crate::shared::record::Recorder;
+use crate::shared::scope::{scope_tap, ScopeSource};
 use crate::shared::wire::{
     ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
 };
 use feedloop_model::job::{Mode, SafeStop, SafetyOptions, WaitKind};
 use feedloop_trace::log::{
     AxisRecord, PlantRecord, REC_BAD_SEQ, REC_DUP_CMD, REC_LATE_CMD, REC_MISSED, REC_OVERRUN,
-    REC_STALL, REC_WAIT_INTERRUPTED,
+    REC_STALL, REC_STOPPING, REC_WAIT_INTERRUPTED,
 };
 
 pub use feedloop_control::device::PlantDevice;
@@ -188,11 +189,20 @@ pub fn run_plant<P: PlantDevice>(
         WaitKind::Block => 0,
         WaitKind::Hybrid => cfg.spin.as_nanos() as u64,
     };
-    let mut rec =
-        Recorder::<PlantRecord>::start(log_path, 1 << 16).map_err(|e| PlantLoopError::Log {
-            path: log_path.display().to_string(),
-            source: e,
-        })?;
+    let mut rec = Recorder::<PlantRecord>::start_with_tap(
+        log_path,
+        1 << 16,
+        Some(scope_tap(
+            &cfg.instance,
+            ScopeSource::Plant,
+            cfg.period_s,
+            n,
+        )),
+    )
+    .map_err(|e| PlantLoopError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    })?;
 
     if !handshake(ep, tag, n as u32, timeout_ns, &cfg.instance, stop)? {
         // stopped before the loop started: nothing moved
@@ -432,7 +442,11 @@ pub fn run_plant<P: PlantDevice>(
             latency_ns,
             compute_ns,
             published_ns: published,
-            flags,
+            flags: if stopping.is_some() {
+                flags | REC_STOPPING
+            } else {
+                flags
+            },
             ..Default::default()
         };
         for i in 0..n {

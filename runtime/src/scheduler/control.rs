@@ -665,6 +665,9 @@ impl ControlPlane {
                     nonfinite_faults: cycle.chain().nonfinite_faults,
                     deadline_misses: self.plant_deadline_misses,
                     rejected_requests: self.rejected_count,
+                    recent_swaps: self.swaps
+                        [self.swaps.len().saturating_sub(protocol::RECENT_SWAPS)..]
+                        .to_vec(),
                 };
                 respond(&req, &Answer::Status(status));
             }

@@ -7,6 +7,7 @@ use crate::scheduler::cycle::ControlCycle;
 use crate::shared::clock::now_ns;
 use crate::shared::ipc::{IpcError, SchedulerEndpoint, WaitOutcome};
 use crate::shared::record::Recorder;
+use crate::shared::scope::{scope_tap, ScopeSource};
 use crate::shared::wire::{
     ActuatorCommand, SensorSample, FLAG_END, FLAG_FAULT, FLAG_HELLO, FLAG_STOP, PROTOCOL_VERSION,
 };
@@ -103,7 +104,14 @@ pub fn run_scheduler(
         path: log_path.display().to_string(),
         source: e,
     };
-    let mut rec = Recorder::<SchedRecord>::start(log_path, 1 << 16).map_err(log_err)?;
+    let tap = scope_tap(
+        &cfg.instance,
+        ScopeSource::Scheduler,
+        cycle.period_s(),
+        axis_count,
+    );
+    let mut rec =
+        Recorder::<SchedRecord>::start_with_tap(log_path, 1 << 16, Some(tap)).map_err(log_err)?;
     let mut cmd = ActuatorCommand::empty(axis_count as u32, tag);
     let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
     hello.flags = FLAG_HELLO;
@@ -290,6 +298,9 @@ pub fn run_scheduler(
         };
         for i in 0..axis_count {
             r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
+        }
+        for (st, sg) in r.stages.iter_mut().zip(cycle.chain().signals()) {
+            *st = (sg.vel_cmd, sg.torque_ff);
         }
         rec.push(r);
         // the next cycle's references, while the plant steps

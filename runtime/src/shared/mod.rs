@@ -5,4 +5,5 @@ pub mod ipc;
 pub mod pingpong;
 pub mod record;
 pub mod rt;
+pub mod scope;
 pub mod wire;

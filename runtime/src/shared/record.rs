@@ -47,6 +47,14 @@ impl Phase {
     }
 }
 
+/// A reader of every block the writer thread writes (e.g. the scope feed), called on the
+/// writer thread after the block reached the log, never on the cycle's thread; with the
+/// records the ring has dropped so far.
+pub type Tap<T> = Box<dyn FnMut(&[T], u64)>;
+/// Makes a [`Tap`] on the writer thread (iceoryx2 ports stay on the thread that made them);
+/// `None` when it could not be made (the log is written all the same).
+pub type TapFactory<T> = Box<dyn FnOnce() -> Option<Tap<T>> + Send>;
+
 /// The cycle's side of a recorder: a wait-free push that never blocks or allocates.
 pub struct Recorder<T: Copy + Send + 'static> {
     producer: rtrb::Producer<T>,
@@ -60,11 +68,21 @@ pub struct Recorder<T: Copy + Send + 'static> {
 impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
     /// Starts a writer thread that appends blocks to `path`; `capacity` records are buffered.
     pub fn start(path: &Path, capacity: usize) -> std::io::Result<Self> {
+        Self::start_with_tap(path, capacity, None)
+    }
+
+    /// [`Recorder::start`], and hands every written block to the tap `tap` makes.
+    pub fn start_with_tap(
+        path: &Path,
+        capacity: usize,
+        tap: Option<TapFactory<T>>,
+    ) -> std::io::Result<Self> {
         let (producer, mut consumer) = rtrb::RingBuffer::<T>::new(capacity);
         let mut writer = LogWriter::create(path)?;
         let stop = Arc::new(AtomicBool::new(false));
         let dropped = Arc::new(AtomicU64::new(0));
         let stop2 = stop.clone();
+        let dropped2 = dropped.clone();
         let phase = Arc::new(Phase::default());
         let phase2 = phase.clone();
         let thread = std::thread::Builder::new()
@@ -74,6 +92,7 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                 // phase below holds.
                 // SAFETY: plain prctl on the calling thread.
                 unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000, 0, 0, 0) };
+                let mut tap = tap.and_then(|make| make());
                 let mut block: Vec<T> = Vec::with_capacity(WRITER_CHUNK);
                 let mut written = 0u64;
                 loop {
@@ -86,6 +105,9 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                     }
                     if !block.is_empty() {
                         writer.write_block(&block)?;
+                        if let Some(t) = tap.as_mut() {
+                            t(&block, dropped2.load(Ordering::Relaxed));
+                        }
                         written += block.len() as u64;
                         block.clear();
                     }

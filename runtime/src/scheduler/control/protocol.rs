@@ -181,7 +181,14 @@ pub struct Status {
     pub deadline_misses: u32,
     /// Refused requests so far.
     pub rejected_requests: u64,
+    /// The last swaps (at most [`RECENT_SWAPS`], oldest first; rolled-back ones included), so a
+    /// viewer learns of swaps other clients made and where they happened.
+    #[serde(default)]
+    pub recent_swaps: Vec<SwapEvent>,
 }
+
+/// Most swaps a [`Status`] lists.
+pub const RECENT_SWAPS: usize = 16;
 
 /// One axis in a [`Status`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -406,6 +413,7 @@ mod tests {
             nonfinite_faults: 0,
             deadline_misses: 2,
             rejected_requests: 3,
+            recent_swaps: vec![],
         });
         let text = serde_json::to_string(&status).unwrap();
         assert_eq!(
@@ -415,7 +423,7 @@ mod tests {
                              "stages": {"position": "position_p", "velocity": "pi_velocity"},
                              "torque": 0.5, "reference": 0.0}],
                    "swaps": 1, "nonfinite_faults": 0, "deadline_misses": 2,
-                   "rejected_requests": 3})
+                   "rejected_requests": 3, "recent_swaps": []})
             .to_string()
         );
         for a in [

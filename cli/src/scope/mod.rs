@@ -1,0 +1,526 @@
+//! `feedloop scope`: a live scope of a running loop (or of recorded traces) in the browser.
+//!
+//! The process attaches to the loop as one more iceoryx2 subscriber of the blocks its recorders
+//! publish after writing them ([`feedloop_runtime::shared::scope`]), keeps the last seconds in
+//! a bounded ring ([`store::Store`]) and serves a page (embedded in the binary) that draws them,
+//! triggers on levels and on the loop's own events, saves and reloads captures as traces, and
+//! talks to the loop's control service. Nothing here runs in the loop's processes.
+
+mod http;
+pub mod store;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use feedloop_runtime::scheduler::control::protocol::{Answer, Request, Status};
+use feedloop_runtime::scheduler::control::request;
+use feedloop_runtime::shared::scope::{ScopeRecords, ScopeSubscriber};
+use feedloop_trace::Trace;
+
+use store::Store;
+
+/// Options of `feedloop scope`.
+#[derive(clap::Args, Debug)]
+pub struct ScopeArgs {
+    /// Instance of the running loop to watch (`feedloop run ... --instance NAME`).
+    #[arg(long, conflicts_with_all = ["trace", "report"])]
+    pub instance: Option<String>,
+    /// A recorded trace (format v1) to open instead of a running loop.
+    #[arg(long)]
+    pub trace: Option<PathBuf>,
+    /// A folder of traces (e.g. a workbench report): every `*.csv` in it can be opened.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// TCP port of the page (0: any free port).
+    #[arg(long, default_value_t = 8080)]
+    pub port: u16,
+    /// Address to listen on; the page carries the loop's control service, so only the local
+    /// machine unless asked otherwise.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub bind: String,
+    /// Seconds of the loop kept for the page (a bounded ring; older cycles are overwritten).
+    #[arg(long, default_value_t = 20.0)]
+    pub history_s: f64,
+    /// Folder where saved captures go.
+    #[arg(long, default_value = "out/scope")]
+    pub captures: PathBuf,
+    /// Stop after this many seconds (0: run until interrupted).
+    #[arg(long, default_value_t = 0.0)]
+    pub duration_s: f64,
+}
+
+/// Most cycles the ring holds, whatever `--history-s` asks (memory bound: 11 columns of f64
+/// per axis).
+const MAX_RING: usize = 2_000_000;
+/// A page that has not polled for this long has left; another may attach.
+const LEASE: Duration = Duration::from_secs(3);
+/// Answers to the page's control requests kept for display.
+const MAX_ANSWERS: usize = 64;
+
+/// One answer of the control service to a request from the page.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PageAnswer {
+    /// Cycle the answer refers to (the swap cycle, else the newest cycle when it came).
+    pub cycle: u64,
+    /// Its time, s.
+    pub t_s: f64,
+    /// accepted | refused | rolled_back | error.
+    pub outcome: String,
+    /// One line for the plot.
+    pub summary: String,
+    /// The full answer.
+    pub answer: serde_json::Value,
+}
+
+/// The page that is attached.
+#[derive(Debug, Clone)]
+pub struct Session {
+    token: String,
+    addr: String,
+    since: std::time::SystemTime,
+    last_seen: Instant,
+}
+
+/// State shared by the feed, the status poller and the page's requests.
+pub struct Shared {
+    /// The ring of the live loop, or the opened trace.
+    pub store: Store,
+    /// The last capture.
+    pub capture: Option<store::Capture>,
+    /// The view of the last capture (or a trace opened from the page), when there is one.
+    pub capture_view: Option<Store>,
+    /// What the page shows in its banner about the loop's connection.
+    pub connection: String,
+    /// Whether the loop is running now.
+    pub running: bool,
+    /// The loop's latest status.
+    pub status: Option<Status>,
+    /// Answers to the page's requests.
+    pub answers: std::collections::VecDeque<PageAnswer>,
+    /// Blocks that did not decode.
+    pub bad_blocks: u64,
+    /// The run being watched.
+    pub run_id: Option<u64>,
+    /// Runs seen (restarts + 1).
+    pub runs: u64,
+    /// The attached page.
+    pub session: Option<Session>,
+    /// Traces the page can open (`--report`, `--trace`).
+    pub traces: Vec<PathBuf>,
+    /// Swap cycles already marked (the status lists recent ones again and again).
+    seen_swaps: Vec<(u64, String, String)>,
+}
+
+/// Everything the server threads need.
+pub struct Ctx {
+    /// The state.
+    pub shared: Mutex<Shared>,
+    /// Instance watched (live mode).
+    pub instance: Option<String>,
+    /// Where captures are saved.
+    pub captures: PathBuf,
+    /// Cycles the ring holds.
+    pub history_s: f64,
+    /// Set to end the scope.
+    pub stop: AtomicBool,
+}
+
+impl Ctx {
+    /// The shared state, locked (a panicked holder leaves it usable: every update is whole).
+    pub fn lock(&self) -> MutexGuard<'_, Shared> {
+        self.shared.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Prints a line on the command line (time-stamped), and keeps it for the page's banner.
+    pub fn say(&self, line: String) {
+        eprintln!("feedloop scope: {line}");
+        self.lock().connection = line;
+    }
+}
+
+fn ring_cycles(history_s: f64, period_s: f64) -> usize {
+    ((history_s / period_s).ceil() as usize).clamp(1000, MAX_RING)
+}
+
+/// `feedloop scope`.
+pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
+    if a.instance.is_none() && a.trace.is_none() && a.report.is_none() {
+        bail!("feedloop scope needs --instance NAME (a running loop), or --trace T.csv / --report DIR (recordings)");
+    }
+    if !(a.history_s > 0.0 && a.history_s.is_finite()) {
+        bail!(
+            "--history-s must be a positive number of seconds, got {}",
+            a.history_s
+        );
+    }
+    if let Some(i) = &a.instance {
+        if !feedloop_model::job::valid_name(i, true) {
+            bail!("invalid instance name `{i}`: use lowercase letters, digits, `_` and `-` (at most 64)");
+        }
+    }
+    let mut traces = Vec::new();
+    if let Some(dir) = &a.report {
+        traces = csv_files(dir)?;
+        if traces.is_empty() && a.trace.is_none() {
+            bail!("{}: no trace (*.csv) in this folder", dir.display());
+        }
+    }
+    if let Some(t) = &a.trace {
+        traces.insert(0, t.clone());
+    }
+    let (store, connection) = match traces.first() {
+        Some(t) => (
+            Store::from_trace(&read_trace(t)?),
+            format!("trace {}", t.display()),
+        ),
+        None => (
+            Store::live(&[], 1000),
+            format!(
+                "waiting for loop `{}`",
+                a.instance.as_deref().unwrap_or_default()
+            ),
+        ),
+    };
+    let ctx = Arc::new(Ctx {
+        shared: Mutex::new(Shared {
+            store,
+            capture: None,
+            capture_view: None,
+            connection,
+            running: false,
+            status: None,
+            answers: Default::default(),
+            bad_blocks: 0,
+            run_id: None,
+            runs: 0,
+            session: None,
+            traces,
+            seen_swaps: Vec::new(),
+        }),
+        instance: a.instance.clone(),
+        captures: a.captures.clone(),
+        history_s: a.history_s,
+        stop: AtomicBool::new(false),
+    });
+    crate::signals::install();
+    let server = http::bind(&a.bind, a.port)?;
+    let addr = server
+        .server_addr()
+        .to_ip()
+        .context("the server has no IP address")?;
+    println!("feedloop scope: open http://{addr}/");
+    let mut threads = http::serve(server.clone(), ctx.clone());
+    if let Some(instance) = a.instance.clone() {
+        let c = ctx.clone();
+        threads.push(std::thread::spawn(move || feed(&c, &instance)));
+        let c = ctx.clone();
+        let instance = a.instance.clone().unwrap_or_default();
+        threads.push(std::thread::spawn(move || poll_status(&c, &instance)));
+    }
+    let started = Instant::now();
+    while !ctx.stop.load(Ordering::Relaxed) {
+        if a.duration_s > 0.0 && started.elapsed().as_secs_f64() >= a.duration_s {
+            break;
+        }
+        if crate::signals::STOP.load(Ordering::Relaxed) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    ctx.stop.store(true, Ordering::Relaxed);
+    server.unblock();
+    for _ in 1..http::WORKERS {
+        server.unblock();
+    }
+    for t in threads {
+        let _ = t.join();
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn csv_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).with_context(|| format!("reading folder {}", d.display()))? {
+            let p = e?.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "csv") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Reads a trace with the format's own errors (file, line, what is wrong).
+pub fn read_trace(p: &Path) -> Result<Trace> {
+    Ok(Trace::read(p)?)
+}
+
+/// The live feed: subscribes to the loop's scope services and fills the ring. Survives the loop
+/// not running yet, ending and restarting.
+fn feed(ctx: &Ctx, instance: &str) {
+    let sub = loop {
+        match ScopeSubscriber::open(instance) {
+            Ok(s) => break s,
+            Err(e) => {
+                ctx.say(format!("cannot watch loop `{instance}`: {e}; retrying"));
+                if ctx.stop.load(Ordering::Relaxed) {
+                    return;
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        }
+    };
+    let mut was_running: Option<bool> = None;
+    let mut last_check = Instant::now() - Duration::from_secs(1);
+    let mut bad = 0u64;
+    while !ctx.stop.load(Ordering::Relaxed) {
+        if last_check.elapsed() >= Duration::from_millis(250) {
+            last_check = Instant::now();
+            let (p, s) = sub.loop_running();
+            let running = p && s;
+            if was_running != Some(running) {
+                let newest = ctx.lock().store.newest;
+                let line = match (running, was_running, newest) {
+                    (true, _, _) => format!("attached to loop `{instance}`"),
+                    (false, None, _) => format!(
+                        "no loop of instance `{instance}` is running; waiting for one (start it \
+                         with `feedloop run JOB --out DIR --instance {instance}`)"
+                    ),
+                    (false, Some(_), Some(k)) => format!(
+                        "loop `{instance}` ended after cycle {k}; the last {} s stay on the page; \
+                         waiting for it to start again",
+                        ctx.history_s
+                    ),
+                    (false, Some(_), None) => format!("loop `{instance}` ended"),
+                };
+                ctx.say(line);
+                let mut sh = ctx.lock();
+                sh.running = running;
+                was_running = Some(running);
+            }
+        }
+        let mut got = false;
+        for _ in 0..64 {
+            match sub.receive(&mut bad) {
+                Ok(Some(b)) => {
+                    got = true;
+                    let restarted = {
+                        let mut sh = ctx.lock();
+                        sh.bad_blocks = bad;
+                        let new_run = sh.run_id != Some(b.run_id)
+                            && matches!(b.records, ScopeRecords::Plant(_));
+                        if new_run {
+                            let names = sh
+                                .status
+                                .as_ref()
+                                .map(|s| s.axes.iter().map(|a| a.axis.clone()).collect())
+                                .filter(|n: &Vec<String>| n.len() == b.axis_count)
+                                .unwrap_or_else(|| {
+                                    (0..b.axis_count).map(|i| format!("axis{i}")).collect()
+                                });
+                            let mut st =
+                                Store::live(&names, ring_cycles(ctx.history_s, b.period_s));
+                            st.period_s = b.period_s;
+                            // a trigger armed before the loop started waits for it
+                            st.trigger = sh.store.trigger.take();
+                            sh.store = st;
+                            sh.seen_swaps.clear();
+                            sh.run_id = Some(b.run_id);
+                            sh.runs += 1;
+                        }
+                        // (the run is told by the plant's blocks; the scheduler's carry its own
+                        // process's start, and land by cycle number in the plant's run)
+                        match &b.records {
+                            ScopeRecords::Plant(r) => {
+                                sh.store.ring_dropped = b.ring_dropped;
+                                sh.store.push_plant(r)
+                            }
+                            ScopeRecords::Scheduler(r) if sh.run_id.is_some() => {
+                                sh.store.push_sched(r)
+                            }
+                            ScopeRecords::Scheduler(_) => {}
+                        }
+                        new_run.then_some(sh.runs)
+                    };
+                    if let Some(runs) = restarted {
+                        if runs > 1 {
+                            ctx.say(format!(
+                                "loop `{instance}` restarted (run {runs}): the page follows the new run"
+                            ));
+                        }
+                    }
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    ctx.say(format!("scope feed of `{instance}`: {e}"));
+                    break;
+                }
+            }
+        }
+        if !got {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+}
+
+/// Asks the loop's control service for its status twice a second: axes, stages, and the swaps
+/// other clients made.
+fn poll_status(ctx: &Ctx, instance: &str) {
+    while !ctx.stop.load(Ordering::Relaxed) {
+        let running = ctx.lock().running;
+        if running {
+            if let Ok(Answer::Status(st)) =
+                request(instance, &Request::Status, Duration::from_millis(800))
+            {
+                let mut sh = ctx.lock();
+                let names: Vec<String> = st.axes.iter().map(|a| a.axis.clone()).collect();
+                if sh.store.axes != names && sh.store.axes.len() == names.len() {
+                    let fresh_period = sh.store.period_s;
+                    let mut s = Store::live(&names, sh.store.capacity());
+                    s.period_s = fresh_period;
+                    s.trigger = sh.store.trigger.take();
+                    sh.store = s;
+                }
+                for ev in &st.recent_swaps {
+                    let key = (ev.cycle, ev.axis.clone(), ev.stage.clone());
+                    if !sh.seen_swaps.contains(&key) {
+                        sh.seen_swaps.push(key);
+                        sh.store.push_swap(ev);
+                    }
+                }
+                sh.status = Some(st);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+/// Sends a swap from the page to the loop and keeps the answer for the plot.
+pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
+    let Some(instance) = &ctx.instance else {
+        bail!("this scope shows recordings; swaps need a running loop (--instance)");
+    };
+    let get = |k: &str| body.get(k).and_then(|v| v.as_str()).map(str::to_string);
+    let need = |k: &str| {
+        get(k)
+            .filter(|s| !s.is_empty())
+            .with_context(|| format!("swap needs `{k}`"))
+    };
+    let params = get("params").filter(|p| !p.trim().is_empty());
+    if let Some(p) = &params {
+        feedloop_model::params::parse_toml(Path::new("<page params>"), p)?;
+    }
+    let req = Request::Swap(
+        feedloop_runtime::scheduler::control::protocol::SwapRequest {
+            axis: need("axis")?,
+            stage: need("stage")?,
+            plugin: need("plugin")?,
+            params,
+            lib: None,
+            force: body.get("force").and_then(|v| v.as_bool()).unwrap_or(false),
+            params_file: Some("<page params>".into()),
+        },
+    );
+    let answer = request(instance, &req, Duration::from_secs(5))?;
+    let mut sh = ctx.lock();
+    let newest = sh.store.newest.unwrap_or(0);
+    let (cycle, outcome, summary) = match &answer {
+        Answer::Swapped { swap } => (
+            swap.cycle,
+            "accepted",
+            format!(
+                "{} {} -> {}: torque step {} within bound {}",
+                swap.axis,
+                swap.stage,
+                swap.to,
+                store::fmt_num(swap.torque_step, "N m"),
+                store::fmt_num(swap.allowed_step, "N m")
+            ),
+        ),
+        Answer::Refused {
+            error,
+            swap: Some(swap),
+        } => (swap.cycle, "rolled_back", format!("rolled back: {error}")),
+        Answer::Refused { error, swap: None } => (newest, "refused", format!("refused: {error}")),
+        Answer::Status(_) => (newest, "error", "unexpected answer".into()),
+    };
+    if let Answer::Swapped { swap }
+    | Answer::Refused {
+        swap: Some(swap), ..
+    } = &answer
+    {
+        let key = (swap.cycle, swap.axis.clone(), swap.stage.clone());
+        if !sh.seen_swaps.contains(&key) {
+            sh.seen_swaps.push(key);
+            sh.store.push_swap(swap);
+        }
+    }
+    let a = PageAnswer {
+        cycle,
+        t_s: cycle as f64 * sh.store.period_s,
+        outcome: outcome.into(),
+        summary,
+        answer: serde_json::to_value(&answer)?,
+    };
+    if sh.answers.len() >= MAX_ANSWERS {
+        sh.answers.pop_front();
+    }
+    sh.answers.push_back(a.clone());
+    drop(sh);
+    eprintln!(
+        "feedloop scope: swap from the page: {} ({})",
+        a.summary, a.outcome
+    );
+    Ok(a)
+}
+
+/// Writes `cap` as a trace (format v1) into the captures folder; returns its path.
+pub fn save_capture(ctx: &Ctx, cap: &store::Capture) -> Result<PathBuf> {
+    std::fs::create_dir_all(&ctx.captures)
+        .with_context(|| format!("creating {}", ctx.captures.display()))?;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let p = ctx
+        .captures
+        .join(format!("capture-{stamp}-cycle{}.csv", cap.trigger_cycle));
+    let tr = capture_trace(cap, &p, ctx.instance.as_deref())?;
+    tr.write(&p)
+        .with_context(|| format!("writing {}", p.display()))?;
+    Ok(p)
+}
+
+/// A capture as a trace (format v1): `t`, then the store's columns; the trigger in the metadata.
+pub fn capture_trace(cap: &store::Capture, path: &Path, instance: Option<&str>) -> Result<Trace> {
+    let mut columns = vec!["t".to_string()];
+    columns.extend(cap.columns.iter().cloned());
+    let n = cap.data.first().map_or(0, Vec::len);
+    let mut data = vec![(0..n)
+        .map(|i| (cap.first_cycle + i as u64) as f64 * cap.period_s)
+        .collect::<Vec<f64>>()];
+    data.extend(cap.data.iter().cloned());
+    let mut meta = vec![
+        ("source".to_string(), "feedloop-scope".to_string()),
+        ("period_s".to_string(), format!("{}", cap.period_s)),
+        (
+            "trigger".to_string(),
+            cap.describe.replace(['\n', '\r'], " "),
+        ),
+        ("trigger_t_s".to_string(), format!("{}", cap.trigger_t_s)),
+        ("held_cells".to_string(), cap.held_cells.to_string()),
+    ];
+    if let Some(i) = instance {
+        meta.push(("instance".to_string(), i.to_string()));
+    }
+    Ok(Trace::from_columns(path, meta, columns, data)?)
+}

@@ -1,0 +1,387 @@
+// feedloop scope page: polls the scope's JSON API and draws min/max envelopes on canvases.
+'use strict';
+
+const session = Math.random().toString(36).slice(2) + Date.now().toString(36);
+const COLORS = ['#1f5fbf', '#d9480f', '#2b8a3e', '#862e9c', '#c92a2a', '#0b7285', '#5f3dc4', '#e67700'];
+const EVENT_COLORS = { deadline_miss: '#c92a2a', plant_overrun: '#e67700', stall: '#862e9c',
+  swap: '#1b7f3a', rollback: '#b3261e', safety_stop: '#000000' };
+
+// What tests and people can inspect from the console.
+const scope = window.scope = {
+  state: null, frames: 0, views: 0, points: 0, busy: null, panes: [],
+  paused: false, lastError: null, lastAnswer: null,
+};
+
+const $ = (id) => document.getElementById(id);
+
+async function api(path, opts = {}) {
+  opts.headers = Object.assign({ 'x-scope-session': session }, opts.headers || {});
+  const r = await fetch(path, opts);
+  const body = await r.json().catch(() => ({ error: 'answer is not JSON (' + r.status + ')' }));
+  if (r.status === 409 && body.busy) {
+    scope.busy = body.error;
+    $('busy').hidden = false;
+    $('busy-text').textContent = body.error;
+    throw new Error(body.error);
+  }
+  scope.busy = null;
+  $('busy').hidden = true;
+  if (!r.ok) throw new Error(body.error || ('HTTP ' + r.status));
+  return body;
+}
+
+// ---- units -------------------------------------------------------------------------------
+function scaleFor(unit, maxAbs) {
+  if (unit === 'm') {
+    if (maxAbs < 1e-6) return { f: 1e9, label: 'nm' };
+    if (maxAbs < 1e-3) return { f: 1e6, label: 'um' };
+    if (maxAbs < 1) return { f: 1e3, label: 'mm' };
+    return { f: 1, label: 'm' };
+  }
+  return { f: 1, label: unit || '' };
+}
+
+function niceTicks(lo, hi, n) {
+  if (!(hi > lo)) { hi = lo + 1; }
+  const raw = (hi - lo) / n;
+  const mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map((m) => m * mag).find((s) => s >= raw) || raw;
+  const ticks = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) ticks.push(v);
+  return { ticks, step };
+}
+
+function fmtTick(v, step) {
+  const d = Math.max(0, -Math.floor(Math.log10(step) + 1e-9));
+  return v.toFixed(Math.min(d, 9));
+}
+
+// ---- panes -------------------------------------------------------------------------------
+function addPane(signals) {
+  const div = document.createElement('div');
+  div.className = 'pane';
+  const canvas = document.createElement('canvas');
+  const det = document.createElement('details');
+  det.className = 'signals';
+  det.innerHTML = '<summary>signals</summary>';
+  const box = document.createElement('div');
+  box.className = 'signals';
+  det.appendChild(box);
+  div.appendChild(canvas);
+  div.appendChild(det);
+  $('panes').appendChild(div);
+  const pane = { div, canvas, box, signals: signals.slice(), index: scope.panes.length };
+  scope.panes.push(pane);
+  fillPicker(pane);
+  return pane;
+}
+
+function fillPicker(pane) {
+  const cols = currentColumns();
+  pane.box.innerHTML = '';
+  for (const c of cols) {
+    const l = document.createElement('label');
+    const cb = document.createElement('input');
+    cb.type = 'checkbox';
+    cb.value = c.name;
+    cb.checked = pane.signals.includes(c.name);
+    cb.onchange = () => {
+      pane.signals = cb.checked ? pane.signals.concat([c.name]) : pane.signals.filter((s) => s !== c.name);
+    };
+    l.appendChild(cb);
+    l.appendChild(document.createTextNode(' ' + c.name));
+    l.title = c.what + (c.unit ? ' (' + c.unit + ')' : '');
+    pane.box.appendChild(l);
+  }
+}
+
+function currentColumns() {
+  const s = scope.state;
+  if (!s) return [];
+  if ($('source').value === 'capture' && s.capture_view) return s.capture_view.columns;
+  return s.columns;
+}
+
+function defaultPanes() {
+  const s = scope.state;
+  const names = new Set(s.columns.map((c) => c.name));
+  const pick = (list) => list.filter((n) => names.has(n));
+  const a = s.axes;
+  const first = a[0] || '';
+  const panes = [
+    pick([first + '.cmd', first + '.load']),
+    pick(a.map((x) => x + '.following_error')),
+    pick(a.map((x) => x + '.torque').concat(a.map((x) => x + '.torque_ff'))),
+  ].filter((p) => p.length);
+  if (!panes.length && s.columns.length) panes.push([s.columns[0].name]);
+  for (const p of panes) addPane(p);
+}
+
+// ---- time window -------------------------------------------------------------------------
+function windowOf(span) {
+  if (!span) return null;
+  const [lo, hi] = span;
+  const sel = $('span').value;
+  const width = sel === 'all' ? Math.max(hi - lo, 1e-6) : parseFloat(sel);
+  const live = $('source').value === 'live' && scope.state && scope.state.mode === 'live';
+  if (live && !scope.paused) {
+    $('offset').value = 1000;
+    return [hi - width, hi];
+  }
+  const frac = $('offset').value / 1000;
+  const t1 = Math.min(hi, lo + width + (hi - lo - width) * frac);
+  return [t1 - width, t1];
+}
+
+// ---- drawing -----------------------------------------------------------------------------
+function drawPane(pane, view, t0, t1) {
+  const c = pane.canvas;
+  const dpr = window.devicePixelRatio || 1;
+  const W = c.clientWidth, H = c.clientHeight;
+  if (c.width !== Math.round(W * dpr)) { c.width = Math.round(W * dpr); c.height = Math.round(H * dpr); }
+  const g = c.getContext('2d');
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, W, H);
+  const L = 70, R = 10, T = 22, B = 30;
+  const pw = W - L - R, ph = H - T - B;
+  const series = view.series.filter((s) => pane.signals.includes(s.name));
+  let lo = Infinity, hi = -Infinity;
+  for (const s of series) for (let i = 0; i < s.lo.length; i++) {
+    if (s.lo[i] !== null) { lo = Math.min(lo, s.lo[i]); hi = Math.max(hi, s.hi[i]); }
+  }
+  const unit = series.length ? series[0].unit : '';
+  if (!isFinite(lo)) { lo = -1; hi = 1; }
+  if (hi - lo < 1e-15) { const m = Math.abs(lo) * 1e-3 || 1e-9; lo -= m; hi += m; }
+  const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
+  const sc = scaleFor(unit, Math.max(Math.abs(lo), Math.abs(hi)));
+  const X = (t) => L + (t - t0) / (t1 - t0) * pw;
+  const Y = (v) => T + (hi - v) / (hi - lo) * ph;
+  // title
+  g.fillStyle = '#1d2430'; g.font = 'bold 12px system-ui';
+  g.fillText(series.map((s) => s.name).join(', ') || '(no signal: pick some below)', L, 14);
+  // grid and ticks
+  g.font = '11px system-ui'; g.strokeStyle = '#e6e8ec'; g.fillStyle = '#4a5566'; g.lineWidth = 1;
+  const yt = niceTicks(lo * sc.f, hi * sc.f, 5);
+  for (const v of yt.ticks) {
+    const y = Y(v / sc.f);
+    g.beginPath(); g.moveTo(L, y); g.lineTo(L + pw, y); g.stroke();
+    g.fillText(fmtTick(v, yt.step), 4, y + 4);
+  }
+  const xt = niceTicks(t0, t1, 8);
+  for (const v of xt.ticks) {
+    const x = X(v);
+    g.beginPath(); g.moveTo(x, T); g.lineTo(x, T + ph); g.stroke();
+    g.fillText(fmtTick(v, xt.step), x - 14, T + ph + 13);
+  }
+  g.fillText('t (s)', L + pw - 24, T + ph + 26);
+  g.save(); g.translate(12, T + ph / 2); g.rotate(-Math.PI / 2);
+  g.fillText(sc.label, -8, 0); g.restore();
+  g.strokeStyle = '#8a94a6'; g.strokeRect(L, T, pw, ph);
+  // envelopes: one vertical min-max bar per pixel column, joined to the next
+  series.forEach((s, k) => {
+    const col = COLORS[(scope.state.columns.findIndex((c) => c.name === s.name) + 8) % COLORS.length];
+    g.strokeStyle = col; g.lineWidth = 1.2; g.beginPath();
+    const n = s.lo.length;
+    let started = false;
+    for (let i = 0; i < n; i++) {
+      if (s.lo[i] === null) { started = false; continue; }
+      const x = L + (i + 0.5) / n * pw;
+      const y0 = Y(s.lo[i]), y1 = Y(s.hi[i]);
+      if (!started) { g.moveTo(x, y0); started = true; } else { g.lineTo(x, y0); }
+      g.lineTo(x, y1);
+      scope.points += 1;
+    }
+    g.stroke();
+    // legend
+    const lx = L + 8 + k * 150, ly = T + 12;
+    g.fillStyle = col; g.fillRect(lx, ly - 8, 14, 3);
+    g.fillStyle = '#1d2430'; g.fillText(s.name + ' (' + sc.label + ')', lx + 18, ly - 4);
+  });
+  // loop events and the answers to the page's requests, where they happened
+  const st = scope.state;
+  const events = $('source').value === 'capture' ? (st.capture ? st.capture.events : []) : st.events;
+  g.save(); g.beginPath(); g.rect(L, T, pw, ph); g.clip();
+  for (const e of events || []) {
+    if (e.t_s < t0 || e.t_s > t1) continue;
+    const x = X(e.t_s);
+    g.strokeStyle = EVENT_COLORS[e.kind] || '#000'; g.setLineDash([4, 3]);
+    g.beginPath(); g.moveTo(x, T); g.lineTo(x, T + ph); g.stroke(); g.setLineDash([]);
+    g.fillStyle = g.strokeStyle; g.fillText(e.kind.replace('_', ' '), x + 3, T + ph - 4);
+  }
+  for (const a of st.answers || []) {
+    if (a.t_s < t0 || a.t_s > t1) continue;
+    const x = X(a.t_s);
+    g.fillStyle = a.outcome === 'accepted' ? '#1b7f3a' : '#b3261e';
+    g.beginPath(); g.moveTo(x, T + 2); g.lineTo(x - 5, T + 10); g.lineTo(x + 5, T + 10); g.fill();
+    g.fillText(a.outcome.replace('_', ' ') + ': ' + a.summary.slice(0, 70), Math.min(x + 6, L + pw - 260), T + 24);
+  }
+  g.restore();
+}
+
+let inflight = false;
+async function frame() {
+  requestAnimationFrame(frame);
+  const st = scope.state;
+  if (inflight || !st || scope.busy) return;
+  const src = $('source').value === 'capture' && st.capture_view ? 'capture' : 'live';
+  const span = src === 'capture' ? st.capture_view.span_s : st.span_s;
+  const w = windowOf(span);
+  if (!w) return;
+  const sigs = [...new Set(scope.panes.flatMap((p) => p.signals))];
+  const cols = Math.max(50, Math.min(4096, Math.round(($('panes').clientWidth - 80) * (window.devicePixelRatio || 1))));
+  inflight = true;
+  try {
+    const v = await api('/api/view?src=' + src + '&t0=' + w[0] + '&t1=' + w[1] + '&cols=' + cols +
+      '&sig=' + encodeURIComponent(sigs.join(',')));
+    scope.views += 1;
+    for (const p of scope.panes) drawPane(p, v, w[0], w[1]);
+    scope.frames += 1;
+    $('time-info').textContent = w[0].toFixed(4) + ' .. ' + w[1].toFixed(4) + ' s';
+  } catch (e) {
+    scope.lastError = String(e);
+  } finally {
+    inflight = false;
+  }
+}
+
+// ---- sidebar -----------------------------------------------------------------------------
+function fmtUs(v) { return v === null || v === undefined ? 'n/a' : (v < 10 ? v.toFixed(2) : v.toFixed(1)) + ' us'; }
+
+function drawHistogram(lat) {
+  const c = $('histogram'), g = c.getContext('2d');
+  const W = c.width, H = c.height, L = 36, B = 28, T = 14;
+  g.clearRect(0, 0, W, H);
+  g.font = '10px system-ui'; g.fillStyle = '#1d2430';
+  g.fillText('round trip (us, log scale) - cycles (log)', L, 10);
+  const bins = lat.bins.filter((b) => b[2] > 0);
+  if (!bins.length) { g.fillText('no cycles yet', L, H / 2); return; }
+  const x0 = Math.log10(bins[0][0]), x1 = Math.log10(bins[bins.length - 1][1]);
+  const ymax = Math.log10(Math.max(...bins.map((b) => b[2])) + 1);
+  const X = (v) => L + (Math.log10(v) - x0) / Math.max(x1 - x0, 1e-9) * (W - L - 6);
+  g.strokeStyle = '#8a94a6'; g.strokeRect(L, T, W - L - 6, H - T - B);
+  for (const b of bins) {
+    const h = Math.log10(b[2] + 1) / ymax * (H - T - B);
+    g.fillStyle = '#1f5fbf';
+    g.fillRect(X(b[0]), H - B - h, Math.max(1, X(b[1]) - X(b[0]) - 1), h);
+  }
+  g.fillStyle = '#4a5566';
+  for (let e = Math.ceil(x0); e <= x1; e++) {
+    const v = Math.pow(10, e), x = X(v);
+    g.fillRect(x, H - B, 1, 4);
+    g.fillText(v >= 1 ? String(v) : v.toFixed(1), x - 6, H - B + 14);
+  }
+  g.fillText('cycles: ' + lat.count, L, H - 2);
+}
+
+function updateSidebar(st) {
+  $('title').textContent = 'feedloop scope - ' + (st.mode === 'live' ? 'loop ' + st.instance : 'recording');
+  $('banner').textContent = st.connection + (st.period_s ? ' | period ' + (st.period_s * 1e6).toFixed(0) + ' us' : '');
+  const lat = st.latency;
+  $('latency').textContent = 'p50 ' + fmtUs(lat.p50_us) + ', p99 ' + fmtUs(lat.p99_us) + ', p99.9 ' +
+    fmtUs(lat.p999_us) + ', max ' + fmtUs(lat.max_us) + '; cycles without command ' + lat.missed_cycles;
+  drawHistogram(lat);
+  const rows = Object.entries(st.counters).map(([k, v]) => '<tr><td>' + k.replace('_', ' ') + '</td><td>' + v + '</td></tr>');
+  rows.push('<tr><td>lost plant / scheduler cycles (scope queue)</td><td>' + st.lost.plant_cycles + ' / ' + st.lost.scheduler_cycles + '</td></tr>');
+  rows.push('<tr><td>dropped by the loop recorders</td><td>' + st.lost.recorder_dropped + '</td></tr>');
+  $('counters').innerHTML = rows.join('');
+  if (st.status) {
+    const stages = ['position', 'feedforward', 'compensator', 'velocity'];
+    let h = '<tr><th>axis</th>' + stages.map((s) => '<th>' + s + '</th>').join('') + '<th>torque</th></tr>';
+    for (const a of st.status.axes) {
+      h += '<tr><td>' + a.axis + '</td>' + stages.map((s) => '<td>' + (a.stages[s] || '-') + '</td>').join('') +
+        '<td>' + (a.torque === null ? 'n/a' : a.torque.toFixed(3) + ' N m') + '</td></tr>';
+    }
+    h += '<tr><td colspan="6">cycle ' + st.status.cycle + ', swaps ' + st.status.swaps + ', refused requests ' +
+      st.status.rejected_requests + ', deadline misses ' + st.status.deadline_misses + '</td></tr>';
+    $('status').innerHTML = h;
+  } else {
+    $('status').innerHTML = '<tr><td>' + (st.mode === 'live' ? 'no status from the loop yet' : 'a recording has no running stages') + '</td></tr>';
+  }
+  $('trig-status').textContent = st.trigger ? 'armed: ' + st.trigger.describe : 'not armed';
+  $('cap-status').textContent = st.capture ? 'captured: ' + st.capture.describe + ', ' + st.capture.cycles +
+    ' cycles from ' + st.capture.first_t_s.toFixed(4) + ' s' : (st.capture_view ? 'a trace is open as the capture view' : 'no capture yet');
+  $('answers').innerHTML = (st.answers || []).slice().reverse().map((a) =>
+    '<li class="' + a.outcome + '">t = ' + a.t_s.toFixed(4) + ' s: ' + a.summary.replace(/</g, '&lt;') + '</li>').join('');
+  const axSel = $('sw-axis');
+  if (axSel.options.length !== st.axes.length) axSel.innerHTML = st.axes.map((a) => '<option>' + a + '</option>').join('');
+  const ev = $('trig-event');
+  if (!ev.options.length) ev.innerHTML = st.event_kinds.map((k) => '<option>' + k + '</option>').join('');
+  const sig = $('trig-signal');
+  if (sig.options.length !== st.columns.length) sig.innerHTML = st.columns.map((c) => '<option>' + c.name + '</option>').join('');
+  const tl = $('trace-list');
+  if (st.traces.length > 1 && tl.options.length !== st.traces.length) {
+    $('trace-list-row').hidden = false;
+    tl.innerHTML = st.traces.map((t, i) => '<option value="' + i + '">' + t + '</option>').join('');
+  }
+}
+
+async function pollState() {
+  try {
+    const st = await api('/api/state');
+    const first = !scope.state || scope.state.columns.length !== st.columns.length;
+    scope.state = st;
+    if (first) {
+      for (const p of scope.panes) p.div.remove();
+      scope.panes = [];
+      defaultPanes();
+    }
+    updateSidebar(st);
+  } catch (e) {
+    scope.lastError = String(e);
+    if (!scope.busy) $('banner').textContent = 'scope not reachable: ' + e;
+  }
+  setTimeout(pollState, 250);
+}
+
+async function post(path, body, extra) {
+  return api(path, { method: 'POST', body: typeof body === 'string' ? body : JSON.stringify(body), headers: extra || {} });
+}
+
+function wire() {
+  $('takeover').onclick = () => post('/api/takeover', {}).catch(() => {});
+  $('pause').onclick = () => { scope.paused = !scope.paused; $('pause').textContent = scope.paused ? 'Follow' : 'Pause'; };
+  $('add-pane').onclick = () => addPane([]);
+  $('source').onchange = () => { for (const p of scope.panes) fillPicker(p); };
+  $('trig-kind').onchange = () => {
+    const lvl = $('trig-kind').value === 'level';
+    $('trig-level-row').hidden = !lvl; $('trig-event').hidden = lvl;
+  };
+  $('trig-arm').onclick = async () => {
+    const kind = $('trig-kind').value;
+    const body = { kind, pre_s: parseFloat($('trig-pre').value), post_s: parseFloat($('trig-post').value) };
+    if (kind === 'event') body.event = $('trig-event').value;
+    else Object.assign(body, { signal: $('trig-signal').value, edge: $('trig-edge').value, level: parseFloat($('trig-level').value) });
+    try { const r = await post('/api/trigger', body); $('trig-status').textContent = 'armed: ' + r.armed; }
+    catch (e) { $('trig-status').textContent = 'refused: ' + e.message; }
+  };
+  $('trig-cancel').onclick = () => post('/api/trigger/cancel', {}).catch(() => {});
+  $('cap-save').onclick = async () => {
+    try { const r = await post('/api/capture/save', {}); $('cap-status').textContent = 'saved to ' + r.path; }
+    catch (e) { $('cap-status').textContent = 'not saved: ' + e.message; }
+  };
+  $('cap-open').onchange = async () => {
+    const f = $('cap-open').files[0];
+    if (!f) return;
+    try {
+      const r = await post('/api/open', await f.text(), { 'x-trace-name': f.name });
+      $('cap-status').textContent = 'opened ' + r.opened + ' (' + r.rows + ' rows)';
+      $('source').value = 'capture';
+      $('span').value = 'all';
+    } catch (e) { $('cap-status').textContent = 'cannot open: ' + e.message; }
+  };
+  $('trace-open').onclick = () => post('/api/trace?i=' + $('trace-list').value, {}).catch((e) => { $('banner').textContent = String(e); });
+  $('sw-send').onclick = async () => {
+    const body = { axis: $('sw-axis').value, stage: $('sw-stage').value, plugin: $('sw-plugin').value,
+      params: $('sw-params').value, force: $('sw-force').checked };
+    try { scope.lastAnswer = await post('/api/swap', body); }
+    catch (e) { scope.lastAnswer = { outcome: 'error', summary: e.message }; }
+    const li = document.createElement('li');
+    li.className = scope.lastAnswer.outcome;
+    li.textContent = scope.lastAnswer.summary;
+    $('answers').prepend(li);
+  };
+}
+
+wire();
+pollState();
+requestAnimationFrame(frame);
