@@ -64,6 +64,10 @@ pub enum BenchCmd {
         #[arg(required = true)]
         runs: Vec<PathBuf>,
     },
+    /// The loop's latency and misses with `feedloop scope` attached and a headless browser
+    /// drawing its page, against the same run without it, side by side (`scope-bench.json`),
+    /// with the scope's resident memory sampled through the run.
+    Scope(crate::bench_scope::ScopeBenchArgs),
     /// The echoing side of `bench latency`'s ping-pong (started by it).
     #[command(hide = true)]
     PingEcho {
@@ -99,6 +103,7 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             reference_s,
         }),
         BenchCmd::Table { runs } => table(&runs),
+        BenchCmd::Scope(a) => crate::bench_scope::run(&a),
         BenchCmd::PingEcho { instance, cpu } => {
             // best effort, as for the ping side: what was refused only makes the floor slower
             apply(&RtRequest {
@@ -165,7 +170,7 @@ const QUADRANT_TABLE: &str = include_str!("../../examples/tables/xy-circle-quadr
 /// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
 /// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
 /// `cycles`.
-fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<PathBuf> {
+pub(crate) fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<PathBuf> {
     std::fs::write(dir.join("bench-x.toml"), MODEL_X)?;
     std::fs::write(dir.join("bench-c.toml"), MODEL_C)?;
     std::fs::write(dir.join("bench-quadrant.toml"), QUADRANT_TABLE)?;
@@ -263,7 +268,8 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         1e-3 / period_s,
         cycles as f64 * period_s
     );
-    run_processes(&job, out, wait_kind, cycles, &cpus, fifo)?;
+    let instance = format!("bench{}", std::process::id());
+    run_processes(&job, out, wait_kind, cycles, &cpus, fifo, &instance)?;
     // the same ping-pong again just after: how far the host's state moved during the run
     let pp_after = if pingpong_cycles > 0 {
         eprintln!("bench latency: the ping-pong again, after the run");
@@ -415,15 +421,15 @@ fn reference_loops(
 
 /// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of
 /// `cpus` (when given), and waits for both.
-fn run_processes(
+pub(crate) fn run_processes(
     job: &Path,
     out: &Path,
     wait: WaitKind,
     cycles: u64,
     cpus: &[usize],
     fifo: Option<i32>,
+    instance: &str,
 ) -> Result<()> {
-    let instance = format!("bench{}", std::process::id());
     let extra = |i: usize| {
         let mut v = vec!["--cycles".to_string(), cycles.to_string()];
         if let Some(c) = cpus.get(i) {
@@ -437,18 +443,10 @@ fn run_processes(
     for f in ["plant.log", "plant.json", "scheduler.log", "scheduler.json"] {
         let _ = std::fs::remove_file(out.join(f));
     }
-    let mut plant = spawn(
-        "plant",
-        &instance,
-        job,
-        out,
-        Mode::Realtime,
-        wait,
-        &extra(0),
-    )?;
+    let mut plant = spawn("plant", instance, job, out, Mode::Realtime, wait, &extra(0))?;
     let mut sched = spawn(
         "scheduler",
-        &instance,
+        instance,
         job,
         out,
         Mode::Realtime,

@@ -5,6 +5,7 @@
 //! logs of hand-started processes).
 
 mod bench;
+mod bench_scope;
 mod control;
 mod identify_cmd;
 mod learn;

@@ -90,9 +90,9 @@ fn query(url: &str) -> Vec<(String, String)> {
         return Vec::new();
     };
     q.split('&')
-        .filter_map(|kv| {
+        .map(|kv| {
             let (k, v) = kv.split_once('=').unwrap_or((kv, ""));
-            Some((k.to_string(), unescape(v)))
+            (k.to_string(), unescape(v))
         })
         .collect()
 }
@@ -189,6 +189,18 @@ fn handle(ctx: &Ctx, mut rq: Request) {
         (Method::Get, "/scope.css") => {
             return reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string())
         }
+        (Method::Get, "/api/stats") => {
+            // for benchmarks and scripts: no page session needed, nothing changes
+            let sh = ctx.lock();
+            let v = json!({
+                "views_served": ctx.views.load(Ordering::Relaxed),
+                "lost_blocks": sh.store.lost_blocks[0] + sh.store.lost_blocks[1],
+                "newest_cycle": sh.store.newest,
+                "running": sh.running,
+            });
+            drop(sh);
+            return reply_json(rq, 200, &v);
+        }
         (_, p) if !p.starts_with("/api/") => {
             return reply_json(rq, 404, &json!({"error": format!("no page at {p}")}))
         }
@@ -241,7 +253,10 @@ fn handle(ctx: &Ctx, mut rq: Request) {
     let out: Result<Value> = match path.as_str() {
         "/api/takeover" => Ok(json!({"ok": true})),
         "/api/state" => Ok(state(ctx)),
-        "/api/view" => view(ctx, &q),
+        "/api/view" => {
+            ctx.views.fetch_add(1, Ordering::Relaxed);
+            view(ctx, &q)
+        }
         "/api/trigger" => arm(ctx, &body),
         "/api/trigger/cancel" => {
             let mut sh = ctx.lock();
@@ -384,6 +399,7 @@ fn state(ctx: &Ctx) -> Value {
         "event_kinds": EVENT_KINDS,
         "counters": counters,
         "lost": {"plant_cycles": s.lost_plant, "scheduler_cycles": s.lost_sched,
+                 "scope_blocks": s.lost_blocks[0] + s.lost_blocks[1],
                  "recorder_dropped": s.ring_dropped, "bad_blocks": sh.bad_blocks},
         "latency": {"count": h.len(), "p50_us": q(0.5), "p99_us": q(0.99), "p999_us": q(0.999),
                     "max_us": if h.is_empty() { Value::Null } else { json!(h.max() as f64 * 1e-3) },

@@ -127,6 +127,8 @@ pub struct Ctx {
     pub history_s: f64,
     /// Set to end the scope.
     pub stop: AtomicBool,
+    /// Views (curve requests) served to the page.
+    pub views: std::sync::atomic::AtomicU64,
 }
 
 impl Ctx {
@@ -205,6 +207,7 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
         captures: a.captures.clone(),
         history_s: a.history_s,
         stop: AtomicBool::new(false),
+        views: Default::default(),
     });
     crate::signals::install();
     let server = http::bind(&a.bind, a.port)?;
@@ -342,9 +345,11 @@ fn feed(ctx: &Ctx, instance: &str) {
                         match &b.records {
                             ScopeRecords::Plant(r) => {
                                 sh.store.ring_dropped = b.ring_dropped;
+                                sh.store.block_seen(0, b.block);
                                 sh.store.push_plant(r)
                             }
                             ScopeRecords::Scheduler(r) if sh.run_id.is_some() => {
+                                sh.store.block_seen(1, b.block);
                                 sh.store.push_sched(r)
                             }
                             ScopeRecords::Scheduler(_) => {}

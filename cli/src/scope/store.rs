@@ -138,10 +138,16 @@ pub struct Store {
     pub events: VecDeque<Event>,
     /// Event counts by kind, in [`EVENT_KINDS`] order.
     pub counters: [u64; EVENT_KINDS.len()],
-    /// Plant cycles never received (lost to a full subscriber queue), and scheduler cycles.
+    /// Plant cycles missing from the records (gaps in the cycle numbers).
     pub lost_plant: u64,
-    /// Scheduler cycles lost.
+    /// Scheduler cycles missing (cycles it never answered, or records lost), beyond the samples
+    /// it skipped on purpose.
     pub lost_sched: u64,
+    /// Blocks the scope's queue overwrote before they were read (the scope fell behind), plant
+    /// and scheduler.
+    pub lost_blocks: [u64; 2],
+    /// The next expected block number of each source.
+    pub next_block: [Option<u32>; 2],
     /// Records the loop's own recorders dropped (reported by the loop).
     pub ring_dropped: u64,
     /// Latencies, ns (realtime runs).
@@ -200,6 +206,8 @@ impl Store {
             counters: [0; EVENT_KINDS.len()],
             lost_plant: 0,
             lost_sched: 0,
+            lost_blocks: [0; 2],
+            next_block: [None; 2],
             ring_dropped: 0,
             latency: hdrhistogram::Histogram::new_with_bounds(1, 10_000_000_000, 3)
                 .expect("valid histogram bounds"),
@@ -288,6 +296,17 @@ impl Store {
             }
         }
         self.events.push_back(ev);
+    }
+
+    /// Counts the blocks of `source` (0 plant, 1 scheduler) skipped before block number `n`.
+    pub fn block_seen(&mut self, source: usize, n: u32) {
+        if let Some(want) = self.next_block[source] {
+            let gap = n.wrapping_sub(want);
+            if gap < u32::MAX / 2 {
+                self.lost_blocks[source] += u64::from(gap);
+            }
+        }
+        self.next_block[source] = Some(n.wrapping_add(1));
     }
 
     /// Adds the plant's records of one block.
@@ -558,24 +577,25 @@ impl Store {
     }
 }
 
-/// A figure with significant digits and a unit prefix that fits ("12.3 um", "0.51 N m").
+/// A figure with four significant digits and, for metres, a prefix that fits ("12.34 um").
 pub fn fmt_num(v: f64, unit: &str) -> String {
     if !v.is_finite() {
         return "n/a".into();
     }
     let a = v.abs();
-    let (scale, prefix) = if unit == "m" {
-        match a {
-            a if a == 0.0 => (1.0, ""),
-            a if a < 1e-6 => (1e9, "n"),
-            a if a < 1e-3 => (1e6, "u"),
-            a if a < 1.0 => (1e3, "m"),
-            _ => (1.0, ""),
-        }
-    } else {
-        (1.0, "")
+    let (scale, prefix) = match (unit, a) {
+        ("m", a) if a > 0.0 && a < 1e-6 => (1e9, "n"),
+        ("m", a) if a > 0.0 && a < 1e-3 => (1e6, "u"),
+        ("m", a) if a > 0.0 && a < 1.0 => (1e3, "m"),
+        _ => (1.0, ""),
     };
-    format!("{:.3} {prefix}{unit}", v * scale)
+    let x = v * scale;
+    let digits = if x == 0.0 {
+        0
+    } else {
+        (3 - x.abs().log10().floor() as i32).clamp(0, 12) as usize
+    };
+    format!("{x:.digits$} {prefix}{unit}")
 }
 
 /// The unit a trace column is in, from its name (trace format v1).
@@ -612,6 +632,15 @@ mod tests {
         let mut s = Store::live(&["x".to_string()], 1000);
         s.period_s = 1e-3;
         s
+    }
+
+    #[test]
+    fn figures_keep_four_significant_digits_and_a_fitting_prefix() {
+        assert_eq!(fmt_num(0.000123456, "N m"), "0.0001235 N m");
+        assert_eq!(fmt_num(12.5e-6, "m"), "12.50 um");
+        assert_eq!(fmt_num(-3.0e-9, "m"), "-3.000 nm");
+        assert_eq!(fmt_num(0.0, "N m"), "0 N m");
+        assert_eq!(fmt_num(f64::NAN, "m"), "n/a");
     }
 
     #[test]

@@ -66,8 +66,8 @@ pub struct ScopeBlock {
     pub period_ns: u64,
     /// Axes in the job.
     pub axis_count: u32,
-    /// Reserved (0).
-    pub reserved: u32,
+    /// Number of this block in its run (wrapping): a gap tells a subscriber it lost blocks.
+    pub block: u32,
     /// Records the recorder's ring dropped so far in this run (the log lacks them too).
     pub ring_dropped: u64,
     /// The records, in the log's encoding ([`encode_records`]).
@@ -141,7 +141,7 @@ impl ScopePublisher {
                 run_id: crate::shared::clock::now_ns(),
                 period_ns,
                 axis_count,
-                reserved: 0,
+                block: 0,
                 ring_dropped: 0,
                 bytes: [0; SCOPE_BLOCK_BYTES],
             }),
@@ -167,6 +167,7 @@ impl ScopePublisher {
             if let Ok(sample) = self.publisher.loan_uninit() {
                 let _ = sample.write_payload(*self.block).send();
             }
+            self.block.block = self.block.block.wrapping_add(1);
             rest = &rest[n..];
         }
     }
@@ -217,6 +218,8 @@ pub struct ReceivedBlock {
     pub axis_count: usize,
     /// Records the recorder's ring dropped so far.
     pub ring_dropped: u64,
+    /// The block's number in its run ([`ScopeBlock::block`]).
+    pub block: u32,
     /// The records.
     pub records: ScopeRecords,
 }
@@ -304,6 +307,7 @@ impl ScopeSubscriber {
                             period_s: b.period_ns as f64 * 1e-9,
                             axis_count: b.axis_count as usize,
                             ring_dropped: b.ring_dropped,
+                            block: b.block,
                             records,
                         }))
                     }

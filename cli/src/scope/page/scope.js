@@ -9,7 +9,7 @@ const EVENT_COLORS = { deadline_miss: '#c92a2a', plant_overrun: '#e67700', stall
 // What tests and people can inspect from the console.
 const scope = window.scope = {
   state: null, frames: 0, views: 0, points: 0, busy: null, panes: [],
-  paused: false, lastError: null, lastAnswer: null,
+  paused: false, lastError: null, lastAnswer: null, savedPath: null,
 };
 
 const $ = (id) => document.getElementById(id);
@@ -201,12 +201,17 @@ function drawPane(pane, view, t0, t1) {
   const st = scope.state;
   const events = $('source').value === 'capture' ? (st.capture ? st.capture.events : []) : st.events;
   g.save(); g.beginPath(); g.rect(L, T, pw, ph); g.clip();
-  for (const e of events || []) {
-    if (e.t_s < t0 || e.t_s > t1) continue;
+  // events oldest first; a label only where it does not overlap the previous one
+  const shown = (events || []).filter((e) => e.t_s >= t0 && e.t_s <= t1).sort((a, b) => a.t_s - b.t_s);
+  let lastLabel = -1e9;
+  for (const e of shown) {
     const x = X(e.t_s);
     g.strokeStyle = EVENT_COLORS[e.kind] || '#000'; g.setLineDash([4, 3]);
     g.beginPath(); g.moveTo(x, T); g.lineTo(x, T + ph); g.stroke(); g.setLineDash([]);
-    g.fillStyle = g.strokeStyle; g.fillText(e.kind.replace('_', ' '), x + 3, T + ph - 4);
+    if (x - lastLabel > 90) {
+      g.fillStyle = g.strokeStyle; g.fillText(e.kind.replace('_', ' '), x + 3, T + ph - 4);
+      lastLabel = x;
+    }
   }
   for (const a of st.answers || []) {
     if (a.t_s < t0 || a.t_s > t1) continue;
@@ -281,7 +286,8 @@ function updateSidebar(st) {
     fmtUs(lat.p999_us) + ', max ' + fmtUs(lat.max_us) + '; cycles without command ' + lat.missed_cycles;
   drawHistogram(lat);
   const rows = Object.entries(st.counters).map(([k, v]) => '<tr><td>' + k.replace('_', ' ') + '</td><td>' + v + '</td></tr>');
-  rows.push('<tr><td>lost plant / scheduler cycles (scope queue)</td><td>' + st.lost.plant_cycles + ' / ' + st.lost.scheduler_cycles + '</td></tr>');
+  rows.push('<tr><td>cycles missing from plant / scheduler records</td><td>' + st.lost.plant_cycles + ' / ' + st.lost.scheduler_cycles + '</td></tr>');
+  rows.push('<tr><td>blocks the scope fell behind on (dropped, oldest first)</td><td>' + st.lost.scope_blocks + '</td></tr>');
   rows.push('<tr><td>dropped by the loop recorders</td><td>' + st.lost.recorder_dropped + '</td></tr>');
   $('counters').innerHTML = rows.join('');
   if (st.status) {
@@ -356,15 +362,15 @@ function wire() {
   };
   $('trig-cancel').onclick = () => post('/api/trigger/cancel', {}).catch(() => {});
   $('cap-save').onclick = async () => {
-    try { const r = await post('/api/capture/save', {}); $('cap-status').textContent = 'saved to ' + r.path; }
-    catch (e) { $('cap-status').textContent = 'not saved: ' + e.message; }
+    try { const r = await post('/api/capture/save', {}); scope.savedPath = r.path; $('cap-saved').textContent = 'saved to ' + r.path; }
+    catch (e) { $('cap-saved').textContent = 'not saved: ' + e.message; }
   };
   $('cap-open').onchange = async () => {
     const f = $('cap-open').files[0];
     if (!f) return;
     try {
       const r = await post('/api/open', await f.text(), { 'x-trace-name': f.name });
-      $('cap-status').textContent = 'opened ' + r.opened + ' (' + r.rows + ' rows)';
+      $('cap-saved').textContent = 'opened ' + r.opened + ' (' + r.rows + ' rows)';
       $('source').value = 'capture';
       $('span').value = 'all';
     } catch (e) { $('cap-status').textContent = 'cannot open: ' + e.message; }

@@ -1,0 +1,336 @@
+//! `feedloop bench scope`: does watching the loop cost the loop anything?
+//!
+//! Runs the benchmark chain of `bench latency` (X-C grinder, four controllers) in pairs: once
+//! alone, once with `feedloop scope` attached and a headless Chromium drawing its page. Prints
+//! both runs' latency percentiles and misses side by side and writes `scope-bench.json`; samples
+//! the scope process's resident memory through each run it watched (flat over a long run, or
+//! not).
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use serde_json::{json, Value};
+
+use feedloop_analysis::latency::{attribute_misses, RunFigures};
+use feedloop_model::job::WaitKind;
+use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
+
+/// Options of `feedloop bench scope`.
+#[derive(clap::Args, Debug)]
+pub struct ScopeBenchArgs {
+    /// Cycles of each run.
+    #[arg(long, default_value_t = 300_000)]
+    pub cycles: u64,
+    /// Control period, s.
+    #[arg(long, default_value_t = 1.0e-4)]
+    pub period_s: f64,
+    /// busy | block | hybrid.
+    #[arg(long, default_value = "busy")]
+    pub wait: String,
+    /// CPUs for the plant and the scheduler, e.g. `0,1`.
+    #[arg(long)]
+    pub pin: Option<String>,
+    /// Pairs of runs (without, with), alternating.
+    #[arg(long, default_value_t = 1)]
+    pub pairs: u32,
+    /// The browser that draws the page (default: chromium, chromium-browser or google-chrome on
+    /// PATH).
+    #[arg(long)]
+    pub browser: Option<PathBuf>,
+    /// Seconds between two samples of the scope's resident memory.
+    #[arg(long, default_value_t = 5.0)]
+    pub rss_every_s: f64,
+    /// Only the runs with the scope (e.g. a long run for the scope's memory alone).
+    #[arg(long)]
+    pub with_only: bool,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+struct Kill(Child);
+
+impl Drop for Kill {
+    fn drop(&mut self) {
+        // SAFETY: signalling our own child, then reaping it.
+        unsafe { libc::kill(self.0.id() as i32, libc::SIGINT) };
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(3) {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn find_browser(asked: Option<&Path>) -> Result<PathBuf> {
+    if let Some(b) = asked {
+        return Ok(b.to_path_buf());
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    ["chromium", "chromium-browser", "google-chrome"]
+        .iter()
+        .flat_map(|b| std::env::split_paths(&path).map(move |d| d.join(b)))
+        .find(|p| p.is_file())
+        .context(
+            "no browser on PATH (chromium, chromium-browser or google-chrome): install Debian's \
+             `chromium`, or name one with --browser",
+        )
+}
+
+/// Resident set of process `pid`, bytes.
+fn rss_bytes(pid: u32) -> Option<u64> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// A GET without a page session (the scope's `/api/stats`).
+fn get(addr: &str, path: &str) -> Option<Value> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(2))).ok()?;
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .ok()?;
+    let mut out = String::new();
+    s.read_to_string(&mut out).ok()?;
+    serde_json::from_str(out.split_once("\r\n\r\n")?.1).ok()
+}
+
+fn figures(dir: &Path, period_ns: u64) -> Result<Value> {
+    let recs = read_log::<PlantRecord>(&dir.join("plant.log"))?.records;
+    let sched = read_log::<SchedRecord>(&dir.join("scheduler.log"))
+        .map(|l| l.records)
+        .unwrap_or_default();
+    let f = RunFigures::from_records(&recs)?;
+    let a = attribute_misses(&recs, &sched, period_ns);
+    let q = |p: f64| f.latency.value_at_quantile(p) as f64 * 1e-3;
+    Ok(json!({
+        "cycles": recs.len(),
+        "p50_us": q(0.5), "p99_us": q(0.99), "p999_us": q(0.999),
+        "max_us": f.latency.max() as f64 * 1e-3,
+        "jitter_p99_us": f.jitter.value_at_quantile(0.99) as f64 * 1e-3,
+        "misses": f.misses, "misses_outside_stalls": f.misses_outside_stalls,
+        "misses_unexplained": a.unexplained, "overruns": f.overruns, "stalls": f.stalls,
+    }))
+}
+
+/// `feedloop bench scope`.
+pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
+    let wait = WaitKind::parse(&a.wait)
+        .with_context(|| format!("--wait `{}`: expected busy, block or hybrid", a.wait))?;
+    if !(a.period_s > 1e-6 && a.period_s <= 0.1) {
+        bail!("--period-s {}: must be within (1e-6, 0.1] s", a.period_s);
+    }
+    if a.cycles == 0 || a.pairs == 0 {
+        bail!("--cycles and --pairs must be > 0");
+    }
+    if !(a.rss_every_s > 0.0 && a.rss_every_s.is_finite()) {
+        bail!("--rss-every-s must be a positive number of seconds");
+    }
+    let browser = find_browser(a.browser.as_deref())?;
+    let cpus: Vec<usize> = match a.pin.as_deref() {
+        None => vec![],
+        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
+    };
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let job = crate::bench::bench_job(&a.out, a.period_s, wait, a.cycles)?;
+    let period_ns = (a.period_s * 1e9).round() as u64;
+    let exe = std::env::current_exe().context("locating the feedloop binary")?;
+    let mut pairs = Vec::new();
+    for pair in 0..a.pairs {
+        let mut row = serde_json::Map::new();
+        for with_scope in [false, true] {
+            if a.with_only && !with_scope {
+                continue;
+            }
+            let name = if with_scope { "with_scope" } else { "without" };
+            let dir = a.out.join(format!("pair{pair}-{name}"));
+            std::fs::create_dir_all(&dir)?;
+            let instance = format!(
+                "scopebench{}x{pair}{}",
+                std::process::id(),
+                u8::from(with_scope)
+            );
+            eprintln!(
+                "bench scope: pair {} of {}, {name}: {} cycles at {:.1} kHz, about {:.0} s",
+                pair + 1,
+                a.pairs,
+                a.cycles,
+                1e-3 / a.period_s,
+                a.cycles as f64 * a.period_s
+            );
+            if !with_scope {
+                crate::bench::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance)?;
+                row.insert(name.into(), figures(&dir, period_ns)?);
+                continue;
+            }
+            // the scope first, then the browser on its page, then the loop
+            let mut scope = Command::new(&exe);
+            scope
+                .args([
+                    "scope",
+                    "--instance",
+                    &instance,
+                    "--port",
+                    "0",
+                    "--captures",
+                ])
+                .arg(dir.join("captures"))
+                .stdout(Stdio::piped())
+                .stderr(Stdio::null());
+            crate::signals::die_with_parent(&mut scope);
+            let mut scope = Kill(scope.spawn().context("starting feedloop scope")?);
+            let mut line = String::new();
+            BufReader::new(scope.0.stdout.take().context("scope's stdout")?)
+                .read_line(&mut line)?;
+            let url = line
+                .trim()
+                .strip_prefix("feedloop scope: open ")
+                .with_context(|| format!("feedloop scope printed `{}`", line.trim()))?
+                .to_string();
+            let addr = url
+                .trim_start_matches("http://")
+                .trim_end_matches('/')
+                .to_string();
+            let profile = dir.join("browser-profile");
+            let mut chrome = Command::new(&browser);
+            chrome
+                .args([
+                    "--headless",
+                    "--no-sandbox",
+                    "--disable-gpu",
+                    "--disable-quic",
+                    "--no-first-run",
+                    "--disable-background-networking",
+                    "--disable-component-update",
+                    "--disable-sync",
+                    "--window-size=1400,1000",
+                    "--remote-debugging-port=0",
+                ])
+                .arg(format!("--user-data-dir={}", profile.display()))
+                .arg(&url)
+                .stdout(Stdio::null())
+                .stderr(Stdio::null());
+            crate::signals::die_with_parent(&mut chrome);
+            let chrome = Kill(
+                chrome
+                    .spawn()
+                    .with_context(|| format!("starting {}", browser.display()))?,
+            );
+            let scope_pid = scope.0.id();
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let stop2 = stop.clone();
+            let every = Duration::from_secs_f64(a.rss_every_s);
+            let sampler = std::thread::spawn(move || {
+                let t0 = Instant::now();
+                let mut samples: Vec<(f64, u64)> = Vec::new();
+                while !stop2.load(std::sync::atomic::Ordering::Relaxed) {
+                    if let Some(r) = rss_bytes(scope_pid) {
+                        samples.push((t0.elapsed().as_secs_f64(), r));
+                    }
+                    let until = Instant::now() + every;
+                    while Instant::now() < until
+                        && !stop2.load(std::sync::atomic::Ordering::Relaxed)
+                    {
+                        std::thread::sleep(Duration::from_millis(50));
+                    }
+                }
+                samples
+            });
+            let before = get(&addr, "/api/stats");
+            let ran =
+                crate::bench::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance);
+            let after = get(&addr, "/api/stats");
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            let rss = sampler.join().unwrap_or_default();
+            drop(chrome);
+            drop(scope);
+            ran?;
+            let views = |v: &Option<Value>| v.as_ref().and_then(|v| v["views_served"].as_u64());
+            let drawn = match (views(&before), views(&after)) {
+                (Some(b), Some(a)) => a.saturating_sub(b),
+                _ => 0,
+            };
+            let mut f = figures(&dir, period_ns)?;
+            let span = a.cycles as f64 * a.period_s;
+            let mb = |b: u64| b as f64 / 1048576.0;
+            f["scope"] = json!({
+                "views_served": drawn,
+                "views_per_s": drawn as f64 / span.max(1e-9),
+                "rss_mb": rss.iter().map(|(t, b)| json!([t, mb(*b)])).collect::<Vec<_>>(),
+                "rss_first_mb": rss.first().map(|s| mb(s.1)),
+                "rss_last_mb": rss.last().map(|s| mb(s.1)),
+                "rss_max_mb": rss.iter().map(|s| mb(s.1)).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v)))),
+                "lost_blocks": after.as_ref().and_then(|v| v["lost_blocks"].as_u64()),
+            });
+            if drawn == 0 {
+                eprintln!("bench scope: warning: the browser fetched no view during the run");
+            }
+            row.insert(name.into(), f);
+        }
+        pairs.push(Value::Object(row));
+    }
+    let v = json!({
+        "what": "the benchmark chain of `bench latency` run alone and with `feedloop scope` \
+                 attached and a headless browser drawing its page, in alternating pairs",
+        "cycles": a.cycles, "period_s": a.period_s, "wait": wait.id(), "pin": a.pin,
+        "browser": browser.display().to_string(),
+        "pairs": pairs,
+    });
+    let path = a.out.join("scope-bench.json");
+    crate::processes::write_json(&path, &v)?;
+    println!(
+        "| pair | run | p50 | p99 | p99.9 | max | misses (outside stalls, unexplained) | page views/s | scope RSS first -> last (max) |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (i, p) in v["pairs"].as_array().into_iter().flatten().enumerate() {
+        for name in ["without", "with_scope"] {
+            let f = &p[name];
+            if f.is_null() {
+                continue;
+            }
+            let us = |k: &str| format!("{:.3} us", f[k].as_f64().unwrap_or(f64::NAN));
+            let scope = if name == "with_scope" {
+                let s = &f["scope"];
+                (
+                    format!("{:.0}", s["views_per_s"].as_f64().unwrap_or(0.0)),
+                    format!(
+                        "{:.1} -> {:.1} ({:.1}) MB",
+                        s["rss_first_mb"].as_f64().unwrap_or(f64::NAN),
+                        s["rss_last_mb"].as_f64().unwrap_or(f64::NAN),
+                        s["rss_max_mb"].as_f64().unwrap_or(f64::NAN)
+                    ),
+                )
+            } else {
+                ("-".into(), "-".into())
+            };
+            println!(
+                "| {} | {} | {} | {} | {} | {} | {} ({}, {}) | {} | {} |",
+                i + 1,
+                name.replace('_', " "),
+                us("p50_us"),
+                us("p99_us"),
+                us("p999_us"),
+                us("max_us"),
+                f["misses"],
+                f["misses_outside_stalls"],
+                f["misses_unexplained"],
+                scope.0,
+                scope.1
+            );
+        }
+    }
+    println!("wrote {}", path.display());
+    Ok(ExitCode::SUCCESS)
+}

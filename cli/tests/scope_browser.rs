@@ -1,0 +1,522 @@
+//! `feedloop scope` end to end in a real headless Chromium, driven over the DevTools protocol:
+//! the page loads against a running realtime loop, plots receive data, a trigger on a swap
+//! captures it, a swap sent from the page reaches the loop and its answer appears, the capture
+//! saves as a trace and reloads into the view, a second browser is told the scope is taken, and
+//! the page says when the loop ends. A screenshot of each state is written to
+//! `target/tmp/scope-e2e/` (the paths are printed). Without a browser the test says so and is
+//! skipped, except on CI (`CI=true`), where it fails.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use base64::Engine;
+use serde_json::{json, Value};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_feedloop")
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+/// The first of the usual Chromium names found on PATH.
+fn browser() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    ["chromium", "chromium-browser", "google-chrome"]
+        .iter()
+        .flat_map(|b| std::env::split_paths(&path).map(move |d| d.join(b)))
+        .find(|p| p.is_file())
+}
+
+/// Kills a child process when dropped (a failing test leaves nothing running).
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A plain HTTP request to the scope; returns status code and body.
+fn http(addr: &str, method: &str, path: &str, session: &str, body: &str) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nx-scope-session: {session}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    // read the head, then as many bytes as it announces (DevTools keeps the connection open)
+    let mut r = BufReader::new(s);
+    let mut status = String::new();
+    r.read_line(&mut status).unwrap();
+    let code = status[9..12].parse().unwrap();
+    let mut len = None;
+    loop {
+        let mut h = String::new();
+        r.read_line(&mut h).unwrap();
+        if h.trim().is_empty() {
+            break;
+        }
+        if let Some((k, v)) = h.split_once(':') {
+            if k.eq_ignore_ascii_case("content-length") {
+                len = v.trim().parse::<usize>().ok();
+            }
+        }
+    }
+    let mut body = Vec::new();
+    match len {
+        Some(n) => {
+            body.resize(n, 0);
+            r.read_exact(&mut body).unwrap();
+        }
+        None => {
+            r.read_to_end(&mut body).unwrap();
+        }
+    }
+    (code, String::from_utf8_lossy(&body).into_owned())
+}
+
+/// A DevTools-protocol session with one page.
+struct Cdp {
+    ws: tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>,
+    next: u64,
+}
+
+impl Cdp {
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        self.next += 1;
+        let id = self.next;
+        let msg = json!({"id": id, "method": method, "params": params}).to_string();
+        self.ws.send(tungstenite::Message::text(msg)).unwrap();
+        loop {
+            let m = self.ws.read().unwrap();
+            let Ok(text) = m.to_text() else { continue };
+            let v: Value = serde_json::from_str(text).unwrap_or(Value::Null);
+            if v.get("id").and_then(Value::as_u64) == Some(id) {
+                if let Some(e) = v.get("error") {
+                    panic!("{method}: {e}");
+                }
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// Evaluates `expr` in the page (promises awaited) and returns its value.
+    fn eval(&mut self, expr: &str) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": expr, "returnByValue": true, "awaitPromise": true}),
+        );
+        if let Some(ex) = r.get("exceptionDetails") {
+            panic!("page threw on `{expr}`: {ex}");
+        }
+        r["result"]["value"].clone()
+    }
+
+    /// Waits until `expr` is true in the page; panics with `what` and the page's state after `secs`.
+    fn wait_for(&mut self, expr: &str, secs: f64, what: &str) {
+        let t = Instant::now();
+        while t.elapsed().as_secs_f64() < secs {
+            if self.eval(expr) == Value::Bool(true) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let seen = self.eval(
+            "JSON.stringify({err: scope.lastError, busy: scope.busy, frames: scope.frames, \
+             banner: document.getElementById('banner').textContent, answer: scope.lastAnswer, \
+             trigger: scope.state && scope.state.trigger, capture: scope.state && scope.state.capture && scope.state.capture.describe})",
+        );
+        panic!("{what}: not within {secs} s; page: {seen}");
+    }
+
+    fn screenshot(&mut self, path: &Path) {
+        let r = self.call("Page.captureScreenshot", json!({"format": "png"}));
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(r["data"].as_str().unwrap())
+            .unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+        std::fs::write(path, &bytes).unwrap();
+        eprintln!("screenshot: {}", path.display());
+    }
+}
+
+/// Starts headless Chromium with a DevTools port and opens a session on its page.
+fn chromium(browser: &Path, profile: &Path) -> (Proc, Cdp) {
+    let mut child = Command::new(browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            "--window-size=1400,1000",
+            "--remote-debugging-port=0",
+            &format!("--user-data-dir={}", profile.display()),
+            "about:blank",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut port = None;
+    let mut line = String::new();
+    let t = Instant::now();
+    while port.is_none() && t.elapsed() < Duration::from_secs(30) {
+        line.clear();
+        if err.read_line(&mut line).unwrap_or(0) == 0 {
+            break;
+        }
+        if let Some(rest) = line
+            .trim()
+            .strip_prefix("DevTools listening on ws://127.0.0.1:")
+        {
+            port = rest.split('/').next().map(str::to_string);
+        }
+    }
+    // keep draining Chromium's chatter so it never blocks on a full pipe
+    std::thread::spawn(move || {
+        let mut sink = String::new();
+        while err.read_line(&mut sink).unwrap_or(0) > 0 {
+            sink.clear();
+        }
+    });
+    let port = port.expect("Chromium printed no DevTools address");
+    let proc = Proc(child);
+    let addr = format!("127.0.0.1:{port}");
+    let (_, list) = http(&addr, "GET", "/json/list", "-", "");
+    let targets: Value = serde_json::from_str(&list).unwrap();
+    let ws_url = targets
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["type"] == "page")
+        .and_then(|t| t["webSocketDebuggerUrl"].as_str())
+        .expect("a page target")
+        .to_string();
+    let (ws, _) = tungstenite::connect(ws_url).unwrap();
+    (proc, Cdp { ws, next: 0 })
+}
+
+/// A copy of the circle job running `turns` turns, with model paths made absolute.
+fn long_job(dir: &Path, turns: f64) -> PathBuf {
+    let text = std::fs::read_to_string(repo("examples/jobs/xy-circle.toml"))
+        .unwrap()
+        .replace("turns = 2.0", &format!("turns = {turns}"))
+        .replace(
+            "\"../models/",
+            &format!("\"{}/", repo("examples/models").display()),
+        );
+    let p = dir.join("job.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Starts `feedloop scope` with `args` and returns it and its address (from its first line).
+fn start_scope(args: &[&str]) -> (Proc, String, std::sync::mpsc::Receiver<String>) {
+    let mut child = Command::new(bin())
+        .arg("scope")
+        .args(args)
+        .args(["--port", "0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    out.read_line(&mut line).unwrap();
+    let addr = line
+        .trim()
+        .strip_prefix("feedloop scope: open http://")
+        .unwrap_or_else(|| panic!("scope printed `{line}`"))
+        .trim_end_matches('/')
+        .to_string();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let err = child.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for l in BufReader::new(err).lines().map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    (Proc(child), addr, rx)
+}
+
+#[test]
+fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_its_capture() {
+    let Some(browser) = browser() else {
+        let msg = "no browser (chromium, chromium-browser or google-chrome) on PATH: scope not tested in a browser";
+        if std::env::var("CI").as_deref() == Ok("true") {
+            panic!("{msg}");
+        }
+        eprintln!("skipped: {msg}");
+        return;
+    };
+    let shots = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scope-e2e");
+    let _ = std::fs::remove_dir_all(&shots);
+    std::fs::create_dir_all(&shots).unwrap();
+    let d = std::env::temp_dir().join(format!("feedloop-scope-e2e-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let instance = format!("scopee2e{}", std::process::id());
+    let captures = d.join("captures");
+
+    // The scope first: it waits for the loop and says so.
+    let (_scope, addr, scope_log) = start_scope(&[
+        "--instance",
+        &instance,
+        "--captures",
+        captures.to_str().unwrap(),
+    ]);
+    let (code, body) = http(&addr, "GET", "/api/state", "probe", "");
+    assert_eq!(code, 200, "{body}");
+    let st: Value = serde_json::from_str(&body).unwrap();
+    assert!(
+        st["connection"].as_str().unwrap().contains("is running")
+            || st["connection"].as_str().unwrap().contains("waiting"),
+        "{st}"
+    );
+    // the probe's lease must not block the browser: take over from it below
+
+    let job = long_job(&d, 30.0);
+    let mut run = Proc(
+        Command::new(bin())
+            .args(["run", job.to_str().unwrap(), "--out"])
+            .arg(d.join("run"))
+            .args(["--mode", "realtime", "--instance", &instance])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+
+    let (_chrome, mut cdp) = chromium(&browser, &d.join("profile"));
+    cdp.call("Page.enable", json!({}));
+    std::thread::sleep(Duration::from_secs(3)); // the probe's lease runs out
+    cdp.call("Page.navigate", json!({"url": format!("http://{addr}/")}));
+    cdp.wait_for(
+        "!!(window.scope && scope.state && scope.state.running && scope.frames > 10 && scope.points > 1000)",
+        40.0,
+        "the page draws the running loop",
+    );
+    let signals = cdp.eval("scope.panes.map(p => p.signals).flat().join(',')");
+    assert!(signals.as_str().unwrap().contains("x.load"), "{signals}");
+    cdp.wait_for(
+        "!!(scope.state.status && scope.state.status.axes.length === 2)",
+        10.0,
+        "the loop's status appears",
+    );
+    cdp.screenshot(&shots.join("1-live.png"));
+
+    // A second browser is told who holds the scope.
+    let (code, body) = http(&addr, "GET", "/api/state", "second-browser", "");
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("another page"), "{body}");
+
+    // Trigger on a swap, then retune the velocity loop from the page.
+    cdp.eval(
+        "document.getElementById('trig-kind').value = 'event';
+         document.getElementById('trig-event').value = 'swap';
+         document.getElementById('trig-pre').value = '0.05';
+         document.getElementById('trig-post').value = '0.1';
+         document.getElementById('trig-arm').click(); true",
+    );
+    cdp.wait_for(
+        "!!(scope.state.trigger && scope.state.trigger.describe === 'event swap')",
+        10.0,
+        "the trigger is armed",
+    );
+    cdp.eval(
+        "document.getElementById('sw-axis').value = 'x';
+         document.getElementById('sw-stage').value = 'velocity';
+         document.getElementById('sw-plugin').value = 'pi_velocity';
+         document.getElementById('sw-params').value = 'kv_nms_per_rad = 5.25';
+         scope.lastAnswer = null;
+         document.getElementById('sw-send').click(); true",
+    );
+    cdp.wait_for("scope.lastAnswer !== null", 15.0, "the swap is answered");
+    let answer = cdp.eval("scope.lastAnswer");
+    assert_eq!(answer["outcome"], "accepted", "{answer}");
+    assert!(
+        answer["answer"]["swap"]["to"] == "pi_velocity"
+            && answer["answer"]["swap"]["rolled_back"] == false,
+        "{answer}"
+    );
+    cdp.wait_for(
+        "document.getElementById('answers').textContent.includes('within bound')",
+        5.0,
+        "the answer is listed beside the plot",
+    );
+    cdp.wait_for(
+        "!!(scope.state.capture && scope.state.capture.describe.includes('swap'))",
+        15.0,
+        "the swap trigger captured",
+    );
+    let cap = cdp.eval("scope.state.capture");
+    let period = cdp.eval("scope.state.period_s").as_f64().unwrap();
+    let cycles = cap["cycles"].as_u64().unwrap();
+    let want = (0.15 / period).round() as u64 + 1;
+    assert!(
+        cycles + 2 >= want && cycles <= want,
+        "{cycles} cycles, want {want}"
+    );
+    assert!(
+        cap["events"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["kind"] == "swap"),
+        "{cap}"
+    );
+    let swap_t = answer["t_s"].as_f64().unwrap();
+    assert!(
+        (cap["trigger_t_s"].as_f64().unwrap() - swap_t).abs() < 1e-9,
+        "{cap}"
+    );
+    // the live view around the swap, paused
+    cdp.eval("document.getElementById('pause').click(); document.getElementById('span').value = '0.2'; true");
+    std::thread::sleep(Duration::from_millis(500));
+    cdp.screenshot(&shots.join("2-swap-answered.png"));
+
+    // The capture: shown, saved as a trace, reloaded into the same view.
+    cdp.eval("document.getElementById('source').value = 'capture'; document.getElementById('span').value = 'all'; true");
+    cdp.wait_for(
+        "scope.frames > 0 && !!scope.state.capture_view",
+        10.0,
+        "the capture view",
+    );
+    std::thread::sleep(Duration::from_millis(500));
+    cdp.screenshot(&shots.join("3-capture.png"));
+    cdp.eval("document.getElementById('cap-save').click(); true");
+    cdp.wait_for(
+        "scope.savedPath !== null && document.getElementById('cap-saved').textContent.startsWith('saved to')",
+        10.0,
+        "the capture is saved",
+    );
+    let saved = cdp.eval("scope.savedPath");
+    let saved = PathBuf::from(saved.as_str().unwrap());
+    let tr = feedloop_trace::Trace::read(&saved).unwrap();
+    assert_eq!(tr.len() as u64, cycles);
+    assert_eq!(tr.axes(), vec!["x", "y"]);
+    assert!(tr.has("x.torque_ff") && tr.has("latency_us"));
+    let text = std::fs::read_to_string(&saved).unwrap();
+    let opened = cdp.eval(&format!(
+        "post('/api/open', {}, {{'x-trace-name': 'reloaded.csv'}}).then(r => r.rows)",
+        serde_json::to_string(&text).unwrap()
+    ));
+    assert_eq!(opened.as_u64(), Some(cycles));
+    let frames = cdp.eval("scope.frames").as_u64().unwrap();
+    cdp.wait_for(
+        &format!("scope.frames > {frames} + 5"),
+        10.0,
+        "the reloaded capture is drawn",
+    );
+    cdp.screenshot(&shots.join("4-reloaded.png"));
+
+    // The loop ends (operator stop): the page says so, the scope stays up.
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(run.0.id() as i32, libc::SIGINT) };
+    let _ = run.0.wait();
+    cdp.eval("document.getElementById('source').value = 'live'; true");
+    cdp.wait_for(
+        "document.getElementById('banner').textContent.includes('ended')",
+        15.0,
+        "the page says the loop ended",
+    );
+    cdp.screenshot(&shots.join("5-loop-ended.png"));
+    let lines: Vec<String> = scope_log.try_iter().collect();
+    let log = lines.join("\n");
+    for want in [
+        "attached to loop",
+        "refused a second page",
+        "swap from the page",
+        "ended",
+    ] {
+        assert!(
+            log.contains(want),
+            "scope's command line lacks `{want}`:\n{log}"
+        );
+    }
+}
+
+#[test]
+fn a_recorded_trace_opens_in_the_scope_and_bad_arguments_are_named() {
+    let d = std::env::temp_dir().join(format!("feedloop-scope-trace-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let t = d.join("t.csv");
+    let mut text = String::from("# feedloop-trace v1\nt,x.cmd,x.load,x.torque\n");
+    for k in 0..1000 {
+        let v = (k as f64 * 0.01).sin();
+        text.push_str(&format!(
+            "{},{},{},{}\n",
+            0.5 + k as f64 * 1e-3,
+            v,
+            v * 0.9,
+            if k == 500 { 7.0 } else { 0.0 }
+        ));
+    }
+    std::fs::write(&t, text).unwrap();
+    let (_scope, addr, _) = start_scope(&["--trace", t.to_str().unwrap()]);
+    let (code, body) = http(&addr, "GET", "/api/state", "a", "");
+    assert_eq!(code, 200);
+    let st: Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(st["mode"], "trace");
+    let span = st["span_s"].as_array().unwrap();
+    assert!(
+        (span[0].as_f64().unwrap() - 0.5).abs() < 1e-12
+            && (span[1].as_f64().unwrap() - 1.499).abs() < 1e-9
+    );
+    // a one-sample spike is kept by the envelope of a 100-column view
+    let (_, v) = http(
+        &addr,
+        "GET",
+        "/api/view?sig=x.torque,x.following_error&cols=100&t0=0.5&t1=1.5",
+        "a",
+        "",
+    );
+    let v: Value = serde_json::from_str(&v).unwrap();
+    let hi: Vec<f64> = v["series"][0]["hi"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_f64)
+        .collect();
+    assert_eq!(hi.iter().cloned().fold(f64::MIN, f64::max), 7.0);
+    assert_eq!(v["series"][1]["name"], "x.following_error");
+
+    // bad input: the file, the port, the address
+    let o = Command::new(bin())
+        .args(["scope", "--trace"])
+        .arg(d.join("missing.csv"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("missing.csv"));
+    let port = addr.rsplit(':').next().unwrap();
+    let o = Command::new(bin())
+        .args(["scope", "--trace", t.to_str().unwrap(), "--port", port])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("in use") && err.contains(port),
+        "{err}"
+    );
+    let o = Command::new(bin())
+        .args(["scope", "--instance", "Bad Name"])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("invalid instance name"));
+}
