@@ -317,6 +317,12 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         10.0,
         "the loop's status appears",
     );
+    // the contour error, from the job the loop's status names
+    cdp.wait_for(
+        "api('/api/view?sig=contour_error&cols=20&span=0.2').then(v => v.series[0].hi.filter(x => x !== null && x < 1e-3).length > 10)",
+        15.0,
+        "the contour error is measured",
+    );
     cdp.screenshot(&shots.join("1-live.png"));
 
     // A second browser is told who holds the scope.

@@ -111,6 +111,8 @@ pub struct Shared {
     pub session: Option<Session>,
     /// Traces the page can open (`--report`, `--trace`).
     pub traces: Vec<PathBuf>,
+    /// The job whose path the contour error is measured against.
+    contour_job: Option<String>,
     /// Swap cycles already marked (the status lists recent ones again and again).
     seen_swaps: Vec<(u64, String, String)>,
 }
@@ -202,6 +204,7 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
             session: None,
             traces,
             seen_swaps: Vec::new(),
+            contour_job: None,
         }),
         instance: a.instance.clone(),
         captures: a.captures.clone(),
@@ -335,6 +338,7 @@ fn feed(ctx: &Ctx, instance: &str) {
                             st.period_s = b.period_s;
                             // a trigger armed before the loop started waits for it
                             st.trigger = sh.store.trigger.take();
+                            st.contour = sh.store.contour.take();
                             sh.store = st;
                             sh.seen_swaps.clear();
                             sh.run_id = Some(b.run_id);
@@ -393,6 +397,7 @@ fn poll_status(ctx: &Ctx, instance: &str) {
                     let mut s = Store::live(&names, sh.store.capacity());
                     s.period_s = fresh_period;
                     s.trigger = sh.store.trigger.take();
+                    s.contour = sh.store.contour.take();
                     sh.store = s;
                 }
                 for ev in &st.recent_swaps {
@@ -402,11 +407,34 @@ fn poll_status(ctx: &Ctx, instance: &str) {
                         sh.store.push_swap(ev);
                     }
                 }
+                let job = st.job.clone();
                 sh.status = Some(st);
+                let new_job = job.is_some() && sh.contour_job != job;
+                drop(sh);
+                if new_job {
+                    let path = job.unwrap_or_default();
+                    let f = contour_of(Path::new(&path));
+                    let mut sh = ctx.lock();
+                    match f {
+                        Ok(f) => sh.store.contour = Some(f),
+                        Err(e) => eprintln!("feedloop scope: no contour error ({path}: {e:#})"),
+                    }
+                    sh.contour_job = Some(path);
+                }
             }
         }
         std::thread::sleep(Duration::from_millis(500));
     }
+}
+
+/// The contour error of the job at `path`, as `feedloop run` measures it (the trajectory's own
+/// contour, else the distance to the commanded path of the first two axes).
+fn contour_of(path: &Path) -> Result<store::ContourFn> {
+    let job = feedloop_model::job::Job::load(path)?;
+    let cycle =
+        feedloop_runtime::scheduler::cycle::ControlCycle::new(&job, &feedloop_plugins::Builtins)?;
+    let judge = feedloop_analysis::sim::ContourJudge::new(&job, &cycle);
+    Ok(Box::new(move |t, rows| judge.error_m(&cycle, t, rows)))
 }
 
 /// Sends a swap from the page to the loop and keeps the answer for the plot.

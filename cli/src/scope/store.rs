@@ -33,6 +33,11 @@ pub const AXIS_SIGNALS: [(&str, &str, &str); 10] = [
 
 /// Column of the round-trip latency, us.
 pub const LATENCY: &str = "latency_us";
+/// Column of the contour error (distance of the measured point to the commanded path), m.
+pub const CONTOUR: &str = "contour_error";
+
+/// Computes a cycle's contour error from its time (s) and its axes' rows.
+pub type ContourFn = Box<dyn FnMut(f64, &[feedloop_trace::log::AxisRecord]) -> Option<f64> + Send>;
 
 /// Kinds of loop events the scope marks and can trigger on.
 pub const EVENT_KINDS: [&str; 6] = [
@@ -164,6 +169,8 @@ pub struct Store {
     pub live: bool,
     /// Previous plant flags (edges).
     prev_flags: u8,
+    /// The contour error of a cycle, when the job's path is known.
+    pub contour: Option<ContourFn>,
 }
 
 impl Store {
@@ -177,6 +184,8 @@ impl Store {
                 units.push(u.to_string());
             }
         }
+        columns.push(CONTOUR.to_string());
+        units.push("m".into());
         columns.push(LATENCY.to_string());
         units.push("us".into());
         Self::with_columns(axes, columns, units, capacity, true)
@@ -217,6 +226,7 @@ impl Store {
             capture: None,
             live,
             prev_flags: 0,
+            contour: None,
         }
     }
 
@@ -314,6 +324,7 @@ impl Store {
         let n = self.axes.len();
         let per = AXIS_SIGNALS.len();
         let lat = self.columns.len() - 1;
+        let contour_col = self.columns.len() - 2;
         for r in recs {
             if let Some(prev) = self.newest {
                 if r.seq <= prev {
@@ -331,6 +342,11 @@ impl Store {
                 self.data[base + 3][slot] = a.motor;
                 self.data[base + 4][slot] = a.motor_vel;
                 self.data[base + 5][slot] = a.torque;
+            }
+            if let Some(f) = self.contour.as_mut() {
+                let t = r.seq as f64 * self.period_s;
+                self.data[contour_col][slot] =
+                    f(t, &r.axes[..n.min(r.axes.len())]).unwrap_or(f64::NAN);
             }
             if r.latency_ns == u64::MAX {
                 self.data[lat][slot] = f64::NAN;
@@ -605,7 +621,11 @@ pub fn unit_of(column: &str) -> &'static str {
         .iter()
         .find(|(s, _, _)| *s == signal)
         .map(|(_, u, _)| *u)
-        .unwrap_or(if column == LATENCY { "us" } else { "" })
+        .unwrap_or(match column {
+            LATENCY => "us",
+            CONTOUR | "contour_err" => "m",
+            _ => "",
+        })
 }
 
 #[cfg(test)]

@@ -325,6 +325,8 @@ pub struct ControlPlane {
     pub rejected_count: u64,
     /// The plant's deadline-miss count as of the latest sample (set by the scheduler loop).
     pub plant_deadline_misses: u32,
+    /// The job file, absolute (for the status).
+    job_path: Option<String>,
     history: Vec<[f64; HISTORY]>,
     hist_pos: usize,
     hist_len: usize,
@@ -416,6 +418,9 @@ impl ControlPlane {
             pending: None,
             probation: None,
             swaps: Vec::with_capacity(4096),
+            job_path: std::fs::canonicalize(&job.path)
+                .ok()
+                .map(|p| p.display().to_string()),
             rejected: Vec::with_capacity(MAX_REJECTIONS),
             rejected_count: 0,
             plant_deadline_misses: 0,
@@ -668,6 +673,7 @@ impl ControlPlane {
                     recent_swaps: self.swaps
                         [self.swaps.len().saturating_sub(protocol::RECENT_SWAPS)..]
                         .to_vec(),
+                    job: self.job_path.clone(),
                 };
                 respond(&req, &Answer::Status(status));
             }

@@ -112,6 +112,7 @@ function defaultPanes() {
     pick([first + '.cmd', first + '.load']),
     pick(a.map((x) => x + '.following_error')),
     pick(a.map((x) => x + '.torque').concat(a.map((x) => x + '.torque_ff'))),
+    a.length > 1 ? pick(['contour_error', 'contour_err']) : [],
   ].filter((p) => p.length);
   if (!panes.length && s.columns.length) panes.push([s.columns[0].name]);
   for (const p of panes) addPane(p);
@@ -165,7 +166,7 @@ function drawPane(pane, view, t0, t1) {
   for (const v of yt.ticks) {
     const y = Y(v / sc.f);
     g.beginPath(); g.moveTo(L, y); g.lineTo(L + pw, y); g.stroke();
-    g.fillText(fmtTick(v, yt.step), 4, y + 4);
+    g.textAlign = 'right'; g.fillText(fmtTick(v, yt.step), L - 4, y + 4); g.textAlign = 'left';
   }
   const xt = niceTicks(t0, t1, 8);
   for (const v of xt.ticks) {
@@ -174,8 +175,8 @@ function drawPane(pane, view, t0, t1) {
     g.fillText(fmtTick(v, xt.step), x - 14, T + ph + 13);
   }
   g.fillText('t (s)', L + pw - 24, T + ph + 26);
-  g.save(); g.translate(12, T + ph / 2); g.rotate(-Math.PI / 2);
-  g.fillText(sc.label, -8, 0); g.restore();
+  g.save(); g.translate(11, T + ph / 2); g.rotate(-Math.PI / 2);
+  g.textAlign = 'center'; g.fillText(sc.label, 0, 0); g.restore();
   g.strokeStyle = '#8a94a6'; g.strokeRect(L, T, pw, ph);
   // envelopes: one vertical min-max bar per pixel column, joined to the next
   series.forEach((s, k) => {

@@ -185,6 +185,10 @@ pub struct Status {
     /// viewer learns of swaps other clients made and where they happened.
     #[serde(default)]
     pub recent_swaps: Vec<SwapEvent>,
+    /// The job file the loop runs (as the scheduler was given it, made absolute), so a viewer
+    /// can rebuild its path (contour errors).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job: Option<String>,
 }
 
 /// Most swaps a [`Status`] lists.
@@ -414,6 +418,7 @@ mod tests {
             deadline_misses: 2,
             rejected_requests: 3,
             recent_swaps: vec![],
+            job: None,
         });
         let text = serde_json::to_string(&status).unwrap();
         assert_eq!(
