@@ -441,6 +441,30 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         "the page says the loop ended",
     );
     cdp.screenshot(&shots.join("5-loop-ended.png"));
+
+    // The same instance starts again: the page follows the new run.
+    let _run2 = Proc(
+        Command::new(bin())
+            .args(["run", job.to_str().unwrap(), "--out"])
+            .arg(d.join("run2"))
+            .args(["--mode", "realtime", "--instance", &instance])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    cdp.wait_for(
+        "document.getElementById('banner').textContent.includes('run 2') && scope.state.runs === 2 && scope.state.running",
+        30.0,
+        "the page follows the restarted loop",
+    );
+    let t_before = cdp.eval("scope.state.span_s[1]").as_f64().unwrap();
+    cdp.wait_for(
+        &format!("scope.state.span_s[1] > {t_before} + 0.5"),
+        15.0,
+        "the restarted loop's cycles arrive",
+    );
+    cdp.screenshot(&shots.join("6-restarted.png"));
     let lines: Vec<String> = scope_log.try_iter().collect();
     let log = lines.join("\n");
     for want in [
@@ -448,6 +472,7 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         "refused a second page",
         "swap from the page",
         "ended",
+        "restarted",
     ] {
         assert!(
             log.contains(want),

@@ -281,7 +281,8 @@ function drawHistogram(lat) {
 
 function updateSidebar(st) {
   $('title').textContent = 'feedloop scope - ' + (st.mode === 'live' ? 'loop ' + st.instance : 'recording');
-  $('banner').textContent = st.connection + (st.period_s ? ' | period ' + (st.period_s * 1e6).toFixed(0) + ' us' : '');
+  $('banner').textContent = st.connection + (st.period_s ? ' | period ' + (st.period_s * 1e6).toFixed(0) + ' us' : '') +
+    (st.runs > 1 ? ' | run ' + st.runs + ' (the loop restarted)' : '');
   const lat = st.latency;
   $('latency').textContent = 'p50 ' + fmtUs(lat.p50_us) + ', p99 ' + fmtUs(lat.p99_us) + ', p99.9 ' +
     fmtUs(lat.p999_us) + ', max ' + fmtUs(lat.max_us) + '; cycles without command ' + lat.missed_cycles;
