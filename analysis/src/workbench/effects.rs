@@ -18,7 +18,7 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{read_toml_file, ConfigError};
 
 use super::data::AxisData;
-use super::signal::quantile;
+use super::signal::{quantile, sub_sample_means};
 use super::WorkbenchError;
 
 pub use feedloop_model::{EffectId, Side};
@@ -134,6 +134,11 @@ impl Effect {
             Side::Motor => (&d.qm, &d.vm),
             Side::Load => (&d.ql, &d.vl),
         };
+        if d.sub > 1 {
+            if let Some(cols) = self.held_columns(d, v) {
+                return cols;
+            }
+        }
         match self.id {
             EffectId::ViscousFriction => vec![v.clone()],
             EffectId::CoulombFriction => {
@@ -190,6 +195,35 @@ impl Effect {
         }
     }
 
+    /// On an axis held in block means ([`AxisData::sub`] > 1), the columns that are a
+    /// nonlinear function of the velocity or position (dry friction, cogging), as the means of
+    /// that function over each block's recorded instants ([`sub_sample_means`]): the block mean
+    /// of the recorded torque holds the friction step of a reversal inside a block in part, and
+    /// so must its column. `None` for the other effects (linear in the held series, or not
+    /// filtered).
+    fn held_columns(&self, d: &AxisData, v: &[f64]) -> Option<Vec<Vec<f64>>> {
+        let m = |x: &[f64], f: &dyn Fn(f64) -> f64| sub_sample_means(x, d.sub, f);
+        Some(match self.id {
+            EffectId::CoulombFriction => {
+                let eps = dead_band(d, v);
+                vec![m(v, &|x| sgn(x, eps)), m(v, &|x| sgn(x, eps).abs())]
+            }
+            EffectId::StribeckFriction => {
+                let eps = dead_band(d, v);
+                let (vs, e) = (self.hyper[0], self.hyper[1]);
+                vec![
+                    m(v, &|x| sgn(x, eps)),
+                    m(v, &|x| sgn(x, eps) * (-(x.abs() / vs).powf(e)).exp()),
+                ]
+            }
+            EffectId::Cogging => {
+                let w = 2.0 * PI / self.hyper[0];
+                vec![m(&d.qm, &|x| (w * x).sin()), m(&d.qm, &|x| (w * x).cos())]
+            }
+            _ => return None,
+        })
+    }
+
     /// The contribution `sum coef_i column_i`.
     pub fn contribution(&self, d: &AxisData) -> Vec<f64> {
         let mut out = vec![0.0; d.len()];
@@ -203,7 +237,22 @@ impl Effect {
 
     /// Applies a torque-path effect to the recorded torque `y` (identity for other effects).
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
+        self.applied_torque_held(y, dt, 1)
+    }
+
+    /// [`Effect::applied_torque`] on a torque held in block means of `sub` recorded samples
+    /// (period `dt` of the held samples): a delay of `k` recording periods shifts it by `k /
+    /// sub` held samples (interpolated linearly).
+    pub fn applied_torque_held(&self, y: &[f64], dt: f64, sub: usize) -> Vec<f64> {
         match self.id {
+            EffectId::Delay if sub > 1 => {
+                let shift = self.hyper[0].round().max(0.0) / sub as f64;
+                let (k, f) = (shift.floor() as usize, shift.fract());
+                let at = |i: usize, k: usize| if i >= k { y[i - k] } else { 0.0 };
+                (0..y.len())
+                    .map(|i| (1.0 - f) * at(i, k) + f * at(i, k + 1))
+                    .collect()
+            }
             EffectId::Delay => {
                 let k = self.hyper[0].round().max(0.0) as usize;
                 (0..y.len())
@@ -632,8 +681,7 @@ impl WbModel {
     /// the torque acting around sample k (where the central differences are centred) is the mean
     /// of commands k-1 and k: that half-sample alignment comes first.
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
-        // order of the drive: delay, saturation, lag
-        let mut out: Vec<f64> = (0..y.len())
+        let aligned: Vec<f64> = (0..y.len())
             .map(|k| {
                 if k == 0 {
                     y[0]
@@ -642,13 +690,19 @@ impl WbModel {
                 }
             })
             .collect();
+        self.path_effects(aligned, dt, 1)
+    }
+
+    /// The torque-path effects on the aligned torque `out`, in the drive's order: delay,
+    /// saturation, lag (`sub`: see [`Effect::applied_torque_held`]).
+    fn path_effects(&self, mut out: Vec<f64>, dt: f64, sub: usize) -> Vec<f64> {
         for id in [
             EffectId::Delay,
             EffectId::TorqueSaturation,
             EffectId::CurrentLag,
         ] {
             for e in self.effects.iter().filter(|e| e.id == id) {
-                out = e.applied_torque(&out, dt);
+                out = e.applied_torque_held(&out, dt, sub);
             }
         }
         out
@@ -659,7 +713,12 @@ impl WbModel {
     /// effects, then the same zero-phase filter as the positions when `d` filters its torque.
     pub fn applied(&self, d: &AxisData) -> Option<Vec<f64>> {
         let raw = d.torque_raw.as_ref()?;
-        let out = self.applied_torque(raw, d.dt);
+        // an axis held in block means holds the torque already aligned (see `load_axis_held`)
+        let out = if d.sub > 1 {
+            self.path_effects(raw.clone(), d.dt, d.sub)
+        } else {
+            self.applied_torque(raw, d.dt)
+        };
         Some(if d.torque_filtered {
             super::signal::filtfilt_butter4(&out, d.cutoff_hz, 1.0 / d.dt)
         } else {
@@ -873,7 +932,7 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
         EffectId::Delay => format!(
             "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
             e.hyper[0],
-            fmt(e.hyper[0] * d.dt * 1e3)
+            fmt(e.hyper[0] * d.dt / d.sub as f64 * 1e3)
         ),
         EffectId::CurrentLag => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
         EffectId::TorqueSaturation => format!(
