@@ -78,6 +78,35 @@ fn sgn(v: f64, eps: f64) -> f64 {
     }
 }
 
+/// The block means of `sin(w x)` and `cos(w x)` for a position `x` held at the centres of blocks
+/// of `sub` recorded instants and moving linearly through each block (by the central slope): a
+/// sum of sines over evenly spaced phases is the sine at the centre times the Dirichlet kernel
+/// `sin(theta / 2) / (sub sin(theta / (2 sub)))`, `theta = w` times the travel per held sample
+/// (the ripple of a fast motion averages out within a block, as in the recorded torque).
+fn held_ripple(x: &[f64], w: f64, sub: usize) -> Vec<Vec<f64>> {
+    let n = x.len();
+    let q = sub as f64;
+    let (mut s, mut c) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        let slope = match n {
+            0 | 1 => 0.0,
+            _ if k == 0 => x[1] - x[0],
+            _ if k == n - 1 => x[k] - x[k - 1],
+            _ => 0.5 * (x[k + 1] - x[k - 1]),
+        };
+        let theta = w * slope;
+        let kernel = if (theta / q).abs() < 1e-9 {
+            1.0
+        } else {
+            (0.5 * theta).sin() / (q * (0.5 * theta / q).sin())
+        };
+        let (sn, cs) = (w * x[k]).sin_cos();
+        s.push(kernel * sn);
+        c.push(kernel * cs);
+    }
+    vec![s, c]
+}
+
 impl Effect {
     /// A new effect with zero coefficients of the right count.
     pub fn new(id: EffectId, side: Side, hyper: Vec<f64>) -> Self {
@@ -211,15 +240,21 @@ impl Effect {
             EffectId::StribeckFriction => {
                 let eps = dead_band(d, v);
                 let (vs, e) = (self.hyper[0], self.hyper[1]);
-                vec![
-                    m(v, &|x| sgn(x, eps)),
-                    m(v, &|x| sgn(x, eps) * (-(x.abs() / vs).powf(e)).exp()),
-                ]
+                let hump = move |x: f64| {
+                    let r = x.abs() / vs;
+                    // the grid's exponents 1 and 2 without the general power
+                    let p = if e == 1.0 {
+                        r
+                    } else if e == 2.0 {
+                        r * r
+                    } else {
+                        r.powf(e)
+                    };
+                    sgn(x, eps) * (-p).exp()
+                };
+                vec![m(v, &|x| sgn(x, eps)), m(v, &hump)]
             }
-            EffectId::Cogging => {
-                let w = 2.0 * PI / self.hyper[0];
-                vec![m(&d.qm, &|x| (w * x).sin()), m(&d.qm, &|x| (w * x).cos())]
-            }
+            EffectId::Cogging => held_ripple(&d.qm, 2.0 * PI / self.hyper[0], d.sub),
             _ => return None,
         })
     }
@@ -981,5 +1016,31 @@ pub fn class_of(id: EffectId) -> &'static str {
         EffectId::TorqueSaturation => "saturation",
         EffectId::Backlash => "backlash",
         EffectId::PitchError => "pitch",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::workbench::signal::{block_means, sub_sample_means};
+
+    #[test]
+    fn held_ripple_is_the_block_mean_of_the_ripple_over_the_recorded_instants() {
+        // a position moving at constant speed, recorded at 10 instants per block: the closed
+        // form equals the sum over the instants, for a slow and for a fast ripple
+        let q = 10;
+        let full: Vec<f64> = (0..400).map(|i| 0.3 + 0.004 * i as f64).collect();
+        let held = block_means(&full, q);
+        for w in [2.0, 90.0] {
+            let got = held_ripple(&held, w, q);
+            let want_s = block_means(&full.iter().map(|x| (w * x).sin()).collect::<Vec<_>>(), q);
+            let want_c = block_means(&full.iter().map(|x| (w * x).cos()).collect::<Vec<_>>(), q);
+            let by_instants = sub_sample_means(&held, q, |x| (w * x).sin());
+            for k in 0..held.len() {
+                assert!((got[0][k] - want_s[k]).abs() < 1e-9, "w {w} k {k}");
+                assert!((got[1][k] - want_c[k]).abs() < 1e-9, "w {w} k {k}");
+                assert!((got[0][k] - by_instants[k]).abs() < 1e-9, "w {w} k {k}");
+            }
+        }
     }
 }
