@@ -557,3 +557,121 @@ pub fn load_axis_held(
     }
     .prepared(cutoff))
 }
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::PI;
+
+    use super::*;
+    use crate::workbench::controller::ControllerChannel;
+
+    fn model() -> WbModel {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/xy-x.toml");
+        WbModel::load(&p).unwrap()
+    }
+
+    /// A trace of axis `x` of `n` samples at 10 kHz, motor and load consistent with `model`.
+    fn trace(m: &WbModel, n: usize, with_load: bool) -> Trace {
+        let r = m.file.plant.motor_per_load();
+        let dt = 1e-4;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
+        let load: Vec<f64> = t
+            .iter()
+            .map(|t| 0.01 * (2.0 * PI * 3.0 * t).sin())
+            .collect();
+        let cmd: Vec<f64> = t
+            .iter()
+            .zip(&load)
+            .map(|(t, l)| l + 1e-5 * (2.0 * PI * 3.0 * t).cos())
+            .collect();
+        let motor: Vec<f64> = load
+            .iter()
+            .enumerate()
+            .map(|(k, l)| l * r + 1e-6 * ((k % 7) as f64 - 3.0))
+            .collect();
+        let motor_vel = derivative(&motor, dt);
+        let torque: Vec<f64> = (0..n)
+            .map(|k| 0.3 * (k as f64 * 1.3).sin() + 2.0 * (2.0 * PI * 3.0 * t[k]).cos())
+            .collect();
+        let mut names = vec!["t", "x.cmd"];
+        let mut data = vec![t, cmd];
+        if with_load {
+            names.push("x.load");
+            data.push(load);
+        }
+        names.extend(["x.motor", "x.motor_vel", "x.torque"]);
+        data.extend([motor, motor_vel, torque]);
+        Trace::from_columns(
+            Path::new("long.csv"),
+            vec![],
+            names.iter().map(|s| s.to_string()).collect(),
+            data,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_held_axis_holds_the_block_means_of_what_the_full_reading_holds() {
+        let m = model();
+        let q = 10;
+        let tr = trace(&m, 2003, true);
+        let full = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+        let held = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
+        assert_eq!(held.len(), 200);
+        assert_eq!(held.sub, q);
+        assert!((held.dt - 1e-3).abs() < 1e-15);
+        assert_eq!(held.t, block_means(&full.t, q));
+        assert_eq!(held.cmd, block_means(&full.cmd, q));
+        assert_eq!(held.load_raw, block_means(&full.load_raw, q));
+        assert_eq!(
+            held.motor_raw.as_deref().unwrap(),
+            block_means(full.motor_raw.as_deref().unwrap(), q)
+        );
+        assert_eq!(
+            held.motor_vel_raw.as_deref().unwrap(),
+            block_means(full.motor_vel_raw.as_deref().unwrap(), q)
+        );
+        // the torque acting between samples: the half-sample alignment, then the block means
+        let y = full.torque_raw.as_deref().unwrap();
+        let aligned: Vec<f64> = (0..y.len())
+            .map(|k| {
+                if k == 0 {
+                    y[0]
+                } else {
+                    0.5 * (y[k - 1] + y[k])
+                }
+            })
+            .collect();
+        let want = block_means(&aligned, q);
+        for (a, b) in held.torque_raw.as_deref().unwrap().iter().zip(&want) {
+            assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0));
+        }
+        // the controller law of every recorded sample, at the block centres
+        let cc = ControllerChannel::new(&m, &full).unwrap();
+        let h = held.held_law.as_ref().unwrap();
+        assert_eq!(h.law, block_centres(&cc.law, q));
+        assert_eq!(h.recorded, block_centres(&cc.recorded, q));
+        assert_eq!(h.velocity, cc.velocity);
+        assert_eq!(h.discretisation, cc.discretisation);
+        let hc = ControllerChannel::new(&m, &held).unwrap();
+        assert_eq!(hc.law, h.law);
+        assert!(held.torque.is_some() && held.range.0 > 0 && held.range.1 < 200);
+    }
+
+    #[test]
+    fn a_held_axis_refuses_what_the_full_reading_refuses_naming_the_file_and_column() {
+        let m = model();
+        let tr = trace(&m, 600, false);
+        let full = load_axis(&tr, &m.file, "x", &Prep::default())
+            .unwrap_err()
+            .to_string();
+        let held = load_axis_held(tr, &m, "x", &Prep::default(), 10)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(held, full);
+        assert!(
+            held.contains("long.csv") && held.contains("x.load"),
+            "{held}"
+        );
+    }
+}
