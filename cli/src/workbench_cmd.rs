@@ -578,7 +578,7 @@ fn diagnose_once(
             "recorded_samples_per_block": d.sub,
             "blocks": d.len(),
             "why": format!(
-                "a long trace ({} samples or more) is held as the means of blocks of {} samples (ten times the filter's cut-off of {} Hz); the controller law is evaluated on every recorded sample",
+                "a long trace ({} samples or more) is held as the means of blocks of {} samples (the held rate is ten times the filter's cut-off of {} Hz or more); the controller law is evaluated on every recorded sample",
                 LONG_TRACE, d.sub, d.cutoff_hz
             ),
         });
@@ -607,6 +607,9 @@ fn diagnose_once(
         );
     }
     println!("{}", dg.verdict);
+    if let Some(h) = j.get("held_in_block_means") {
+        println!("note: {}", h["why"].as_str().unwrap_or_default());
+    }
     Ok(())
 }
 
