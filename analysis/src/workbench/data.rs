@@ -415,7 +415,8 @@ fn check_travel(
 /// `cutoff_hz`: `fs / (10 cutoff)`, so that the held rate is still ten times the cut-off (the
 /// filtered signals lose nothing, see [`AxisData::decimated`]); 1 when the rate allows no less.
 pub fn held_block(dt: f64, cutoff_hz: f64) -> usize {
-    ((1.0 / (dt * 10.0 * cutoff_hz)).floor() as usize).max(1)
+    // (a ratio that is a whole number in decimal, 4 kHz over 1 kHz, may come out just below it)
+    ((1.0 / (dt * 10.0 * cutoff_hz) * (1.0 + 1e-9)).floor() as usize).max(1)
 }
 
 /// Reads axis `axis` of a long `trace` like [`load_axis`], with the same checks, but holds the
@@ -656,6 +657,15 @@ mod tests {
         let hc = ControllerChannel::new(&m, &held).unwrap();
         assert_eq!(hc.law, h.law);
         assert!(held.torque.is_some() && held.range.0 > 0 && held.range.1 < 200);
+    }
+
+    #[test]
+    fn the_held_block_keeps_ten_samples_per_period_of_the_cut_off() {
+        assert_eq!(held_block(1e-4, 100.0), 10);
+        assert_eq!(held_block(2.5e-4, 100.0), 4);
+        assert_eq!(held_block(1e-4, 400.0), 2);
+        assert_eq!(held_block(1e-3, 100.0), 1);
+        assert_eq!(held_block(1e-3, 200.0), 1);
     }
 
     #[test]
