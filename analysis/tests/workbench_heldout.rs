@@ -577,7 +577,7 @@ fn heldout_long_held_report() {
             })
             .unwrap_or_else(|| "-".into())
     };
-    let mut same = 0;
+    let (mut same, mut same_class) = (0, 0);
     let all = cases();
     for (ci, c) in all.iter().enumerate() {
         let mv = Moves {
@@ -597,14 +597,20 @@ fn heldout_long_held_report() {
         let q = held_block(tr.period_s(), 100.0);
         let h = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
         let held = first(&diagnose(&m, &h, &DiagOptions::default()));
-        same += usize::from(full == held || full.split(" (").next() == held.split(" (").next());
+        let effect = |x: &str| x.split(" (").next().unwrap_or_default().to_string();
+        let class = |x: &str| x.split(" / ").next().unwrap_or_default().to_string();
+        same += usize::from(effect(&full) == effect(&held));
+        same_class += usize::from(class(&full) == class(&held));
         println!(
             "{:<30} {:<30} n {n}: every sample: {full:<45} held (q {q}): {held}",
             c.kind, c.level
         );
         std::fs::remove_file(&trace).ok();
     }
-    println!("same first candidate on {same} of {}", all.len());
+    println!(
+        "the same first candidate on {same} of {n}, of the same class on {same_class} of {n}",
+        n = all.len()
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
