@@ -76,7 +76,7 @@ use std::path::{Path, PathBuf};
 use feedloop_analysis::workbench::{
     auto::auto,
     compare::equation_error,
-    data::{load_axis, Prep},
+    data::{held_block, load_axis, load_axis_held, Prep},
     diagnose::{diagnose, DiagOptions},
     effects::WbModel,
     fit::{fit_with, Errors},
@@ -555,6 +555,63 @@ fn heldout_other_axis_report() {
         ..Axis::default()
     };
     report("other-axis", &ax, 211);
+}
+
+/// The cases on long traces (the sine repeated to 130 s, 520,000 samples at 4 kHz), diagnosed
+/// from every sample and held in block means (as `feedloop diagnose` holds a trace of 500,000
+/// samples or more): the first significant candidate of each, side by side.
+#[test]
+#[ignore]
+fn heldout_long_held_report() {
+    let dir = tmp("long");
+    let ax = Axis::default();
+    let first = |dg: &feedloop_analysis::workbench::diagnose::Diagnosis| {
+        dg.candidates
+            .iter()
+            .find(|k| k.significant)
+            .map(|k| {
+                format!(
+                    "{} / {} ({:.0} %)",
+                    k.class, k.effect, k.error_reduction_pct
+                )
+            })
+            .unwrap_or_else(|| "-".into())
+    };
+    let (mut same, mut same_class) = (0, 0);
+    let all = cases();
+    for (ci, c) in all.iter().enumerate() {
+        let mv = Moves {
+            smooth: !c.steps,
+            sine: (0.004, 2.0, 260),
+            ..Moves::default()
+        };
+        let name = format!("long{ci:02}");
+        let (trace, model, _) =
+            generate(&dir, &name, &ax, &c.hidden, &noise(LOW_NOISE, 11), &mv).unwrap();
+        let m = WbModel::load(&model).unwrap();
+        let tr = Trace::read(&trace).unwrap();
+        let n = tr.len();
+        let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+        let full = first(&diagnose(&m, &d, &DiagOptions::default()));
+        drop(d);
+        let q = held_block(tr.period_s(), 100.0);
+        let h = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
+        let held = first(&diagnose(&m, &h, &DiagOptions::default()));
+        let effect = |x: &str| x.split(" (").next().unwrap_or_default().to_string();
+        let class = |x: &str| x.split(" / ").next().unwrap_or_default().to_string();
+        same += usize::from(effect(&full) == effect(&held));
+        same_class += usize::from(class(&full) == class(&held));
+        println!(
+            "{:<30} {:<30} n {n}: every sample: {full:<45} held (q {q}): {held}",
+            c.kind, c.level
+        );
+        std::fs::remove_file(&trace).ok();
+    }
+    println!(
+        "the same first candidate on {same} of {n}, of the same class on {same_class} of {n}",
+        n = all.len()
+    );
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 fn report(label: &str, ax: &Axis, seed0: u64) {

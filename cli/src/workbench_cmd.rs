@@ -10,8 +10,8 @@ use anyhow::Context;
 use feedloop_analysis::workbench::{
     auto::{auto, diagnosis_html},
     compare::compare,
-    data::{load_axis, pick_axis, AxisData, Prep},
-    diagnose::{diagnose, DiagOptions},
+    data::{held_block, load_axis, load_axis_held, pick_axis, AxisData, Prep},
+    diagnose::{diagnose, DiagOptions, LONG_TRACE},
     effects::WbModel,
     fit::{fit, parse_effects},
     import::{import, model_init, parse_map},
@@ -169,12 +169,16 @@ pub enum ModelCmd {
 
 /// Reads the model and the trace's axis it describes; `need_torque` names what needs the torque
 /// column when one does. The trace itself is dropped once its axis is prepared. Warnings about
-/// the pair are printed on standard error and returned (for the JSON's `warnings`).
+/// the pair are printed on standard error and returned (for the JSON's `warnings`). With
+/// `held`, a long trace ([`LONG_TRACE`] samples or more, when its rate is at least twenty
+/// times the filter's cut-off) is held in block means ([`load_axis_held`]): memory and time
+/// then grow with the trace's length ten times slower.
 fn load(
     trace: &Path,
     model: &Path,
     c: &Common,
     need_torque: Option<&str>,
+    held: bool,
 ) -> Result<(WbModel, AxisData, Vec<String>), WorkbenchError> {
     check_window_and_cutoff(c, None)?;
     let m = WbModel::load(model)?;
@@ -199,20 +203,23 @@ fn load(
     };
     check_window_and_cutoff(c, Some((trace, tr.period_s())))?;
     let axis = pick_axis(&tr, model, c.axis.as_deref())?;
-    let d = load_axis(
-        &tr,
-        &m.file,
-        &axis,
-        &Prep {
-            cutoff_hz: c.cutoff_hz,
-            filter_torque: !c.raw_torque,
-            added_input: c.added_input.clone(),
-        },
-    )?;
-    if let Some(why) = need_torque {
-        d.require_torque(why, &tr)?;
-    }
-    drop(tr);
+    let prep = Prep {
+        cutoff_hz: c.cutoff_hz,
+        filter_torque: !c.raw_torque,
+        added_input: c.added_input.clone(),
+    };
+    let dt = tr.period_s();
+    let q = held_block(dt, c.cutoff_hz.unwrap_or((0.1 / dt).min(100.0)));
+    // (without the torque column the ordinary reading says what is missing)
+    let d = if held && tr.len() >= LONG_TRACE && q >= 2 && tr.has(&format!("{axis}.torque")) {
+        load_axis_held(tr, &m, &axis, &prep, q)?
+    } else {
+        let d = load_axis(&tr, &m.file, &axis, &prep)?;
+        if let Some(why) = need_torque {
+            d.require_torque(why, &tr)?;
+        }
+        d
+    };
     let warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -374,6 +381,9 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
                 &model,
                 &common,
                 Some("diagnose (the equation error is measured on it)"),
+                // the ranking alone holds a long trace in block means; the report's windowed
+                // simulation and the guided loop's refits need every recorded sample
+                !guided && out.is_none(),
             )?;
             if guided {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
@@ -458,7 +468,7 @@ fn init_model(
 
 /// `feedloop compare`.
 fn compare_cmd(trace: &Path, model: &Path, out: &Path, common: &Common) -> anyhow::Result<()> {
-    let (m, d, warnings) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None, false)?;
     let c = compare(&m, &d, common.window_s);
     mkdir(out)?;
     let mut j = c.to_json(&d);
@@ -563,6 +573,16 @@ fn diagnose_once(
     let dg = diagnose(m, d, &DiagOptions::default());
     let mut j = dg.to_json();
     j["warnings"] = serde_json::json!(warnings);
+    if d.sub > 1 {
+        j["held_in_block_means"] = serde_json::json!({
+            "recorded_samples_per_block": d.sub,
+            "blocks": d.len(),
+            "why": format!(
+                "a long trace ({} samples or more) is held as the means of blocks of {} samples (the held rate is ten times the filter's cut-off of {} Hz or more); the controller law is evaluated on every recorded sample",
+                LONG_TRACE, d.sub, d.cutoff_hz
+            ),
+        });
+    }
     if let Some(out) = out {
         mkdir(out)?;
         let c = compare(m, d, common.window_s);
@@ -587,6 +607,9 @@ fn diagnose_once(
         );
     }
     println!("{}", dg.verdict);
+    if let Some(h) = j.get("held_in_block_means") {
+        println!("note: {}", h["why"].as_str().unwrap_or_default());
+    }
     Ok(())
 }
 
@@ -599,7 +622,7 @@ fn fit_cmd(
     out: &Path,
     common: &Common,
 ) -> anyhow::Result<()> {
-    let (m, d, warnings) = load(trace, model, common, None)?;
+    let (m, d, warnings) = load(trace, model, common, None, false)?;
     let add = parse_effects(add)?;
     let r = fit(&m, &d, &add, free, common.window_s)?;
     r.model.write(out)?;

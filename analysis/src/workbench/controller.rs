@@ -23,6 +23,8 @@
 //! The channel's noise floor is estimated from the residual itself: the robust spread (median
 //! absolute deviation) of its first difference, which steps and slow departures hardly touch.
 
+use std::borrow::Cow;
+
 use serde_json::{json, Value};
 
 use super::data::AxisData;
@@ -30,7 +32,7 @@ use super::effects::WbModel;
 use super::signal::{densest_quarter, nrmse_pct, quantile, rms};
 
 /// The model's controller law.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Law {
     /// Position gain, 1/s.
     pub kp: f64,
@@ -214,51 +216,122 @@ pub fn noise_floor(r: &[f64]) -> f64 {
     white.max(densest_quarter(r).1)
 }
 
-/// The velocity estimates the drive may have used: (name, values).
-fn velocity_sources(d: &AxisData) -> Vec<(&'static str, Vec<f64>)> {
-    let q: Vec<f64> = match &d.motor_raw {
-        Some(m) => m.clone(),
-        None => d.load_raw.iter().map(|x| x * d.r).collect(),
-    };
+/// How many velocity estimates [`velocity_source`] offers.
+const VELOCITY_SOURCES: usize = 4;
+
+/// Velocity estimate `i` the drive may have used, from the position `q` (motor units) or the
+/// recorded motor velocity: (name, values); `None` for the motor velocity when it was not
+/// recorded. Made one at a time, so that a long trace holds one of them at once.
+fn velocity_source<'a>(
+    i: usize,
+    q: &[f64],
+    motor_vel: Option<&'a [f64]>,
+    dt: f64,
+) -> Option<(&'static str, Cow<'a, [f64]>)> {
     let n = q.len();
-    let mut v = Vec::new();
-    if let Some(c) = &d.motor_vel_raw {
-        v.push(("the motor_vel column", c.clone()));
+    let back = |k: usize| {
+        if k == 0 {
+            0.0
+        } else {
+            (q[k] - q[k - 1]) / dt
+        }
+    };
+    let v: Vec<f64> = match i {
+        0 => return motor_vel.map(|c| ("the motor_vel column", Cow::Borrowed(c))),
+        1 => (0..n).map(back).collect(),
+        2 => (0..n)
+            .map(|k| {
+                if k == 0 || k + 1 >= n {
+                    back(k)
+                } else {
+                    (q[k + 1] - q[k - 1]) / (2.0 * dt)
+                }
+            })
+            .collect(),
+        _ => (0..n)
+            .map(|k| {
+                if k < 2 {
+                    back(k)
+                } else {
+                    (q[k] - q[k - 2]) / (2.0 * dt)
+                }
+            })
+            .collect(),
+    };
+    let name = match i {
+        1 => "a backward difference of the position",
+        2 => "a central difference of the position (an observer's or the true velocity)",
+        _ => "a two-sample average of the position's differences",
+    };
+    Some((name, Cow::Owned(v)))
+}
+
+/// The velocity estimate and discretisation of `law_p` the record `rec` agrees with best, and
+/// the law's output with them: `cmd` and `x` (command and load position) and `q` (the position
+/// the velocity is estimated from) in motor units, `motor_vel` the recorded motor velocity,
+/// `add` a declared added input. Scored on at most 200,000 evenly spread samples, so a long
+/// trace costs no more than a sort of those.
+#[allow(clippy::too_many_arguments)]
+pub fn best_law(
+    law_p: &Law,
+    cmd: &[f64],
+    x: &[f64],
+    q: &[f64],
+    motor_vel: Option<&[f64]>,
+    rec: &[f64],
+    add: Option<&[f64]>,
+    dt: f64,
+) -> Option<(&'static str, Discretisation, Vec<f64>)> {
+    let first = rec[0] - add.map_or(0.0, |a| a[0]);
+    let (a, b) = (2.min(rec.len()), rec.len());
+    let step = ((b - a) / 200_000).max(1);
+    let mut best: Option<(f64, &'static str, Discretisation, Vec<f64>)> = None;
+    for i in 0..VELOCITY_SOURCES {
+        let Some((name, v)) = velocity_source(i, q, motor_vel, dt) else {
+            continue;
+        };
+        for disc in Discretisation::ALL {
+            let law = law_p.run_as(cmd, x, &v, dt, first, disc);
+            let dev: Vec<f64> = (a..b)
+                .step_by(step)
+                .map(|k| rec[k] - law[k] - add.map_or(0.0, |x| x[k]))
+                .collect();
+            let score = densest_quarter(&dev).1;
+            if best.as_ref().is_none_or(|(s, ..)| score < *s) {
+                best = Some((score, name, disc, law));
+            }
+        }
     }
-    let back: Vec<f64> = (0..n)
-        .map(|k| {
-            if k == 0 {
-                0.0
-            } else {
-                (q[k] - q[k - 1]) / d.dt
-            }
-        })
-        .collect();
-    let avg: Vec<f64> = (0..n)
-        .map(|k| {
-            if k < 2 {
-                back[k]
-            } else {
-                (q[k] - q[k - 2]) / (2.0 * d.dt)
-            }
-        })
-        .collect();
-    let central: Vec<f64> = (0..n)
-        .map(|k| {
-            if k == 0 || k + 1 >= n {
-                back[k]
-            } else {
-                (q[k + 1] - q[k - 1]) / (2.0 * d.dt)
-            }
-        })
-        .collect();
-    v.push(("a backward difference of the position", back));
-    v.push((
-        "a central difference of the position (an observer's or the true velocity)",
-        central,
-    ));
-    v.push(("a two-sample average of the position's differences", avg));
-    v
+    best.map(|(_, name, disc, law)| (name, disc, law))
+}
+
+/// The controller law of a long trace evaluated at the recording's rate, kept at the samples
+/// its axis is held at (see [`AxisData::sub`]): the law applied to every recorded sample (a
+/// drive's integrator sums each of them), then taken with the recorded torque and the added
+/// input at the centre of each block of samples.
+#[derive(Debug, Clone)]
+pub struct HeldLaw {
+    /// The law evaluated.
+    pub law_of: Law,
+    /// The recorded torque at the block centres.
+    pub recorded: Vec<f64>,
+    /// The law's output there.
+    pub law: Vec<f64>,
+    /// The declared added input there.
+    pub add: Option<Vec<f64>>,
+    /// Which velocity the law was evaluated with.
+    pub velocity: &'static str,
+    /// Which discretisation the record agrees with.
+    pub discretisation: Discretisation,
+}
+
+/// The added input the controller channel of `d` compares with: the one of its held law on a
+/// long trace, else the declared column.
+fn channel_add(d: &AxisData) -> Option<&[f64]> {
+    match &d.held_law {
+        Some(h) => h.add.as_deref(),
+        None => d.added_input.as_ref().map(|(_, a)| a.as_slice()),
+    }
 }
 
 /// Relative tolerance within which a recorded torque counts as sitting at a limit.
@@ -290,29 +363,34 @@ impl ControllerChannel {
     pub fn new(model: &WbModel, d: &AxisData) -> Option<Self> {
         let limit = model.drive_limit();
         let law_p = Law::of(model)?;
-        let rec = d.torque_raw.clone()?;
-        let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
-        let add = d.added_input.as_ref().map(|(_, a)| a.as_slice());
-        let first = rec[0] - add.map_or(0.0, |a| a[0]);
-        let (a, b) = (2.min(d.len()), d.len());
-        // the velocity and the discretisation the record agrees with best (scored on at most
-        // 200,000 evenly spread samples, so a long trace costs no more than a sort of those)
-        let step = ((b - a) / 200_000).max(1);
-        let mut best: Option<(f64, &'static str, Discretisation, Vec<f64>)> = None;
-        for (name, v) in velocity_sources(d) {
-            for disc in Discretisation::ALL {
-                let law = law_p.run_as(&d.cmd, &x, &v, d.dt, first, disc);
-                let dev: Vec<f64> = (a..b)
-                    .step_by(step)
-                    .map(|k| rec[k] - law[k] - add.map_or(0.0, |x| x[k]))
-                    .collect();
-                let score = densest_quarter(&dev).1;
-                if best.as_ref().is_none_or(|(s, ..)| score < *s) {
-                    best = Some((score, name, disc, law));
-                }
+        let add = channel_add(d);
+        let (rec, velocity, discretisation, law) = match &d.held_law {
+            // a long trace: the law was evaluated at the recording's rate when it was read
+            Some(h) if h.law_of == law_p => (
+                h.recorded.clone(),
+                h.velocity,
+                h.discretisation,
+                h.law.clone(),
+            ),
+            Some(_) => return None,
+            None => {
+                let rec = d.torque_raw.clone()?;
+                let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+                let q = d.motor_raw.as_deref().unwrap_or(&x);
+                let (velocity, discretisation, law) = best_law(
+                    &law_p,
+                    &d.cmd,
+                    &x,
+                    q,
+                    d.motor_vel_raw.as_deref(),
+                    &rec,
+                    add,
+                    d.dt,
+                )?;
+                (rec, velocity, discretisation, law)
             }
-        }
-        let (_, velocity, discretisation, law) = best?;
+        };
+        let (a, b) = (2.min(rec.len()), rec.len());
         let added_gain = add.map(|ad| {
             let (mut num, mut den) = (0.0, 0.0);
             for k in a..b {
@@ -374,7 +452,7 @@ impl ControllerChannel {
     /// The declared added input at the scale the record holds it (`None` without one, or when
     /// the record does not hold it).
     pub fn scaled_input(&self, d: &AxisData) -> Option<Vec<f64>> {
-        let (_, ad) = d.added_input.as_ref()?;
+        let ad = channel_add(d)?;
         let g = self.added_gain.filter(|g| (0.5..=2.0).contains(g))?;
         Some(ad.iter().map(|x| g * x).collect())
     }

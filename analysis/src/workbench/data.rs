@@ -11,7 +11,9 @@ use std::path::{Path, PathBuf};
 use feedloop_model::model::{AxisKind, ModelFile};
 use feedloop_trace::Trace;
 
-use super::signal::{derivative, filtfilt_butter4};
+use super::controller::{best_law, HeldLaw, Law};
+use super::effects::WbModel;
+use super::signal::{block_centres, block_means, derivative, derivative_fine, filtfilt_butter4};
 use super::WorkbenchError;
 
 /// How the trace is prepared.
@@ -88,6 +90,12 @@ pub struct AxisData {
     pub torque_filtered: bool,
     /// First and one-past-last sample used in fits (filter edges left out).
     pub range: (usize, usize),
+    /// Recorded samples per sample held: 1, or on a long trace read with [`load_axis_held`] the
+    /// size of the blocks whose means are held.
+    pub sub: usize,
+    /// On a long trace held in block means: the controller law evaluated at the recording's
+    /// rate (see [`HeldLaw`]).
+    pub held_law: Option<HeldLaw>,
 }
 
 impl AxisData {
@@ -127,6 +135,7 @@ impl AxisData {
             ql: vec![],
             vl: vec![],
             al: vec![],
+            held_law: self.held_law.clone(),
             ..*self
         }
         .prepared(cutoff_hz)
@@ -138,9 +147,10 @@ impl AxisData {
         let fs = 1.0 / self.dt;
         let n = self.len();
         let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
-        let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt);
+        let fine = self.sub > 1;
+        let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt, fine);
         let (qm, vm, am) = match &self.motor_raw {
-            Some(m) => filtered_derivatives(m, cutoff_hz, self.dt),
+            Some(m) => filtered_derivatives(m, cutoff_hz, self.dt, fine),
             None => (ql.clone(), vl.clone(), al.clone()),
         };
         let torque = match &self.torque_raw {
@@ -196,6 +206,8 @@ impl AxisData {
             cutoff_hz: self.cutoff_hz,
             torque_filtered: self.torque_filtered,
             range: (a.div_ceil(q).min(n), (b / q).min(n)),
+            sub: self.sub,
+            held_law: None,
         }
     }
 
@@ -240,11 +252,18 @@ fn missing(trace: &Trace, column: &str, needed_for: &str) -> WorkbenchError {
     }
 }
 
-/// A position filtered zero-phase at `cutoff` and its first two derivatives.
-fn filtered_derivatives(x: &[f64], cutoff: f64, dt: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+/// A position filtered zero-phase at `cutoff` and its first two derivatives (by the 7-point
+/// stencil when `fine`: a series held in block means, sampled at ten times the cut-off only).
+fn filtered_derivatives(
+    x: &[f64],
+    cutoff: f64,
+    dt: f64,
+    fine: bool,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let q = filtfilt_butter4(x, cutoff, 1.0 / dt);
-    let v = derivative(&q, dt);
-    let a = derivative(&v, dt);
+    let diff = if fine { derivative_fine } else { derivative };
+    let v = diff(&q, dt);
+    let a = diff(&v, dt);
     (q, v, a)
 }
 
@@ -327,27 +346,8 @@ pub fn load_axis(
     }
     let dt = trace.period_s();
     let fs = 1.0 / dt;
-    // Units check: with a motor column the ratio of motor to load travel must match the model.
     if let Some(m) = &motor_raw {
-        let travel = |x: &[f64]| {
-            let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
-            let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-            hi - lo
-        };
-        let (tm, tl) = (travel(m), travel(&load_raw));
-        if tl > 0.0 && tm > 0.0 {
-            let ratio = tm / tl;
-            if (ratio / r - 1.0).abs() > 0.2 {
-                return Err(WorkbenchError::Mismatch {
-                    trace: trace.path.clone(),
-                    model: model.path.clone(),
-                    reason: format!(
-                        "axis `{axis}`: motor travel / load travel = {ratio:.4} but the model ({} axis) implies {r:.4} motor units per load unit (check lead_m, gear_ratio, kind or the trace's units)",
-                        kind.id()
-                    ),
-                });
-            }
-        }
+        check_travel(trace, model, axis, m, &load_raw)?;
     }
     let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
     Ok(AxisData {
@@ -373,6 +373,315 @@ pub fn load_axis(
         cutoff_hz: cutoff,
         torque_filtered: prep.filter_torque,
         range: (0, n),
+        sub: 1,
+        held_law: None,
     }
     .prepared(cutoff))
+}
+
+/// Units check: with a motor column the ratio of motor to load travel must match the model.
+fn check_travel(
+    trace: &Trace,
+    model: &ModelFile,
+    axis: &str,
+    m: &[f64],
+    load: &[f64],
+) -> Result<(), WorkbenchError> {
+    let kind = model.plant.kind();
+    let r = model.plant.motor_per_load();
+    let travel = |x: &[f64]| {
+        let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        hi - lo
+    };
+    let (tm, tl) = (travel(m), travel(load));
+    if tl > 0.0 && tm > 0.0 {
+        let ratio = tm / tl;
+        if (ratio / r - 1.0).abs() > 0.2 {
+            return Err(WorkbenchError::Mismatch {
+                trace: trace.path.clone(),
+                model: model.path.clone(),
+                reason: format!(
+                    "axis `{axis}`: motor travel / load travel = {ratio:.4} but the model ({} axis) implies {r:.4} motor units per load unit (check lead_m, gear_ratio, kind or the trace's units)",
+                    kind.id()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Recorded samples per held sample for a long trace of sampling period `dt` filtered at
+/// `cutoff_hz`: `fs / (10 cutoff)`, so that the held rate is still ten times the cut-off (the
+/// filtered signals lose nothing, see [`AxisData::decimated`]); 1 when the rate allows no less.
+pub fn held_block(dt: f64, cutoff_hz: f64) -> usize {
+    // (a ratio that is a whole number in decimal, 4 kHz over 1 kHz, may come out just below it)
+    ((1.0 / (dt * 10.0 * cutoff_hz) * (1.0 + 1e-9)).floor() as usize).max(1)
+}
+
+/// Reads axis `axis` of a long `trace` like [`load_axis`], with the same checks, but holds the
+/// means of blocks of `q` recorded samples (see [`held_block`]) instead of every sample: the
+/// columns are taken out of the trace one by one, each reduced to its block means and freed,
+/// so memory is that of the trace's columns for the axis and no more. The recorded torque is
+/// held as the block means of the torque acting between the samples (the half-sample alignment
+/// of [`WbModel::applied_torque`], done here at the recording's rate); the filtered positions,
+/// their derivatives and the filtered torque are then made from the block means at the held
+/// rate, so every series of the equation error goes through the same block mean and filter. The
+/// controller law, whose integrator sums every recorded sample, is evaluated on the recorded
+/// samples before they are freed and kept at the block centres ([`HeldLaw`]).
+pub fn load_axis_held(
+    trace: Trace,
+    model: &WbModel,
+    axis: &str,
+    prep: &Prep,
+    q: usize,
+) -> Result<AxisData, WorkbenchError> {
+    let file = &model.file;
+    let q = q.max(1);
+    let kind = file.plant.kind();
+    let r = file.plant.motor_per_load();
+    let name = |c: &str| format!("{axis}.{c}");
+    for (c, why) in [
+        ("cmd", "the commanded position"),
+        ("load", "the measured position"),
+    ] {
+        if !trace.has(&name(c)) {
+            return Err(missing(&trace, &name(c), why));
+        }
+    }
+    let added_name = match &prep.added_input {
+        Some(n) if trace.has(n) => Some(n.clone()),
+        Some(n) => {
+            return Err(missing(
+                &trace,
+                n,
+                "the declared added input (--added-input)",
+            ))
+        }
+        None => Some(name("torque_add")).filter(|n| trace.has(n)),
+    };
+    let n = trace.len();
+    if n < 50 * q {
+        return Err(WorkbenchError::Data {
+            path: trace.path.clone(),
+            reason: format!("only {n} samples; the workbench needs at least 50"),
+        });
+    }
+    if let (Some(m), Some(l)) = (trace.column(&name("motor")), trace.column(&name("load"))) {
+        check_travel(&trace, file, axis, m, l)?;
+    }
+    let dt = trace.period_s();
+    let cutoff = prep.cutoff_hz.unwrap_or((1.0 / dt / 10.0).min(100.0));
+    let path = trace.path.clone();
+    let t = block_means(trace.t(), q);
+    let mut cols: Vec<(String, Vec<f64>)> = trace.into_columns();
+    let mut take = |c: &str| {
+        cols.iter()
+            .position(|(k, _)| k == c)
+            .map(|i| cols.swap_remove(i).1)
+    };
+    let (Some(mut cmd), Some(mut x)) = (take(&name("cmd")), take(&name("load"))) else {
+        unreachable!("checked above")
+    };
+    let motor = take(&name("motor"));
+    let motor_vel = take(&name("motor_vel"));
+    let torque = take(&name("torque"));
+    let added = added_name.as_deref().and_then(&mut take);
+    drop(cols);
+    let load_raw = block_means(&x, q);
+    cmd.iter_mut().for_each(|v| *v *= r);
+    x.iter_mut().for_each(|v| *v *= r);
+    let held_law = match (Law::of(model), &torque) {
+        (Some(law_p), Some(rec)) => best_law(
+            &law_p,
+            &cmd,
+            &x,
+            motor.as_deref().unwrap_or(&x),
+            motor_vel.as_deref(),
+            rec,
+            added.as_deref(),
+            dt,
+        )
+        .map(|(velocity, discretisation, law)| HeldLaw {
+            law_of: law_p,
+            recorded: block_centres(rec, q),
+            law: block_centres(&law, q),
+            add: added.as_deref().map(|a| block_centres(a, q)),
+            velocity,
+            discretisation,
+        }),
+        _ => None,
+    };
+    // the torque acting between samples k - 1 and k, in block means
+    let torque_raw = torque.map(|y| {
+        (0..y.len() / q)
+            .map(|b| {
+                (b * q..(b + 1) * q)
+                    .map(|k| {
+                        if k == 0 {
+                            y[0]
+                        } else {
+                            0.5 * (y[k - 1] + y[k])
+                        }
+                    })
+                    .sum::<f64>()
+                    / q as f64
+            })
+            .collect()
+    });
+    let nh = t.len();
+    Ok(AxisData {
+        path,
+        axis: axis.to_string(),
+        kind,
+        r,
+        dt: dt * q as f64,
+        t,
+        cmd: block_means(&cmd, q),
+        load_raw,
+        motor_raw: motor.map(|m| block_means(&m, q)),
+        torque: None,
+        torque_raw,
+        motor_vel_raw: motor_vel.map(|v| block_means(&v, q)),
+        added_input: added_name.zip(added.map(|a| block_means(&a, q))),
+        qm: vec![],
+        vm: vec![],
+        am: vec![],
+        ql: vec![],
+        vl: vec![],
+        al: vec![],
+        cutoff_hz: cutoff,
+        torque_filtered: prep.filter_torque,
+        range: (0, nh),
+        sub: q,
+        held_law,
+    }
+    .prepared(cutoff))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::PI;
+
+    use super::*;
+    use crate::workbench::controller::ControllerChannel;
+
+    fn model() -> WbModel {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/xy-x.toml");
+        WbModel::load(&p).unwrap()
+    }
+
+    /// A trace of axis `x` of `n` samples at 10 kHz, motor and load consistent with `model`.
+    fn trace(m: &WbModel, n: usize, with_load: bool) -> Trace {
+        let r = m.file.plant.motor_per_load();
+        let dt = 1e-4;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
+        let load: Vec<f64> = t
+            .iter()
+            .map(|t| 0.01 * (2.0 * PI * 3.0 * t).sin())
+            .collect();
+        let cmd: Vec<f64> = t
+            .iter()
+            .zip(&load)
+            .map(|(t, l)| l + 1e-5 * (2.0 * PI * 3.0 * t).cos())
+            .collect();
+        let motor: Vec<f64> = load
+            .iter()
+            .enumerate()
+            .map(|(k, l)| l * r + 1e-6 * ((k % 7) as f64 - 3.0))
+            .collect();
+        let motor_vel = derivative(&motor, dt);
+        let torque: Vec<f64> = (0..n)
+            .map(|k| 0.3 * (k as f64 * 1.3).sin() + 2.0 * (2.0 * PI * 3.0 * t[k]).cos())
+            .collect();
+        let mut names = vec!["t", "x.cmd"];
+        let mut data = vec![t, cmd];
+        if with_load {
+            names.push("x.load");
+            data.push(load);
+        }
+        names.extend(["x.motor", "x.motor_vel", "x.torque"]);
+        data.extend([motor, motor_vel, torque]);
+        Trace::from_columns(
+            Path::new("long.csv"),
+            vec![],
+            names.iter().map(|s| s.to_string()).collect(),
+            data,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_held_axis_holds_the_block_means_of_what_the_full_reading_holds() {
+        let m = model();
+        let q = 10;
+        let tr = trace(&m, 2003, true);
+        let full = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+        let held = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
+        assert_eq!(held.len(), 200);
+        assert_eq!(held.sub, q);
+        assert!((held.dt - 1e-3).abs() < 1e-15);
+        assert_eq!(held.t, block_means(&full.t, q));
+        assert_eq!(held.cmd, block_means(&full.cmd, q));
+        assert_eq!(held.load_raw, block_means(&full.load_raw, q));
+        assert_eq!(
+            held.motor_raw.as_deref().unwrap(),
+            block_means(full.motor_raw.as_deref().unwrap(), q)
+        );
+        assert_eq!(
+            held.motor_vel_raw.as_deref().unwrap(),
+            block_means(full.motor_vel_raw.as_deref().unwrap(), q)
+        );
+        // the torque acting between samples: the half-sample alignment, then the block means
+        let y = full.torque_raw.as_deref().unwrap();
+        let aligned: Vec<f64> = (0..y.len())
+            .map(|k| {
+                if k == 0 {
+                    y[0]
+                } else {
+                    0.5 * (y[k - 1] + y[k])
+                }
+            })
+            .collect();
+        let want = block_means(&aligned, q);
+        for (a, b) in held.torque_raw.as_deref().unwrap().iter().zip(&want) {
+            assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0));
+        }
+        // the controller law of every recorded sample, at the block centres
+        let cc = ControllerChannel::new(&m, &full).unwrap();
+        let h = held.held_law.as_ref().unwrap();
+        assert_eq!(h.law, block_centres(&cc.law, q));
+        assert_eq!(h.recorded, block_centres(&cc.recorded, q));
+        assert_eq!(h.velocity, cc.velocity);
+        assert_eq!(h.discretisation, cc.discretisation);
+        let hc = ControllerChannel::new(&m, &held).unwrap();
+        assert_eq!(hc.law, h.law);
+        assert!(held.torque.is_some() && held.range.0 > 0 && held.range.1 < 200);
+    }
+
+    #[test]
+    fn the_held_block_keeps_ten_samples_per_period_of_the_cut_off() {
+        assert_eq!(held_block(1e-4, 100.0), 10);
+        assert_eq!(held_block(2.5e-4, 100.0), 4);
+        assert_eq!(held_block(1e-4, 400.0), 2);
+        assert_eq!(held_block(1e-3, 100.0), 1);
+        assert_eq!(held_block(1e-3, 200.0), 1);
+    }
+
+    #[test]
+    fn a_held_axis_refuses_what_the_full_reading_refuses_naming_the_file_and_column() {
+        let m = model();
+        let tr = trace(&m, 600, false);
+        let full = load_axis(&tr, &m.file, "x", &Prep::default())
+            .unwrap_err()
+            .to_string();
+        let held = load_axis_held(tr, &m, "x", &Prep::default(), 10)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(held, full);
+        assert!(
+            held.contains("long.csv") && held.contains("x.load"),
+            "{held}"
+        );
+    }
 }

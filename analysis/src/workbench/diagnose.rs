@@ -223,7 +223,9 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
             g
         }
         EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
-        EffectId::CurrentLag => logspace(d.dt * 0.3, d.dt * 20.0, 16)
+        // time constants of the recording's period (that of the samples held on a long trace
+        // held in block means)
+        EffectId::CurrentLag => logspace(d.dt / d.sub as f64 * 0.3, d.dt / d.sub as f64 * 20.0, 16)
             .into_iter()
             .map(|t| vec![t])
             .collect(),

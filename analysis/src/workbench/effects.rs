@@ -18,7 +18,7 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{read_toml_file, ConfigError};
 
 use super::data::AxisData;
-use super::signal::quantile;
+use super::signal::{quantile, sub_sample_means};
 use super::WorkbenchError;
 
 pub use feedloop_model::{EffectId, Side};
@@ -78,6 +78,35 @@ fn sgn(v: f64, eps: f64) -> f64 {
     }
 }
 
+/// The block means of `sin(w x)` and `cos(w x)` for a position `x` held at the centres of blocks
+/// of `sub` recorded instants and moving linearly through each block (by the central slope): a
+/// sum of sines over evenly spaced phases is the sine at the centre times the Dirichlet kernel
+/// `sin(theta / 2) / (sub sin(theta / (2 sub)))`, `theta = w` times the travel per held sample
+/// (the ripple of a fast motion averages out within a block, as in the recorded torque).
+fn held_ripple(x: &[f64], w: f64, sub: usize) -> Vec<Vec<f64>> {
+    let n = x.len();
+    let q = sub as f64;
+    let (mut s, mut c) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for k in 0..n {
+        let slope = match n {
+            0 | 1 => 0.0,
+            _ if k == 0 => x[1] - x[0],
+            _ if k == n - 1 => x[k] - x[k - 1],
+            _ => 0.5 * (x[k + 1] - x[k - 1]),
+        };
+        let theta = w * slope;
+        let kernel = if (theta / q).abs() < 1e-9 {
+            1.0
+        } else {
+            (0.5 * theta).sin() / (q * (0.5 * theta / q).sin())
+        };
+        let (sn, cs) = (w * x[k]).sin_cos();
+        s.push(kernel * sn);
+        c.push(kernel * cs);
+    }
+    vec![s, c]
+}
+
 impl Effect {
     /// A new effect with zero coefficients of the right count.
     pub fn new(id: EffectId, side: Side, hyper: Vec<f64>) -> Self {
@@ -134,6 +163,11 @@ impl Effect {
             Side::Motor => (&d.qm, &d.vm),
             Side::Load => (&d.ql, &d.vl),
         };
+        if d.sub > 1 {
+            if let Some(cols) = self.held_columns(d, v) {
+                return cols;
+            }
+        }
         match self.id {
             EffectId::ViscousFriction => vec![v.clone()],
             EffectId::CoulombFriction => {
@@ -190,6 +224,41 @@ impl Effect {
         }
     }
 
+    /// On an axis held in block means ([`AxisData::sub`] > 1), the columns that are a
+    /// nonlinear function of the velocity or position (dry friction, cogging), as the means of
+    /// that function over each block's recorded instants ([`sub_sample_means`]): the block mean
+    /// of the recorded torque holds the friction step of a reversal inside a block in part, and
+    /// so must its column. `None` for the other effects (linear in the held series, or not
+    /// filtered).
+    fn held_columns(&self, d: &AxisData, v: &[f64]) -> Option<Vec<Vec<f64>>> {
+        let m = |x: &[f64], f: &dyn Fn(f64) -> f64| sub_sample_means(x, d.sub, f);
+        Some(match self.id {
+            EffectId::CoulombFriction => {
+                let eps = dead_band(d, v);
+                vec![m(v, &|x| sgn(x, eps)), m(v, &|x| sgn(x, eps).abs())]
+            }
+            EffectId::StribeckFriction => {
+                let eps = dead_band(d, v);
+                let (vs, e) = (self.hyper[0], self.hyper[1]);
+                let hump = move |x: f64| {
+                    let r = x.abs() / vs;
+                    // the grid's exponents 1 and 2 without the general power
+                    let p = if e == 1.0 {
+                        r
+                    } else if e == 2.0 {
+                        r * r
+                    } else {
+                        r.powf(e)
+                    };
+                    sgn(x, eps) * (-p).exp()
+                };
+                vec![m(v, &|x| sgn(x, eps)), m(v, &hump)]
+            }
+            EffectId::Cogging => held_ripple(&d.qm, 2.0 * PI / self.hyper[0], d.sub),
+            _ => return None,
+        })
+    }
+
     /// The contribution `sum coef_i column_i`.
     pub fn contribution(&self, d: &AxisData) -> Vec<f64> {
         let mut out = vec![0.0; d.len()];
@@ -203,7 +272,22 @@ impl Effect {
 
     /// Applies a torque-path effect to the recorded torque `y` (identity for other effects).
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
+        self.applied_torque_held(y, dt, 1)
+    }
+
+    /// [`Effect::applied_torque`] on a torque held in block means of `sub` recorded samples
+    /// (period `dt` of the held samples): a delay of `k` recording periods shifts it by `k /
+    /// sub` held samples (interpolated linearly).
+    pub fn applied_torque_held(&self, y: &[f64], dt: f64, sub: usize) -> Vec<f64> {
         match self.id {
+            EffectId::Delay if sub > 1 => {
+                let shift = self.hyper[0].round().max(0.0) / sub as f64;
+                let (k, f) = (shift.floor() as usize, shift.fract());
+                let at = |i: usize, k: usize| if i >= k { y[i - k] } else { 0.0 };
+                (0..y.len())
+                    .map(|i| (1.0 - f) * at(i, k) + f * at(i, k + 1))
+                    .collect()
+            }
             EffectId::Delay => {
                 let k = self.hyper[0].round().max(0.0) as usize;
                 (0..y.len())
@@ -632,8 +716,7 @@ impl WbModel {
     /// the torque acting around sample k (where the central differences are centred) is the mean
     /// of commands k-1 and k: that half-sample alignment comes first.
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
-        // order of the drive: delay, saturation, lag
-        let mut out: Vec<f64> = (0..y.len())
+        let aligned: Vec<f64> = (0..y.len())
             .map(|k| {
                 if k == 0 {
                     y[0]
@@ -642,13 +725,19 @@ impl WbModel {
                 }
             })
             .collect();
+        self.path_effects(aligned, dt, 1)
+    }
+
+    /// The torque-path effects on the aligned torque `out`, in the drive's order: delay,
+    /// saturation, lag (`sub`: see [`Effect::applied_torque_held`]).
+    fn path_effects(&self, mut out: Vec<f64>, dt: f64, sub: usize) -> Vec<f64> {
         for id in [
             EffectId::Delay,
             EffectId::TorqueSaturation,
             EffectId::CurrentLag,
         ] {
             for e in self.effects.iter().filter(|e| e.id == id) {
-                out = e.applied_torque(&out, dt);
+                out = e.applied_torque_held(&out, dt, sub);
             }
         }
         out
@@ -659,7 +748,12 @@ impl WbModel {
     /// effects, then the same zero-phase filter as the positions when `d` filters its torque.
     pub fn applied(&self, d: &AxisData) -> Option<Vec<f64>> {
         let raw = d.torque_raw.as_ref()?;
-        let out = self.applied_torque(raw, d.dt);
+        // an axis held in block means holds the torque already aligned (see `load_axis_held`)
+        let out = if d.sub > 1 {
+            self.path_effects(raw.clone(), d.dt, d.sub)
+        } else {
+            self.applied_torque(raw, d.dt)
+        };
         Some(if d.torque_filtered {
             super::signal::filtfilt_butter4(&out, d.cutoff_hz, 1.0 / d.dt)
         } else {
@@ -873,7 +967,7 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
         EffectId::Delay => format!(
             "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
             e.hyper[0],
-            fmt(e.hyper[0] * d.dt * 1e3)
+            fmt(e.hyper[0] * d.dt / d.sub as f64 * 1e3)
         ),
         EffectId::CurrentLag => format!("the recorded torque explains the motion best through a lag of {} ms", fmt(e.hyper[0] * 1e3)),
         EffectId::TorqueSaturation => format!(
@@ -922,5 +1016,31 @@ pub fn class_of(id: EffectId) -> &'static str {
         EffectId::TorqueSaturation => "saturation",
         EffectId::Backlash => "backlash",
         EffectId::PitchError => "pitch",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::workbench::signal::{block_means, sub_sample_means};
+
+    #[test]
+    fn held_ripple_is_the_block_mean_of_the_ripple_over_the_recorded_instants() {
+        // a position moving at constant speed, recorded at 10 instants per block: the closed
+        // form equals the sum over the instants, for a slow and for a fast ripple
+        let q = 10;
+        let full: Vec<f64> = (0..400).map(|i| 0.3 + 0.004 * i as f64).collect();
+        let held = block_means(&full, q);
+        for w in [2.0, 90.0] {
+            let got = held_ripple(&held, w, q);
+            let want_s = block_means(&full.iter().map(|x| (w * x).sin()).collect::<Vec<_>>(), q);
+            let want_c = block_means(&full.iter().map(|x| (w * x).cos()).collect::<Vec<_>>(), q);
+            let by_instants = sub_sample_means(&held, q, |x| (w * x).sin());
+            for k in 0..held.len() {
+                assert!((got[0][k] - want_s[k]).abs() < 1e-9, "w {w} k {k}");
+                assert!((got[1][k] - want_c[k]).abs() < 1e-9, "w {w} k {k}");
+                assert!((got[0][k] - by_instants[k]).abs() < 1e-9, "w {w} k {k}");
+            }
+        }
     }
 }

@@ -102,6 +102,66 @@ pub fn derivative(x: &[f64], dt: f64) -> Vec<f64> {
     d
 }
 
+/// Means of `x` over consecutive blocks of `q` samples (`x.len() / q` values; a last,
+/// incomplete block is left out). A block's mean stands for the value at its centre.
+pub fn block_means(x: &[f64], q: usize) -> Vec<f64> {
+    let q = q.max(1);
+    x.chunks_exact(q)
+        .map(|c| c.iter().sum::<f64>() / q as f64)
+        .collect()
+}
+
+/// The sample at the centre of each block of `q` samples of `x` (index `k q + q / 2`), as many
+/// as [`block_means`] gives.
+pub fn block_centres(x: &[f64], q: usize) -> Vec<f64> {
+    let q = q.max(1);
+    x.chunks_exact(q).map(|c| c[q / 2]).collect()
+}
+
+/// For a smooth series `x` held at the centres of blocks of `q` recording periods, the mean of
+/// `f` over each block: `f` is evaluated at the `q` instants of the block, `x` there
+/// interpolated linearly between its neighbouring values. A nonlinearity of the held series
+/// (a sign, a sine of the position) then has the mean it has over the recording's samples, up
+/// to the interpolation: a velocity reversal inside a block counts for the part of the block
+/// on each side, as in the block mean of the recorded torque.
+pub fn sub_sample_means(x: &[f64], q: usize, f: impl Fn(f64) -> f64) -> Vec<f64> {
+    let n = x.len();
+    let q = q.max(1);
+    let centre = (q as f64 - 1.0) / 2.0;
+    // the slope between samples k - 1 and k (the first one at the start)
+    let slope = |k: usize| match (k, n) {
+        (_, 0 | 1) => 0.0,
+        (0, _) => x[1] - x[0],
+        _ => x[k] - x[k - 1],
+    };
+    (0..n)
+        .map(|k| {
+            let (before, after) = (slope(k), slope((k + 1).min(n - 1)));
+            let mut acc = 0.0;
+            for j in 0..q {
+                // offset from the block's centre, held samples
+                let s = (j as f64 - centre) / q as f64;
+                acc += f(x[k] + s * if s < 0.0 { before } else { after });
+            }
+            acc / q as f64
+        })
+        .collect()
+}
+
+/// Derivative by the 7-point central stencil (the central difference, then one-sided, near the
+/// ends), for series held at a tenth of their rate ([`block_means`]): at the filter's cut-off,
+/// a tenth of the rate, the central difference of [`derivative`] loses 6.5 % of the amplitude
+/// where this one loses 0.05 %, as the central difference does at the recording's rate.
+pub fn derivative_fine(x: &[f64], dt: f64) -> Vec<f64> {
+    let mut d = derivative(x, dt);
+    let n = x.len();
+    for i in 3..n.saturating_sub(3) {
+        d[i] = (45.0 * (x[i + 1] - x[i - 1]) - 9.0 * (x[i + 2] - x[i - 2]) + (x[i + 3] - x[i - 3]))
+            / (60.0 * dt);
+    }
+    d
+}
+
 /// Root mean square.
 pub fn rms(x: &[f64]) -> f64 {
     if x.is_empty() {
@@ -233,5 +293,62 @@ mod tests {
         let x: Vec<f64> = (0..10).map(|k| (k as f64 * 0.1).powi(2)).collect();
         let d = derivative(&x, 0.1);
         assert!((d[5] - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn block_means_and_centres_take_whole_blocks_only() {
+        let x: Vec<f64> = (0..23).map(|i| i as f64).collect();
+        assert_eq!(block_means(&x, 5), vec![2.0, 7.0, 12.0, 17.0]);
+        assert_eq!(block_centres(&x, 5), vec![2.0, 7.0, 12.0, 17.0]);
+        assert_eq!(block_centres(&x, 4), vec![2.0, 6.0, 10.0, 14.0, 18.0]);
+        assert_eq!(block_means(&x, 1), x);
+    }
+
+    #[test]
+    fn sub_sample_means_match_the_block_means_of_the_recording() {
+        // a ramp recorded at 10 samples per block: its block means are the held series; a
+        // linear function of it keeps them, and its sign counts the part of the block on
+        // each side of the zero crossing
+        let q = 10;
+        let full: Vec<f64> = (0..200).map(|i| (i as f64 - 104.5) * 0.01).collect();
+        let held = block_means(&full, q);
+        let lin = sub_sample_means(&held, q, |v| 3.0 * v + 1.0);
+        for (a, b) in lin.iter().zip(&held) {
+            assert!((a - (3.0 * b + 1.0)).abs() < 1e-12);
+        }
+        let sign_full: Vec<f64> = full.iter().map(|v| v.signum()).collect();
+        let want = block_means(&sign_full, q);
+        let got = sub_sample_means(&held, q, f64::signum);
+        for (a, b) in got.iter().zip(&want) {
+            assert!((a - b).abs() < 1e-12, "{got:?} vs {want:?}");
+        }
+        assert!((got[10]).abs() < 1e-12);
+        assert_eq!(sub_sample_means(&held, 1, |v| v), held);
+    }
+
+    #[test]
+    fn the_fine_derivative_is_exact_on_polynomials_and_close_at_a_tenth_of_the_rate() {
+        let dt = 0.5;
+        let x: Vec<f64> = (0..40)
+            .map(|i| {
+                let t = i as f64 * dt;
+                1.0 - 2.0 * t + 0.5 * t.powi(3) - 0.01 * t.powi(5)
+            })
+            .collect();
+        let d = derivative_fine(&x, dt);
+        for (i, v) in d.iter().enumerate().take(37).skip(3) {
+            let t = i as f64 * dt;
+            let want = -2.0 + 1.5 * t * t - 0.05 * t.powi(4);
+            assert!(
+                (v - want).abs() < 1e-9 * want.abs().max(1.0),
+                "{i}: {v} vs {want}"
+            );
+        }
+        // a sine at a tenth of the rate keeps its amplitude within 0.1 %
+        let w = 2.0 * std::f64::consts::PI * 0.1;
+        let s: Vec<f64> = (0..100).map(|i| (w * i as f64).sin()).collect();
+        let d = derivative_fine(&s, 1.0);
+        let peak = d[10..90].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!((peak / w - 1.0).abs() < 1e-3, "{}", peak / w);
     }
 }

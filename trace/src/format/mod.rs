@@ -215,6 +215,12 @@ impl Trace {
         })
     }
 
+    /// The column names and their values, taken out of the trace (no copy: a long trace's
+    /// columns can be reduced one by one, each freed when done).
+    pub fn into_columns(self) -> Vec<(String, Vec<f64>)> {
+        self.columns.into_iter().zip(self.data).collect()
+    }
+
     /// Axis names `A` that have both `A.cmd` and `A.load`, in column order.
     pub fn axes(&self) -> Vec<String> {
         axes_of(&self.columns)
@@ -285,6 +291,17 @@ mod tests {
         assert_eq!(tr.column("x.torque").unwrap(), &[0.5, 0.25, -0.125]);
         assert!(tr.has("x.load") && !tr.has("x.motor"));
         assert_eq!(tr.t(), &[0.0, 0.001, 0.002]);
+    }
+
+    #[test]
+    fn into_columns_gives_every_column_with_the_values_read() {
+        let tr = parse(GOOD).unwrap();
+        let want: Vec<(String, Vec<f64>)> = tr
+            .columns
+            .iter()
+            .map(|c| (c.clone(), tr.column(c).unwrap().to_vec()))
+            .collect();
+        assert_eq!(tr.into_columns(), want);
     }
 
     #[test]
