@@ -253,6 +253,18 @@ fn handle(ctx: &Ctx, mut rq: Request) {
     let out: Result<Value> = match path.as_str() {
         "/api/takeover" => Ok(json!({"ok": true})),
         "/api/state" => Ok(state(ctx)),
+        "/api/view" if param(&q, "fmt") == Some("bin") => {
+            ctx.views.fetch_add(1, Ordering::Relaxed);
+            return match view_bin(ctx, &q) {
+                Ok(bytes) => {
+                    let r = Response::from_data(bytes)
+                        .with_header(header("Content-Type", "application/octet-stream"))
+                        .with_header(header("Cache-Control", "no-store"));
+                    let _ = rq.respond(r);
+                }
+                Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
+            };
+        }
         "/api/view" => {
             ctx.views.fetch_add(1, Ordering::Relaxed);
             view(ctx, &q)
@@ -413,8 +425,11 @@ fn state(ctx: &Ctx) -> Value {
     })
 }
 
+/// The envelopes of one view: its time span and, per signal, name, unit and min/max per column.
+type Envelopes = (f64, f64, Vec<(String, String, Vec<Option<(f64, f64)>>)>);
+
 /// Min/max envelopes of the asked signals over `cols` pixel columns.
-fn view(ctx: &Ctx, q: &[(String, String)]) -> Result<Value> {
+fn envelopes(ctx: &Ctx, q: &[(String, String)]) -> Result<Option<Envelopes>> {
     let sh = ctx.lock();
     let src = param(q, "src").unwrap_or("live");
     let s = match src {
@@ -430,31 +445,78 @@ fn view(ctx: &Ctx, q: &[(String, String)]) -> Result<Value> {
         .as_array()
         .map(|a| (a[0].as_f64().unwrap_or(0.0), a[1].as_f64().unwrap_or(0.0)))
     else {
-        return Ok(json!({"t0": null, "t1": null, "series": []}));
+        return Ok(None);
     };
     let t1 = num(q, "t1").unwrap_or(span.1);
     let t0 = num(q, "t0").unwrap_or_else(|| t1 - num(q, "span").unwrap_or(1.0));
-    let mut series = Vec::new();
-    for name in param(q, "sig")
+    let series = param(q, "sig")
         .unwrap_or("")
         .split(',')
-        .filter(|n| !n.is_empty())
-    {
-        let Some(c) = s.column(name) else {
-            continue;
-        };
-        let env = s.envelope(c, t0, t1, cols);
-        let lo: Vec<Value> = env
-            .iter()
-            .map(|e| e.map_or(Value::Null, |e| json!(e.0)))
-            .collect();
-        let hi: Vec<Value> = env
-            .iter()
-            .map(|e| e.map_or(Value::Null, |e| json!(e.1)))
-            .collect();
-        series.push(json!({"name": name, "unit": s.units[c], "lo": lo, "hi": hi}));
-    }
+        .filter_map(|name| {
+            let c = s.column(name)?;
+            Some((
+                name.to_string(),
+                s.units[c].clone(),
+                s.envelope(c, t0, t1, cols),
+            ))
+        })
+        .collect();
+    Ok(Some((t0, t1, series)))
+}
+
+/// The envelopes as JSON: `{"t0", "t1", "series": [{"name", "unit", "lo": [...], "hi": [...]}]}`
+/// (null where a column holds no cycle).
+fn view(ctx: &Ctx, q: &[(String, String)]) -> Result<Value> {
+    let Some((t0, t1, series)) = envelopes(ctx, q)? else {
+        return Ok(json!({"t0": null, "t1": null, "series": []}));
+    };
+    let series: Vec<Value> = series
+        .into_iter()
+        .map(|(name, unit, env)| {
+            let side = |pick: fn(&(f64, f64)) -> f64| -> Vec<Value> {
+                env.iter()
+                    .map(|e| e.as_ref().map_or(Value::Null, |e| json!(pick(e))))
+                    .collect()
+            };
+            json!({"name": name, "unit": unit, "lo": side(|e| e.0), "hi": side(|e| e.1)})
+        })
+        .collect();
     Ok(json!({"t0": t0, "t1": t1, "series": series}))
+}
+
+/// The envelopes in the page's binary form: `u32` length of a JSON head (`t0`, `t1`, `cols`,
+/// and per series `name`, `unit`, `offset`), the head padded with spaces to 4 bytes, then per
+/// series `cols` minima and `cols` maxima as little-endian f32 of (value - offset), NaN where
+/// a column holds no cycle. The offset (the series' first value) keeps f32's seven digits for
+/// the detail, not for a large position.
+fn view_bin(ctx: &Ctx, q: &[(String, String)]) -> Result<Vec<u8>> {
+    let (t0, t1, series) = envelopes(ctx, q)?.unwrap_or((0.0, 0.0, Vec::new()));
+    let cols = series.first().map_or(0, |s| s.2.len());
+    let offsets: Vec<f64> = series
+        .iter()
+        .map(|s| s.2.iter().flatten().next().map_or(0.0, |e| e.0))
+        .collect();
+    let head = json!({
+        "t0": t0, "t1": t1, "cols": cols,
+        "series": series.iter().zip(&offsets)
+            .map(|(s, o)| json!({"name": s.0, "unit": s.1, "offset": o}))
+            .collect::<Vec<_>>(),
+    })
+    .to_string();
+    let mut out = Vec::with_capacity(8 + head.len() + series.len() * cols * 8);
+    let pad = (4 - head.len() % 4) % 4;
+    out.extend_from_slice(&((head.len() + pad) as u32).to_le_bytes());
+    out.extend_from_slice(head.as_bytes());
+    out.extend(std::iter::repeat_n(b' ', pad));
+    for ((_, _, env), off) in series.iter().zip(&offsets) {
+        for pick in [|e: &(f64, f64)| e.0, |e: &(f64, f64)| e.1] {
+            for e in env {
+                let v = e.as_ref().map_or(f32::NAN, |e| (pick(e) - off) as f32);
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// Arms a trigger from the page's JSON.

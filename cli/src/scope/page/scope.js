@@ -224,6 +224,29 @@ function drawPane(pane, view, t0, t1) {
   g.restore();
 }
 
+// The binary view (see the server's `view_bin`): a JSON head, then f32 minima and maxima per
+// series relative to the series' offset; NaN where a column holds no cycle.
+async function viewBin(path) {
+  const r = await fetch(path, { headers: { 'x-scope-session': session } });
+  if (!r.ok) { await api(path); throw new Error('HTTP ' + r.status); }
+  const buf = await r.arrayBuffer();
+  const n = new DataView(buf).getUint32(0, true);
+  const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const data = new Float32Array(buf, 4 + n);
+  const cols = head.cols;
+  head.series.forEach((s, k) => {
+    const lo = new Array(cols), hi = new Array(cols);
+    for (let i = 0; i < cols; i++) {
+      const a = data[2 * k * cols + i], b = data[(2 * k + 1) * cols + i];
+      lo[i] = isNaN(a) ? null : a + s.offset;
+      hi[i] = isNaN(b) ? null : b + s.offset;
+    }
+    s.lo = lo; s.hi = hi;
+  });
+  scope.busy = null; $('busy').hidden = true;
+  return head;
+}
+
 let inflight = false;
 async function frame() {
   requestAnimationFrame(frame);
@@ -237,7 +260,7 @@ async function frame() {
   const cols = Math.max(50, Math.min(4096, Math.round(($('panes').clientWidth - 80) * (window.devicePixelRatio || 1))));
   inflight = true;
   try {
-    const v = await api('/api/view?src=' + src + '&t0=' + w[0] + '&t1=' + w[1] + '&cols=' + cols +
+    const v = await viewBin('/api/view?fmt=bin&src=' + src + '&t0=' + w[0] + '&t1=' + w[1] + '&cols=' + cols +
       '&sig=' + encodeURIComponent(sigs.join(',')));
     scope.views += 1;
     for (const p of scope.panes) drawPane(p, v, w[0], w[1]);
