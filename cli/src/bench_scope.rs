@@ -43,6 +43,16 @@ pub struct ScopeBenchArgs {
     /// Seconds between two samples of the scope's resident memory.
     #[arg(long, default_value_t = 5.0)]
     pub rss_every_s: f64,
+    /// Nice value of the scope and the browser (0..19): the viewer yields the CPU to the loop.
+    #[arg(long, default_value_t = 19)]
+    pub viewer_nice: i32,
+    /// Run the scope and the browser under SCHED_IDLE: only on a core the loop leaves idle
+    /// (with a blocking or hybrid wait; a busy loop leaves none).
+    #[arg(long)]
+    pub viewer_idle: bool,
+    /// Also a run with the scope attached but no browser, between the two.
+    #[arg(long)]
+    pub scope_only: bool,
     /// Only the runs with the scope (e.g. a long run for the scope's memory alone).
     #[arg(long)]
     pub with_only: bool,
@@ -82,6 +92,24 @@ fn find_browser(asked: Option<&Path>) -> Result<PathBuf> {
             "no browser on PATH (chromium, chromium-browser or google-chrome): install Debian's \
              `chromium`, or name one with --browser",
         )
+}
+
+/// Makes the child about to be started run at nice value `nice`, under SCHED_IDLE when `idle`
+/// (a viewer yields to the loop).
+fn lower_priority(cmd: &mut Command, nice: i32, idle: bool) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setpriority and sched_setscheduler are async-signal-safe and touch no memory of
+    // the parent.
+    unsafe {
+        cmd.pre_exec(move || {
+            libc::setpriority(libc::PRIO_PROCESS, 0, nice);
+            if idle {
+                let p = libc::sched_param { sched_priority: 0 };
+                libc::sched_setscheduler(0, libc::SCHED_IDLE, &p);
+            }
+            Ok(())
+        });
+    }
 }
 
 /// Resident set of process `pid`, bytes.
@@ -135,6 +163,9 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     if a.cycles == 0 || a.pairs == 0 {
         bail!("--cycles and --pairs must be > 0");
     }
+    if !(0..=19).contains(&a.viewer_nice) {
+        bail!("--viewer-nice {}: 0..19", a.viewer_nice);
+    }
     if !(a.rss_every_s > 0.0 && a.rss_every_s.is_finite()) {
         bail!("--rss-every-s must be a positive number of seconds");
     }
@@ -150,18 +181,16 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     let mut pairs = Vec::new();
     for pair in 0..a.pairs {
         let mut row = serde_json::Map::new();
-        for with_scope in [false, true] {
-            if a.with_only && !with_scope {
+        // without: the loop alone (its recorders publish the scope feed to nobody);
+        // scope_only: `feedloop scope` subscribed, no page; with_scope: and a browser drawing
+        for (kind, name) in [(0u8, "without"), (1, "scope_only"), (2, "with_scope")] {
+            if (a.with_only && kind < 2) || (kind == 1 && !a.scope_only) {
                 continue;
             }
-            let name = if with_scope { "with_scope" } else { "without" };
+            let with_scope = kind > 0;
             let dir = a.out.join(format!("pair{pair}-{name}"));
             std::fs::create_dir_all(&dir)?;
-            let instance = format!(
-                "scopebench{}x{pair}{}",
-                std::process::id(),
-                u8::from(with_scope)
-            );
+            let instance = format!("scopebench{}x{pair}{kind}", std::process::id());
             eprintln!(
                 "bench scope: pair {} of {}, {name}: {} cycles at {:.1} kHz, about {:.0} s",
                 pair + 1,
@@ -190,6 +219,7 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
                 .stdout(Stdio::piped())
                 .stderr(Stdio::null());
             crate::signals::die_with_parent(&mut scope);
+            lower_priority(&mut scope, a.viewer_nice, a.viewer_idle);
             let mut scope = Kill(scope.spawn().context("starting feedloop scope")?);
             let mut line = String::new();
             BufReader::new(scope.0.stdout.take().context("scope's stdout")?)
@@ -223,11 +253,14 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
                 .stdout(Stdio::null())
                 .stderr(Stdio::null());
             crate::signals::die_with_parent(&mut chrome);
-            let chrome = Kill(
-                chrome
-                    .spawn()
-                    .with_context(|| format!("starting {}", browser.display()))?,
-            );
+            lower_priority(&mut chrome, a.viewer_nice, a.viewer_idle);
+            let chrome = if kind == 2 {
+                Some(Kill(chrome.spawn().with_context(|| {
+                    format!("starting {}", browser.display())
+                })?))
+            } else {
+                None
+            };
             let scope_pid = scope.0.id();
             let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
             let stop2 = stop.clone();
@@ -274,7 +307,7 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
                 "rss_max_mb": rss.iter().map(|s| mb(s.1)).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v)))),
                 "lost_blocks": after.as_ref().and_then(|v| v["lost_blocks"].as_u64()),
             });
-            if drawn == 0 {
+            if drawn == 0 && kind == 2 {
                 eprintln!("bench scope: warning: the browser fetched no view during the run");
             }
             row.insert(name.into(), f);
@@ -285,6 +318,7 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
         "what": "the benchmark chain of `bench latency` run alone and with `feedloop scope` \
                  attached and a headless browser drawing its page, in alternating pairs",
         "cycles": a.cycles, "period_s": a.period_s, "wait": wait.id(), "pin": a.pin,
+        "viewer_nice": a.viewer_nice, "viewer_idle": a.viewer_idle,
         "browser": browser.display().to_string(),
         "pairs": pairs,
     });
@@ -295,13 +329,13 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     );
     println!("|---|---|---|---|---|---|---|---|---|");
     for (i, p) in v["pairs"].as_array().into_iter().flatten().enumerate() {
-        for name in ["without", "with_scope"] {
+        for name in ["without", "scope_only", "with_scope"] {
             let f = &p[name];
             if f.is_null() {
                 continue;
             }
             let us = |k: &str| format!("{:.3} us", f[k].as_f64().unwrap_or(f64::NAN));
-            let scope = if name == "with_scope" {
+            let scope = if name != "without" {
                 let s = &f["scope"];
                 (
                     format!("{:.0}", s["views_per_s"].as_f64().unwrap_or(0.0)),

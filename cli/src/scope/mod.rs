@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, Status};
 use feedloop_runtime::scheduler::control::request;
+use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
 use feedloop_runtime::shared::scope::{ScopeRecords, ScopeSubscriber};
 use feedloop_trace::Trace;
 
@@ -48,6 +49,9 @@ pub struct ScopeArgs {
     /// Folder where saved captures go.
     #[arg(long, default_value = "out/scope")]
     pub captures: PathBuf,
+    /// Nice value of the scope process (0..19): a viewer yields the CPU to the loop it watches.
+    #[arg(long, default_value_t = 10)]
+    pub nice: i32,
     /// Stop after this many seconds (0: run until interrupted).
     #[arg(long, default_value_t = 0.0)]
     pub duration_s: f64,
@@ -56,6 +60,10 @@ pub struct ScopeArgs {
 /// Most cycles the ring holds, whatever `--history-s` asks (memory bound: 11 columns of f64
 /// per axis).
 const MAX_RING: usize = 2_000_000;
+/// Pause of the feed when the loop's queue is empty.
+const FEED_PAUSE: Duration = Duration::from_millis(50);
+/// How often the loop's status is asked for (its answer is built in the scheduler's slack).
+const STATUS_EVERY: Duration = Duration::from_secs(1);
 /// A page that has not polled for this long has left; another may attach.
 const LEASE: Duration = Duration::from_secs(3);
 /// Answers to the page's control requests kept for display.
@@ -212,6 +220,11 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
         stop: AtomicBool::new(false),
         views: Default::default(),
     });
+    if !(0..=19).contains(&a.nice) {
+        bail!("--nice {}: 0..19", a.nice);
+    }
+    // SAFETY: plain setpriority on this process.
+    unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, a.nice) };
     crate::signals::install();
     let server = http::bind(&a.bind, a.port)?;
     let addr = server
@@ -273,6 +286,9 @@ pub fn read_trace(p: &Path) -> Result<Trace> {
 /// The live feed: subscribes to the loop's scope services and fills the ring. Survives the loop
 /// not running yet, ending and restarting.
 fn feed(ctx: &Ctx, instance: &str) {
+    // wake when asked, not up to 50 us later (the default timer slack), so the slot holds
+    // SAFETY: plain prctl on the calling thread.
+    unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000, 0, 0, 0) };
     let sub = loop {
         match ScopeSubscriber::open(instance) {
             Ok(s) => break s,
@@ -314,11 +330,9 @@ fn feed(ctx: &Ctx, instance: &str) {
                 was_running = Some(running);
             }
         }
-        let mut got = false;
-        for _ in 0..64 {
+        loop {
             match sub.receive(&mut bad) {
                 Ok(Some(b)) => {
-                    got = true;
                     let restarted = {
                         let mut sh = ctx.lock();
                         sh.bad_blocks = bad;
@@ -375,13 +389,35 @@ fn feed(ctx: &Ctx, instance: &str) {
                 }
             }
         }
-        if !got {
-            std::thread::sleep(Duration::from_millis(2));
+        // Every wake-up of this process takes a core from the loop for a moment on a small
+        // machine. So it drains the queue at once, looks again only FEED_PAUSE later (the queue
+        // holds a quarter of a second), and, like the loop's own recorders, wakes in the slack
+        // of a period rather than at a random moment that may fall on a round trip.
+        let (anchor, period_s) = {
+            let sh = ctx.lock();
+            (sh.store.last_published_ns, sh.store.period_s)
+        };
+        let period_ns = (period_s * 1e9) as u64;
+        let earliest = now_ns() + FEED_PAUSE.as_nanos() as u64;
+        match slack_slot(anchor, period_ns, earliest) {
+            Some(t) => sleep_until_ns(t),
+            None => std::thread::sleep(FEED_PAUSE),
         }
     }
 }
 
-/// Asks the loop's control service for its status twice a second: axes, stages, and the swaps
+/// The first time at or after `earliest_ns` that lies 0.4 of a period after a period's start
+/// (`anchor_ns` is one, `period_ns` long); `None` before the loop's timing is known.
+fn slack_slot(anchor_ns: u64, period_ns: u64, earliest_ns: u64) -> Option<u64> {
+    if anchor_ns == 0 || period_ns == 0 {
+        return None;
+    }
+    let first = anchor_ns + period_ns * 2 / 5;
+    let k = earliest_ns.saturating_sub(first).div_ceil(period_ns);
+    Some(first + k * period_ns)
+}
+
+/// Asks the loop's control service for its status once a second: axes, stages, and the swaps
 /// other clients made.
 fn poll_status(ctx: &Ctx, instance: &str) {
     while !ctx.stop.load(Ordering::Relaxed) {
@@ -423,7 +459,7 @@ fn poll_status(ctx: &Ctx, instance: &str) {
                 }
             }
         }
-        std::thread::sleep(Duration::from_millis(500));
+        std::thread::sleep(STATUS_EVERY);
     }
 }
 
@@ -556,4 +592,18 @@ pub fn capture_trace(cap: &store::Capture, path: &Path, instance: Option<&str>) 
         meta.push(("instance".to_string(), i.to_string()));
     }
     Ok(Trace::from_columns(path, meta, columns, data)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::slack_slot;
+
+    #[test]
+    fn the_feed_wakes_four_tenths_into_a_period_not_before_it_is_due() {
+        assert_eq!(slack_slot(0, 100, 5), None);
+        assert_eq!(slack_slot(1_000, 100, 0), Some(1_040));
+        assert_eq!(slack_slot(1_000, 100, 1_040), Some(1_040));
+        assert_eq!(slack_slot(1_000, 100, 1_041), Some(1_140));
+        assert_eq!(slack_slot(1_000, 100, 987_654), Some(987_740));
+    }
 }

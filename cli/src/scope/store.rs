@@ -171,6 +171,9 @@ pub struct Store {
     prev_flags: u8,
     /// The contour error of a cycle, when the job's path is known.
     pub contour: Option<ContourFn>,
+    /// When the newest plant cycle's sample was published (monotonic clock shared with the
+    /// loop, ns): where the loop's periods start.
+    pub last_published_ns: u64,
 }
 
 impl Store {
@@ -227,6 +230,7 @@ impl Store {
             live,
             prev_flags: 0,
             contour: None,
+            last_published_ns: 0,
         }
     }
 
@@ -382,6 +386,7 @@ impl Store {
                 );
             }
             self.prev_flags = r.flags;
+            self.last_published_ns = r.published_ns;
             self.newest = Some(r.seq);
             self.finish_capture();
         }
