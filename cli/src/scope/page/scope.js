@@ -142,6 +142,8 @@ function drawPane(pane, view, t0, t1) {
   if (c.width !== Math.round(W * dpr)) { c.width = Math.round(W * dpr); c.height = Math.round(H * dpr); }
   const g = c.getContext('2d');
   g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.setLineDash([]);
+  g.textAlign = 'left';
   g.clearRect(0, 0, W, H);
   const L = 70, R = 10, T = 22, B = 30;
   const pw = W - L - R, ph = H - T - B;
@@ -181,11 +183,17 @@ function drawPane(pane, view, t0, t1) {
   // envelopes: one vertical min-max bar per pixel column, joined to the next
   series.forEach((s, k) => {
     const col = COLORS[(scope.state.columns.findIndex((c) => c.name === s.name) + 8) % COLORS.length];
-    g.strokeStyle = col; g.lineWidth = 1.2; g.beginPath();
+    g.strokeStyle = col; g.lineWidth = 1.2; g.setLineDash([]); g.beginPath();
     const n = s.lo.length;
-    let started = false;
+    // Zoomed in beyond one cycle per column, columns without a cycle are normal: the line goes
+    // through them. A longer run of empty columns is a gap in the data and stays open.
+    const period = scope.state.period_s || 0;
+    const perCol = period > 0 ? (t1 - t0) / period / n : 1;
+    const normalGap = perCol < 1 ? Math.ceil(1 / perCol) + 1 : 1;
+    let started = false, empty = 0;
     for (let i = 0; i < n; i++) {
-      if (s.lo[i] === null) { started = false; continue; }
+      if (s.lo[i] === null) { if (++empty > normalGap) started = false; continue; }
+      empty = 0;
       const x = L + (i + 0.5) / n * pw;
       const y0 = Y(s.lo[i]), y1 = Y(s.hi[i]);
       if (!started) { g.moveTo(x, y0); started = true; } else { g.lineTo(x, y0); }
