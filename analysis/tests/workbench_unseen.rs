@@ -27,10 +27,35 @@ use feedloop_analysis::workbench::{
 use feedloop_trace::Trace;
 use heldout::*;
 
-fn tmp(name: &str) -> PathBuf {
+/// A scratch folder, removed when the test that made it passes (kept for a look when it fails):
+/// the suite leaves nothing behind in the temp folder.
+struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::path::Path> for Scratch {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+fn tmp(name: &str) -> Scratch {
     let d = std::env::temp_dir().join(format!("feedloop-unseen-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
-    d
+    Scratch(d)
 }
 
 fn noise(v: f64, seed: u64) -> Noise {
@@ -46,7 +71,7 @@ fn case(
     h: &Hidden,
     nz: Noise,
     smooth: bool,
-) -> (WbModel, AxisData, Diagnosis, Run, PathBuf) {
+) -> (WbModel, AxisData, Diagnosis, Run, CaseTrace) {
     case_on(&Axis::default(), name, h, nz, smooth)
 }
 
@@ -57,7 +82,7 @@ fn case_on(
     h: &Hidden,
     nz: Noise,
     smooth: bool,
-) -> (WbModel, AxisData, Diagnosis, Run, PathBuf) {
+) -> (WbModel, AxisData, Diagnosis, Run, CaseTrace) {
     let dir = tmp(name);
     let mv = Moves {
         smooth,
@@ -68,7 +93,29 @@ fn case_on(
     let m = WbModel::load(&model).unwrap();
     let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
     let dg = diagnose(&m, &d, &DiagOptions::default());
-    (m, d, dg, run, trace)
+    (
+        m,
+        d,
+        dg,
+        run,
+        CaseTrace {
+            path: trace,
+            _dir: dir,
+        },
+    )
+}
+
+/// A case's trace file, and its folder kept as long as the caller holds it.
+struct CaseTrace {
+    path: PathBuf,
+    _dir: Scratch,
+}
+
+impl std::ops::Deref for CaseTrace {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.path
+    }
 }
 
 fn table(dg: &Diagnosis) -> String {
@@ -131,7 +178,7 @@ fn err_of(e: &Errors, channel: &str) -> f64 {
 /// (the first significant candidate is in `expect[0]`'s class or, for two hidden effects, in
 /// either).
 fn check(name: &str, h: Hidden, nz: Noise, smooth: bool, expect: &[&str]) {
-    let (m, d, dg, _, _) = case(name, &h, nz, smooth);
+    let (m, d, dg, _, _case) = case(name, &h, nz, smooth);
     let first = dg.candidates.iter().find(|c| c.significant);
     let Some(top) = first else {
         panic!("{name}: nothing significant; {}", table(&dg));
@@ -196,7 +243,7 @@ fn check(name: &str, h: Hidden, nz: Noise, smooth: bool, expect: &[&str]) {
 
 /// Nothing significant, and the verdict does not claim an effect.
 fn check_right(name: &str, nz: Noise) {
-    let (_, _, dg, _, _) = case(name, &Hidden::default(), nz, true);
+    let (_, _, dg, _, _case) = case(name, &Hidden::default(), nz, true);
     assert!(
         dg.candidates.iter().all(|c| !c.significant),
         "{name}: {}",
@@ -240,7 +287,7 @@ fn a_drive_clamp_recorded_after_clamping_is_named_from_the_controller_channel() 
         &["saturation"],
     );
     // the limit is the one the drive had
-    let (_, _, dg, _, _) = case("clamped-4b", &sat(4.0), noise(0.005, 53), true);
+    let (_, _, dg, _, _case) = case("clamped-4b", &sat(4.0), noise(0.005, 53), true);
     let top = dg.candidates.iter().find(|c| c.significant).unwrap();
     let l = top.params["limit_nm"];
     assert!((l - 4.0).abs() < 0.04, "limit {l}; {}", table(&dg));
@@ -383,7 +430,7 @@ fn an_input_added_after_the_controller_is_named_and_dated_and_declaring_it_close
     );
     // the windowed simulation of the right model on the same moves, seed and noise without
     // pulses: the floor that noise leaves
-    let (m0, d0, _, _, _) = case("pulses-none", &Hidden::default(), noise(0.02, 101), true);
+    let (m0, d0, _, _, _case) = case("pulses-none", &Hidden::default(), noise(0.02, 101), true);
     let w0 = window_sim(&m0, &d0, 0.05).headline_nrmse_pct().unwrap();
     println!(
         "windowed simulation: {w1:.3} % undeclared, {w2:.3} % declared, {w0:.3} % without pulses"
@@ -475,7 +522,7 @@ fn two_hidden_effects_give_both_classes_and_nothing_else() {
         viscous_ns_per_m: 900.0,
         ..Hidden::default()
     };
-    let (m, d, dg, _, _) = case("delay+viscous", &h, noise(0.03, 122), true);
+    let (m, d, dg, _, _case) = case("delay+viscous", &h, noise(0.03, 122), true);
     let top = dg.candidates.iter().find(|c| c.significant).unwrap();
     assert!(
         ["delay", "damping"].contains(&top.class.as_str()),
@@ -526,7 +573,7 @@ fn a_weakly_excited_mode_is_inertia_on_these_moves_and_the_verdict_says_how_to_t
         }),
         ..Hidden::default()
     };
-    let (m, _, dg, _, _) = case("weak-mode", &h, noise(0.01, 131), true);
+    let (m, _, dg, _, _case) = case("weak-mode", &h, noise(0.01, 131), true);
     let top = dg.candidates.iter().find(|c| c.significant).unwrap();
     assert!(
         ["inertia", "mode"].contains(&top.class.as_str()),

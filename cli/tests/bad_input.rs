@@ -7,11 +7,36 @@ fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_feedloop")
 }
 
-fn scratch(name: &str) -> PathBuf {
+/// A scratch folder, removed when the test that made it passes (kept for a look when it fails):
+/// the suite leaves nothing behind in the temp folder.
+struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::path::Path> for Scratch {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+fn scratch(name: &str) -> Scratch {
     let d = std::env::temp_dir().join(format!("feedloop-cli-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    Scratch(d)
 }
 
 const MODEL: &str = r#"kind = "ballscrew"
@@ -36,7 +61,7 @@ duration_s = 0.1
 
 /// Writes the job and model, runs `feedloop <cmd> job.toml --out DIR`, and returns stderr
 /// after checking the exit code is non-zero and that nothing was started (no output folder).
-fn refused(name: &str, cmd: &str, job: &str, model: &str) -> (PathBuf, String) {
+fn refused(name: &str, cmd: &str, job: &str, model: &str) -> (Scratch, String) {
     let d = scratch(name);
     std::fs::write(d.join("m.toml"), model).unwrap();
     std::fs::write(d.join("job.toml"), job).unwrap();

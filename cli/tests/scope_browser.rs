@@ -487,6 +487,8 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
             "scope's command line lacks `{want}`:\n{log}"
         );
     }
+    drop(_run2);
+    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -558,4 +560,5 @@ fn a_recorded_trace_opens_in_the_scope_and_bad_arguments_are_named() {
         .output()
         .unwrap();
     assert!(String::from_utf8_lossy(&o.stderr).contains("invalid instance name"));
+    let _ = std::fs::remove_dir_all(&d);
 }

@@ -345,11 +345,17 @@ fn long_job(dir: &Path, name: &str) -> PathBuf {
 }
 
 /// Starts a realtime run, swaps the example library plugin (with `params`) into axis x's
-/// velocity stage, and returns the run, the swap's output and the out folder.
+/// velocity stage, and returns the run, the swap's output, the out folder and the scratch
+/// folder holding it (kept while the caller holds it).
 fn swap_in_faulty_plugin(
     name: &str,
     params: &str,
-) -> (std::process::Child, std::process::Output, PathBuf) {
+) -> (
+    std::process::Child,
+    std::process::Output,
+    PathBuf,
+    feedloop_tests::Scratch,
+) {
     let dir = scratch(name);
     let lib = feedloop_tests::build_example_plugin(&dir.join("t-plugin"), false);
     let job = long_job(&dir, name);
@@ -367,14 +373,14 @@ fn swap_in_faulty_plugin(
             p.to_str().unwrap(),
         ],
     );
-    (run, o, out)
+    (run, o, out, dir)
 }
 
 #[test]
 fn a_plugin_failing_during_its_probation_is_rolled_back_and_the_loop_runs_on() {
     let _g = process_lock();
     // NaN torque from the 4th cycle on: inside the 10-cycle probation.
-    let (mut run, o, out) = swap_in_faulty_plugin(
+    let (mut run, o, out, _dir) = swap_in_faulty_plugin(
         "probation",
         "kv_nms_per_rad = 5.0\ntest_fault = 2\ntest_fault_after_cycles = 3\n",
     );
@@ -403,7 +409,7 @@ fn a_plugin_failing_during_its_probation_is_rolled_back_and_the_loop_runs_on() {
 fn a_plugin_producing_nan_after_its_probation_stops_the_axes_as_a_plugin_fault() {
     let _g = process_lock();
     for (kind, what) in [("1", "error code"), ("2", "NaN torque")] {
-        let (mut run, o, out) = swap_in_faulty_plugin(
+        let (mut run, o, out, _dir) = swap_in_faulty_plugin(
             &format!("nanlater{kind}"),
             &format!("kv_nms_per_rad = 5.0\ntest_fault = {kind}\ntest_fault_after_cycles = 400\n"),
         );
@@ -433,7 +439,7 @@ fn a_plugin_producing_nan_after_its_probation_stops_the_axes_as_a_plugin_fault()
 #[test]
 fn a_plugin_library_that_crashes_the_scheduler_is_handled_as_a_lost_scheduler() {
     let _g = process_lock();
-    let (mut run, o, out) = swap_in_faulty_plugin(
+    let (mut run, o, out, _dir) = swap_in_faulty_plugin(
         "crash",
         "kv_nms_per_rad = 5.0\ntest_fault = 3\ntest_fault_after_cycles = 400\n",
     );

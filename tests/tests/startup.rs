@@ -56,18 +56,20 @@ fn rogue_scheduler(instance: &str, n: usize, first_delay: Option<Duration>, x_re
     answered
 }
 
-/// The job, a fresh instance name and the plant log's path of one test.
-fn start(name: &str) -> (Job, String, std::path::PathBuf) {
+/// The job, a fresh instance name, the plant log's path of one test and the scratch folder
+/// holding it (kept while the caller holds it).
+fn start(name: &str) -> (Job, String, std::path::PathBuf, feedloop_tests::Scratch) {
     let job = Job::load(&repo_file("examples/jobs/xy-circle.toml")).unwrap();
     let instance = format!("{name}{}", std::process::id());
-    let log = scratch(name).join("plant.log");
-    (job, instance, log)
+    let dir = scratch(name);
+    let log = dir.join("plant.log");
+    (job, instance, log, dir)
 }
 
 #[test]
 fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_start() {
     let _g = feedloop_tests::process_lock();
-    let (job, instance, log) = start("startslow");
+    let (job, instance, log, _dir) = start("startslow");
     let n = job.axes.len();
     let stop = Arc::new(AtomicBool::new(false));
     // 10 kHz with a 200-cycle watchdog: the 60 ms wait for the first answer is 600 periods,
@@ -121,7 +123,7 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
 #[test]
 fn a_scheduler_that_never_answers_is_lost_after_the_start_up_grace_not_before() {
     let _g = feedloop_tests::process_lock();
-    let (job, instance, log) = start("startnever");
+    let (job, instance, log, _dir) = start("startnever");
     let n = job.axes.len();
     let stop = Arc::new(AtomicBool::new(false));
     let t0 = std::time::Instant::now();
