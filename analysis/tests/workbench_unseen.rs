@@ -27,35 +27,13 @@ use feedloop_analysis::workbench::{
 use feedloop_trace::Trace;
 use heldout::*;
 
-/// A scratch folder, removed when the test that made it passes (kept for a look when it fails):
-/// the suite leaves nothing behind in the temp folder.
-struct Scratch(PathBuf);
+#[path = "../../tests/src/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
-impl std::ops::Deref for Scratch {
-    type Target = std::path::Path;
-    fn deref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-impl AsRef<std::path::Path> for Scratch {
-    fn as_ref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
+/// A fresh scratch folder for test `name` (removed when the test passes).
 fn tmp(name: &str) -> Scratch {
-    let d = std::env::temp_dir().join(format!("feedloop-unseen-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    Scratch(d)
+    Scratch::new("unseen", name)
 }
 
 fn noise(v: f64, seed: u64) -> Noise {

@@ -12,36 +12,13 @@ fn examples() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples")
 }
 
-/// A scratch folder, removed when the test that made it passes (kept for a look when it fails):
-/// the suite leaves nothing behind in the temp folder.
-struct Scratch(PathBuf);
+#[path = "../../tests/src/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
-impl std::ops::Deref for Scratch {
-    type Target = std::path::Path;
-    fn deref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-impl AsRef<std::path::Path> for Scratch {
-    fn as_ref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
+/// A fresh scratch folder for test `name` (removed when the test passes).
 fn scratch(name: &str) -> Scratch {
-    let d = std::env::temp_dir().join(format!("feedloop-readme-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    Scratch(d)
+    Scratch::new("readme", name)
 }
 
 fn text(b: &[u8]) -> String {

@@ -90,37 +90,12 @@ pub fn feedloop(args: &[&str]) -> Output {
         .expect("running feedloop")
 }
 
-/// A scratch folder, removed when the test that made it passes (kept for a look when it
-/// fails): the suite leaves nothing behind in the temp folder.
-pub struct Scratch(PathBuf);
+mod scratch;
+pub use scratch::Scratch;
 
-impl std::ops::Deref for Scratch {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl AsRef<Path> for Scratch {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
-/// A fresh scratch folder unique to this process and `name`.
+/// A fresh scratch folder unique to this process and `name` (removed when the test passes).
 pub fn scratch(name: &str) -> Scratch {
-    let d = std::env::temp_dir().join(format!("feedloop-e2e-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("creating a scratch folder");
-    Scratch(d)
+    Scratch::new("e2e", name)
 }
 
 /// Serialises tests that spawn plant/scheduler processes (2 cores: one at a time).
