@@ -23,14 +23,8 @@ fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
 }
 
-/// The first of the usual Chromium names found on PATH.
-fn browser() -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    ["chromium", "chromium-browser", "google-chrome"]
-        .iter()
-        .flat_map(|b| std::env::split_paths(&path).map(move |d| d.join(b)))
-        .find(|p| p.is_file())
-}
+#[path = "support/browser.rs"]
+mod browser;
 
 /// Kills a child process when dropped (a failing test leaves nothing running).
 struct Proc(Child);
@@ -87,6 +81,8 @@ fn http(addr: &str, method: &str, path: &str, session: &str, body: &str) -> (u16
 struct Cdp {
     ws: tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>,
     next: u64,
+    /// The output of the loop under test, shown when a wait fails.
+    run_log: PathBuf,
 }
 
 impl Cdp {
@@ -134,10 +130,7 @@ impl Cdp {
              banner: document.getElementById('banner').textContent, answer: scope.lastAnswer, \
              trigger: scope.state && scope.state.trigger, capture: scope.state && scope.state.capture && scope.state.capture.describe})",
         );
-        let run = std::env::var("SCOPE_E2E_RUN_LOG")
-            .ok()
-            .and_then(|p| std::fs::read_to_string(p).ok())
-            .unwrap_or_default();
+        let run = std::fs::read_to_string(&self.run_log).unwrap_or_default();
         panic!("{what}: not within {secs} s; page: {seen}\nthe loop's output:\n{run}");
     }
 
@@ -211,7 +204,31 @@ fn chromium(browser: &Path, profile: &Path) -> (Proc, Cdp) {
         .expect("a page target")
         .to_string();
     let (ws, _) = tungstenite::connect(ws_url).unwrap();
-    (proc, Cdp { ws, next: 0 })
+    (
+        proc,
+        Cdp {
+            ws,
+            next: 0,
+            run_log: PathBuf::new(),
+        },
+    )
+}
+
+/// `feedloop run JOB --out OUT` in realtime as `instance`, its output in `OUT.out`.
+fn start_run(job: &Path, out: &Path, instance: &str) -> Proc {
+    let log = out.with_extension("out");
+    Proc(
+        Command::new(bin())
+            .arg("run")
+            .arg(job)
+            .arg("--out")
+            .arg(out)
+            .args(["--mode", "realtime", "--instance", instance])
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(std::fs::File::create(log.with_extension("err")).unwrap())
+            .spawn()
+            .unwrap(),
+    )
 }
 
 /// A copy of the circle job running `turns` turns at 4 kHz, with model paths made absolute.
@@ -262,12 +279,7 @@ fn start_scope(args: &[&str]) -> (Proc, String, std::sync::mpsc::Receiver<String
 
 #[test]
 fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_its_capture() {
-    let Some(browser) = browser() else {
-        let msg = "no browser (chromium, chromium-browser or google-chrome) on PATH: scope not tested in a browser";
-        if std::env::var("CI").as_deref() == Ok("true") {
-            panic!("{msg}");
-        }
-        eprintln!("skipped: {msg}");
+    let Some(browser) = browser::browser_or_skip("scope not tested in a browser") else {
         return;
     };
     let shots = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scope-e2e");
@@ -297,19 +309,10 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     // the probe's lease must not block the browser: take over from it below
 
     let job = long_job(&d, 30.0);
-    std::env::set_var("SCOPE_E2E_RUN_LOG", d.join("run.out"));
-    let mut run = Proc(
-        Command::new(bin())
-            .args(["run", job.to_str().unwrap(), "--out"])
-            .arg(d.join("run"))
-            .args(["--mode", "realtime", "--instance", &instance])
-            .stdout(std::fs::File::create(d.join("run.out")).unwrap())
-            .stderr(std::fs::File::create(d.join("run.err")).unwrap())
-            .spawn()
-            .unwrap(),
-    );
+    let mut run = start_run(&job, &d.join("run"), &instance);
 
     let (_chrome, mut cdp) = chromium(&browser, &d.join("profile"));
+    cdp.run_log = d.join("run.out");
     cdp.call("Page.enable", json!({}));
     std::thread::sleep(Duration::from_secs(3)); // the probe's lease runs out
     cdp.call("Page.navigate", json!({"url": format!("http://{addr}/")}));
@@ -451,16 +454,8 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     cdp.screenshot(&shots.join("5-loop-ended.png"));
 
     // The same instance starts again: the page follows the new run.
-    let _run2 = Proc(
-        Command::new(bin())
-            .args(["run", job.to_str().unwrap(), "--out"])
-            .arg(d.join("run2"))
-            .args(["--mode", "realtime", "--instance", &instance])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
+    let _run2 = start_run(&job, &d.join("run2"), &instance);
+    cdp.run_log = d.join("run2.out");
     cdp.wait_for(
         "document.getElementById('banner').textContent.includes('run 2') && scope.state.runs === 2 && scope.state.running",
         30.0,

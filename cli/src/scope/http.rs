@@ -340,13 +340,7 @@ fn columns_json(s: &Store) -> Value {
 }
 
 fn span_json(s: &Store) -> Value {
-    match (s.oldest(), s.newest) {
-        (Some(o), Some(n)) => json!([
-            s.t0_s + o as f64 * s.period_s,
-            s.t0_s + n as f64 * s.period_s
-        ]),
-        _ => Value::Null,
-    }
+    s.span_s().map_or(Value::Null, |(a, b)| json!([a, b]))
 }
 
 /// Everything the page shows besides the curves.
@@ -441,10 +435,7 @@ fn envelopes(ctx: &Ctx, q: &[(String, String)]) -> Result<Option<Envelopes>> {
         o => bail!("src `{o}`: live or capture"),
     };
     let cols = num(q, "cols").unwrap_or(800.0).clamp(1.0, MAX_COLS as f64) as usize;
-    let Some(span) = span_json(s)
-        .as_array()
-        .map(|a| (a[0].as_f64().unwrap_or(0.0), a[1].as_f64().unwrap_or(0.0)))
-    else {
+    let Some(span) = s.span_s() else {
         return Ok(None);
     };
     let t1 = num(q, "t1").unwrap_or(span.1);

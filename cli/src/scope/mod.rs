@@ -16,6 +16,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use feedloop_model::units::si;
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, Status};
 use feedloop_runtime::scheduler::control::request;
 use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
@@ -123,6 +124,26 @@ pub struct Shared {
     contour_job: Option<String>,
     /// Swap cycles already marked (the status lists recent ones again and again).
     seen_swaps: Vec<(u64, String, String)>,
+}
+
+impl Shared {
+    /// A fresh ring for `axes` that keeps the armed trigger and the contour measure.
+    fn renew_store(&mut self, axes: &[String], capacity: usize, period_s: f64) {
+        let mut st = Store::live(axes, capacity);
+        st.period_s = period_s;
+        st.trigger = self.store.trigger.take();
+        st.contour = self.store.contour.take();
+        self.store = st;
+    }
+
+    /// Marks a swap on the plot once (the status lists recent swaps again and again).
+    fn mark_swap(&mut self, ev: &feedloop_runtime::scheduler::control::protocol::SwapEvent) {
+        let key = (ev.cycle, ev.axis.clone(), ev.stage.clone());
+        if !self.seen_swaps.contains(&key) {
+            self.seen_swaps.push(key);
+            self.store.push_swap(ev);
+        }
+    }
 }
 
 /// Everything the server threads need.
@@ -347,13 +368,12 @@ fn feed(ctx: &Ctx, instance: &str) {
                                 .unwrap_or_else(|| {
                                     (0..b.axis_count).map(|i| format!("axis{i}")).collect()
                                 });
-                            let mut st =
-                                Store::live(&names, ring_cycles(ctx.history_s, b.period_s));
-                            st.period_s = b.period_s;
                             // a trigger armed before the loop started waits for it
-                            st.trigger = sh.store.trigger.take();
-                            st.contour = sh.store.contour.take();
-                            sh.store = st;
+                            sh.renew_store(
+                                &names,
+                                ring_cycles(ctx.history_s, b.period_s),
+                                b.period_s,
+                            );
                             sh.seen_swaps.clear();
                             sh.run_id = Some(b.run_id);
                             sh.runs += 1;
@@ -429,19 +449,11 @@ fn poll_status(ctx: &Ctx, instance: &str) {
                 let mut sh = ctx.lock();
                 let names: Vec<String> = st.axes.iter().map(|a| a.axis.clone()).collect();
                 if sh.store.axes != names && sh.store.axes.len() == names.len() {
-                    let fresh_period = sh.store.period_s;
-                    let mut s = Store::live(&names, sh.store.capacity());
-                    s.period_s = fresh_period;
-                    s.trigger = sh.store.trigger.take();
-                    s.contour = sh.store.contour.take();
-                    sh.store = s;
+                    let (capacity, period_s) = (sh.store.capacity(), sh.store.period_s);
+                    sh.renew_store(&names, capacity, period_s);
                 }
                 for ev in &st.recent_swaps {
-                    let key = (ev.cycle, ev.axis.clone(), ev.stage.clone());
-                    if !sh.seen_swaps.contains(&key) {
-                        sh.seen_swaps.push(key);
-                        sh.store.push_swap(ev);
-                    }
+                    sh.mark_swap(ev);
                 }
                 let job = st.job.clone();
                 sh.status = Some(st);
@@ -511,8 +523,8 @@ pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
                 swap.axis,
                 swap.stage,
                 swap.to,
-                store::fmt_num(swap.torque_step, "N m"),
-                store::fmt_num(swap.allowed_step, "N m")
+                si(swap.torque_step, "N m"),
+                si(swap.allowed_step, "N m")
             ),
         ),
         Answer::Refused {
@@ -527,11 +539,7 @@ pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
         swap: Some(swap), ..
     } = &answer
     {
-        let key = (swap.cycle, swap.axis.clone(), swap.stage.clone());
-        if !sh.seen_swaps.contains(&key) {
-            sh.seen_swaps.push(key);
-            sh.store.push_swap(swap);
-        }
+        sh.mark_swap(swap);
     }
     let a = PageAnswer {
         cycle,

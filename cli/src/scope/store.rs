@@ -4,6 +4,7 @@
 
 use std::collections::VecDeque;
 
+use feedloop_model::units::si;
 use feedloop_trace::log::{
     is_deadline_miss, PlantRecord, SchedRecord, REC_OVERRUN, REC_STALL, REC_STOPPING,
 };
@@ -286,6 +287,12 @@ impl Store {
         (seq % self.capacity as u64) as usize
     }
 
+    /// Times of the oldest and the newest cycle held, s.
+    pub fn span_s(&self) -> Option<(f64, f64)> {
+        let t = |k: u64| self.t0_s + k as f64 * self.period_s;
+        Some((t(self.oldest()?), t(self.newest?)))
+    }
+
     /// The oldest cycle still held.
     pub fn oldest(&self) -> Option<u64> {
         self.newest
@@ -401,7 +408,7 @@ impl Store {
                 if r.seq <= prev {
                     continue;
                 }
-                self.lost_sched += r.seq - prev - 1 - u64::from(r.skipped).min(r.seq - prev - 1);
+                self.lost_sched += (r.seq - prev - 1).saturating_sub(u64::from(r.skipped));
             }
             let slot = self.slot(r.seq);
             self.sched_seq[slot] = r.seq;
@@ -426,8 +433,8 @@ impl Store {
             ev.stage,
             ev.from,
             ev.to,
-            fmt_num(ev.torque_step, "N m"),
-            fmt_num(ev.allowed_step, "N m"),
+            si(ev.torque_step, "N m"),
+            si(ev.allowed_step, "N m"),
             ev.reason
                 .as_deref()
                 .map(|r| format!("; {r}"))
@@ -598,27 +605,6 @@ impl Store {
     }
 }
 
-/// A figure with four significant digits and, for metres, a prefix that fits ("12.34 um").
-pub fn fmt_num(v: f64, unit: &str) -> String {
-    if !v.is_finite() {
-        return "n/a".into();
-    }
-    let a = v.abs();
-    let (scale, prefix) = match (unit, a) {
-        ("m", a) if a > 0.0 && a < 1e-6 => (1e9, "n"),
-        ("m", a) if a > 0.0 && a < 1e-3 => (1e6, "u"),
-        ("m", a) if a > 0.0 && a < 1.0 => (1e3, "m"),
-        _ => (1.0, ""),
-    };
-    let x = v * scale;
-    let digits = if x == 0.0 {
-        0
-    } else {
-        (3 - x.abs().log10().floor() as i32).clamp(0, 12) as usize
-    };
-    format!("{x:.digits$} {prefix}{unit}")
-}
-
 /// The unit a trace column is in, from its name (trace format v1).
 pub fn unit_of(column: &str) -> &'static str {
     let signal = column.rsplit('.').next().unwrap_or(column);
@@ -657,15 +643,6 @@ mod tests {
         let mut s = Store::live(&["x".to_string()], 1000);
         s.period_s = 1e-3;
         s
-    }
-
-    #[test]
-    fn figures_keep_four_significant_digits_and_a_fitting_prefix() {
-        assert_eq!(fmt_num(0.000123456, "N m"), "0.0001235 N m");
-        assert_eq!(fmt_num(12.5e-6, "m"), "12.50 um");
-        assert_eq!(fmt_num(-3.0e-9, "m"), "-3.000 nm");
-        assert_eq!(fmt_num(0.0, "N m"), "0 N m");
-        assert_eq!(fmt_num(f64::NAN, "m"), "n/a");
     }
 
     #[test]
