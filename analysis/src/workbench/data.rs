@@ -13,7 +13,9 @@ use feedloop_trace::Trace;
 
 use super::controller::{best_law, HeldLaw, Law};
 use super::effects::WbModel;
-use super::signal::{block_centres, block_means, derivative, derivative_fine, filtfilt_butter4};
+use super::signal::{
+    block_centres, block_means, derivative, derivative_fine, filtfilt_butter4, zoh_mid,
+};
 use super::WorkbenchError;
 
 /// How the trace is prepared.
@@ -515,18 +517,7 @@ pub fn load_axis_held(
     // the torque acting between samples k - 1 and k, in block means
     let torque_raw = torque.map(|y| {
         (0..y.len() / q)
-            .map(|b| {
-                (b * q..(b + 1) * q)
-                    .map(|k| {
-                        if k == 0 {
-                            y[0]
-                        } else {
-                            0.5 * (y[k - 1] + y[k])
-                        }
-                    })
-                    .sum::<f64>()
-                    / q as f64
-            })
+            .map(|b| (b * q..(b + 1) * q).map(|k| zoh_mid(&y, k)).sum::<f64>() / q as f64)
             .collect()
     });
     let nh = t.len();
@@ -634,15 +625,7 @@ mod tests {
         );
         // the torque acting between samples: the half-sample alignment, then the block means
         let y = full.torque_raw.as_deref().unwrap();
-        let aligned: Vec<f64> = (0..y.len())
-            .map(|k| {
-                if k == 0 {
-                    y[0]
-                } else {
-                    0.5 * (y[k - 1] + y[k])
-                }
-            })
-            .collect();
+        let aligned: Vec<f64> = (0..y.len()).map(|k| zoh_mid(y, k)).collect();
         let want = block_means(&aligned, q);
         for (a, b) in held.torque_raw.as_deref().unwrap().iter().zip(&want) {
             assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0));

@@ -18,7 +18,7 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::{read_toml_file, ConfigError};
 
 use super::data::AxisData;
-use super::signal::{quantile, sub_sample_means};
+use super::signal::{quantile, sub_sample_means, zoh_mid};
 use super::WorkbenchError;
 
 pub use feedloop_model::{EffectId, Side};
@@ -716,15 +716,7 @@ impl WbModel {
     /// the torque acting around sample k (where the central differences are centred) is the mean
     /// of commands k-1 and k: that half-sample alignment comes first.
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
-        let aligned: Vec<f64> = (0..y.len())
-            .map(|k| {
-                if k == 0 {
-                    y[0]
-                } else {
-                    0.5 * (y[k - 1] + y[k])
-                }
-            })
-            .collect();
+        let aligned: Vec<f64> = (0..y.len()).map(|k| zoh_mid(y, k)).collect();
         self.path_effects(aligned, dt, 1)
     }
 

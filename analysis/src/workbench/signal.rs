@@ -102,6 +102,18 @@ pub fn derivative(x: &[f64], dt: f64) -> Vec<f64> {
     d
 }
 
+/// The command acting around sample `k` of a zero-order-held record `y`: the mean of commands
+/// `k - 1` and `k` (a command recorded at sample k is held over the following period), `y[0]` at
+/// the start. Indexed, so a long record is aligned without a copy.
+#[inline]
+pub fn zoh_mid(y: &[f64], k: usize) -> f64 {
+    if k == 0 {
+        y[0]
+    } else {
+        0.5 * (y[k - 1] + y[k])
+    }
+}
+
 /// Means of `x` over consecutive blocks of `q` samples (`x.len() / q` values; a last,
 /// incomplete block is left out). A block's mean stands for the value at its centre.
 pub fn block_means(x: &[f64], q: usize) -> Vec<f64> {

@@ -813,18 +813,10 @@ mod tests {
         let t = 1e-4;
         let mut out = Vec::new();
         for k in 0..300 {
-            let ts = k as f64 * t;
             // velocity is zero at k = 100 and positive after: t_r = 10 ms
             let mut io = AxisSignals::default();
             io.reference[1] = (k as f64 - 100.0) * 1e-3 * 100.0;
-            c.step(
-                &CycleContext {
-                    period_s: t,
-                    cycle: k,
-                    t_s: ts,
-                },
-                &mut io,
-            );
+            c.step(&at(k, t), &mut io);
             out.push(io.vel_cmd);
         }
         assert!(out[..101].iter().all(|&v| v == 0.0));
@@ -902,14 +894,7 @@ mod tests {
             let mut io = AxisSignals::default();
             io.reference[1] = (k as f64 - 100.5) * 0.1;
             io.reference[2] = 0.1 / t;
-            c.step(
-                &CycleContext {
-                    period_s: t,
-                    cycle: k,
-                    t_s: ts,
-                },
-                &mut io,
-            );
+            c.step(&at(k, t), &mut io);
             let [d, r, ..] = early.eval(ts - t_r);
             let expect = (50.0 * d + r) * 100.0;
             assert!(
