@@ -18,7 +18,7 @@ use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
-use feedloop_runtime::shared::pingpong::{echo, ping, PingPong};
+use feedloop_runtime::shared::pingpong::{echo, ping, EchoStamp, PingPong};
 use feedloop_runtime::shared::rt::{apply, RtRequest};
 
 /// Benchmark subcommands.
@@ -55,6 +55,12 @@ pub enum BenchCmd {
         /// --cycles, at most 100,000; 0 skips it).
         #[arg(long)]
         pingpong_cycles: Option<u64>,
+        /// Slices the run into this many parts, each preceded by its share of the ping-pong, so
+        /// that the loop and its floor see the same states of the host (which can move the floor
+        /// 2.5x within minutes); the figures pool all parts. Default: one part per 60,000
+        /// cycles, at most 10. The parts' logs go to `segment-K/` in --out.
+        #[arg(long)]
+        segments: Option<u64>,
     },
     /// One table row per `latency.json` (of `bench latency` runs, e.g. from
     /// `scripts/latency-series`): the host's state, the bare ping-pong, the loop, their ratio,
@@ -77,6 +83,9 @@ pub enum BenchCmd {
         /// CPU to pin to.
         #[arg(long)]
         cpu: Option<usize>,
+        /// Where to write the echo's timings of the timed pings.
+        #[arg(long)]
+        stamps: PathBuf,
     },
 }
 
@@ -92,8 +101,10 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             out,
             reference_s,
             pingpong_cycles,
+            segments,
         } => latency(&LatencyOpts {
             pingpong_cycles: pingpong_cycles.unwrap_or(cycles.min(100_000)),
+            segments: segments.unwrap_or(cycles.div_ceil(60_000).clamp(1, 10)),
             cycles,
             period_s,
             wait,
@@ -104,15 +115,26 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
         }),
         BenchCmd::Table { runs } => table(&runs),
         BenchCmd::Scope(a) => crate::bench_scope::run(&a),
-        BenchCmd::PingEcho { instance, cpu } => {
+        BenchCmd::PingEcho {
+            instance,
+            cpu,
+            stamps,
+        } => {
             // best effort, as for the ping side: what was refused only makes the floor slower
             apply(&RtRequest {
                 mlockall: true,
                 fifo_priority: None,
                 cpu,
             });
-            echo(&instance, Duration::from_secs(30))
+            let (_, st) = echo(&instance, Duration::from_secs(30))
                 .map_err(|e| anyhow::anyhow!("ping-pong echo: {e}"))?;
+            let bytes: Vec<u8> = st
+                .iter()
+                .flat_map(|s| [s.seq, s.received_ns, s.publish_ns, s.published_ns])
+                .flat_map(u64::to_le_bytes)
+                .collect();
+            std::fs::write(&stamps, bytes)
+                .with_context(|| format!("writing {}", stamps.display()))?;
             Ok(ExitCode::SUCCESS)
         }
     }
@@ -121,11 +143,19 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
 /// The bare iceoryx2 ping-pong of the loop's messages (`axis_count` axes) between this process
 /// (a thread pinned to the first of `cpus`) and an echo process (on the second): `n` round
 /// trips back to back, then `n` one per `period_ns`.
-fn pingpong(cpus: &[usize], period_ns: u64, n: u64, axis_count: u32) -> Result<PingPong> {
+fn pingpong(
+    cpus: &[usize],
+    period_ns: u64,
+    n: u64,
+    axis_count: u32,
+    dir: &Path,
+) -> Result<(PingPong, Vec<EchoStamp>)> {
     let instance = format!("pingpong{}", std::process::id());
     let exe = std::env::current_exe().context("locating the feedloop binary")?;
+    let stamps = dir.join("pingpong-echo.bin");
     let mut cmd = std::process::Command::new(exe);
-    cmd.args(["bench", "ping-echo", "--instance", &instance]);
+    cmd.args(["bench", "ping-echo", "--instance", &instance, "--stamps"]);
+    cmd.arg(&stamps);
     if let Some(c) = cpus.get(1) {
         cmd.args(["--cpu", &c.to_string()]);
     }
@@ -159,7 +189,19 @@ fn pingpong(cpus: &[usize], period_ns: u64, n: u64, axis_count: u32) -> Result<P
             bail!("the ping-pong echo process failed ({s})");
         }
     }
-    Ok(pp)
+    let bytes = std::fs::read(&stamps).with_context(|| format!("reading {}", stamps.display()))?;
+    let _ = std::fs::remove_file(&stamps);
+    let word = |c: &[u8]| u64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
+    let st = bytes
+        .chunks_exact(32)
+        .map(|c| EchoStamp {
+            seq: word(&c[0..8]),
+            received_ns: word(&c[8..16]),
+            publish_ns: word(&c[16..24]),
+            published_ns: word(&c[24..32]),
+        })
+        .collect();
+    Ok((pp, st))
 }
 
 const JOB: &str = include_str!("../../examples/jobs/xc-full-chain.toml");
@@ -209,6 +251,7 @@ struct LatencyOpts {
     out: PathBuf,
     reference_s: f64,
     pingpong_cycles: u64,
+    segments: u64,
 }
 
 fn latency(o: &LatencyOpts) -> Result<ExitCode> {
@@ -254,40 +297,87 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     } else {
         (Value::Null, None)
     };
-    let pp = if pingpong_cycles > 0 {
+    let segments = o.segments.clamp(1, cycles);
+    if segments > 1 {
         eprintln!(
-            "bench latency: bare iceoryx2 ping-pong of the loop's messages, {pingpong_cycles} \
-             round trips back to back and {pingpong_cycles} one per period"
+            "bench latency: {segments} parts, each its share of the ping-pong, then of the run"
         );
-        Some(pingpong(&probe_cpus, period_ns, pingpong_cycles, 2)?)
-    } else {
-        None
-    };
-    eprintln!(
-        "bench latency: {cycles} cycles at {:.1} kHz, wait {wait}, about {:.1} s",
-        1e-3 / period_s,
-        cycles as f64 * period_s
-    );
+    }
     let instance = format!("bench{}", std::process::id());
-    run_processes(&job, out, wait_kind, cycles, &cpus, fifo, &instance)?;
+    // the parts' records joined as one run: each part's cycle numbers shifted past the last
+    let mut recs: Vec<PlantRecord> = Vec::with_capacity(cycles as usize);
+    let mut sched: Vec<SchedRecord> = Vec::with_capacity(cycles as usize);
+    let mut pp: Option<PingPong> = None;
+    let mut stamps: Vec<TimedPings> = Vec::new();
+    let mut last_dir = out.to_path_buf();
+    for k in 0..segments {
+        let share = |n: u64| n / segments + u64::from(k < n % segments);
+        if pingpong_cycles > 0 {
+            eprintln!(
+                "bench latency: bare iceoryx2 ping-pong of the loop's messages, {} round trips \
+                 back to back and {} one per period",
+                share(pingpong_cycles),
+                share(pingpong_cycles)
+            );
+            let (p, st) = pingpong(&probe_cpus, period_ns, share(pingpong_cycles), 2, out)?;
+            let all = pp.get_or_insert_with(PingPong::default);
+            all.back_to_back_ns.extend(&p.back_to_back_ns);
+            all.paced_ns.extend(&p.paced_ns);
+            stamps.push((p.stamped, st));
+        }
+        let n = share(cycles);
+        eprintln!(
+            "bench latency: {n} cycles at {:.1} kHz, wait {wait}, about {:.1} s{}",
+            1e-3 / period_s,
+            n as f64 * period_s,
+            if segments > 1 {
+                format!(" (part {} of {segments})", k + 1)
+            } else {
+                String::new()
+            }
+        );
+        let dir = if segments > 1 {
+            out.join(format!("segment-{}", k + 1))
+        } else {
+            out.to_path_buf()
+        };
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        run_processes(&job, &dir, wait_kind, n, &cpus, fifo, &instance)?;
+        let base = recs.last().map_or(0, |r| r.seq + 1_000);
+        let mut p = read_log::<PlantRecord>(&dir.join("plant.log"))?.records;
+        let mut s = read_log::<SchedRecord>(&dir.join("scheduler.log"))
+            .map(|l| l.records)
+            .unwrap_or_default();
+        p.iter_mut().for_each(|r| r.seq += base);
+        s.iter_mut().for_each(|r| r.seq += base);
+        recs.extend(p);
+        sched.extend(s);
+        last_dir = dir;
+    }
     // the same ping-pong again just after: how far the host's state moved during the run
     let pp_after = if pingpong_cycles > 0 {
         eprintln!("bench latency: the ping-pong again, after the run");
-        Some(pingpong(&probe_cpus, period_ns, pingpong_cycles, 2)?)
+        Some(
+            pingpong(
+                &probe_cpus,
+                period_ns,
+                pingpong_cycles.div_ceil(segments),
+                2,
+                out,
+            )?
+            .0,
+        )
     } else {
         None
     };
-    let recs = read_log::<PlantRecord>(&out.join("plant.log"))?.records;
     let figures = RunFigures::from_records(&recs)?;
     // Which misses fell while the scheduler had lost its core (it records, per answered cycle,
     // the longest stretch without a poll): such a miss is the machine's, not the loop's.
-    let sched = read_log::<SchedRecord>(&out.join("scheduler.log"))
-        .map(|l| l.records)
-        .unwrap_or_default();
     let attribution = attribute_misses(&recs, &sched, period_ns);
     let parts = Breakdown::from_records(&recs, &sched)?;
     let pingpong_json = match (&pp, &pp_after) {
         (Some(pp), Some(after)) => {
+            let parts = pingpong_parts(&stamps)?;
             let after_paced = ns_histogram_of(&after.paced_ns)?;
             let after_b2b = ns_histogram_of(&after.back_to_back_ns)?;
             let b2b = ns_histogram_of(&pp.back_to_back_ns)?;
@@ -297,9 +387,11 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
                 q(&figures.latency, p) / q(h, p).max(1.0)
             };
             json!({
-                "what": "the loop's own SensorSample / ActuatorCommand (2 axes) through the same \
-                         endpoints between two processes on the same CPUs, measured just before \
-                         the run",
+                "what": "the loop's own SensorSample / ActuatorCommand (2 axes) through plain \
+                         iceoryx2 ports on services configured as the loop's, between two \
+                         processes on the same CPUs, measured just before the run (before each \
+                         of its parts)",
+                "segments": segments,
                 "back_to_back_us": hist_json(&b2b),
                 "paced_us": hist_json(&paced),
                 "ratio": {
@@ -310,6 +402,7 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
                     "p50_after": ratio(&after_paced, 0.5),
                     "p99_after": ratio(&after_paced, 0.99),
                 },
+                "breakdown_us": parts,
                 "after": {
                     "what": "the same ping-pong just after the run (the host's drift)",
                     "back_to_back_us": hist_json(&after_b2b),
@@ -319,10 +412,11 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         }
         _ => Value::Null,
     };
-    let plant_info = read_json(&out.join("plant.json")).unwrap_or(Value::Null);
-    let sched_info = read_json(&out.join("scheduler.json")).unwrap_or(Value::Null);
+    let plant_info = read_json(&last_dir.join("plant.json")).unwrap_or(Value::Null);
+    let sched_info = read_json(&last_dir.join("scheduler.json")).unwrap_or(Value::Null);
     let v = json!({
         "cycles": recs.len(),
+        "segments": segments,
         "period_s": period_s,
         "wait": wait_kind.id(),
         "latency_us": hist_json(&figures.latency),
@@ -385,6 +479,46 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         out.join("latency.svg").display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// One ping-pong's timed pings: the pinger's `(seq, sent, answer held)` and the echo's stamps.
+type TimedPings = (Vec<(u64, u64, u64)>, Vec<EchoStamp>);
+
+/// The timed pings of a ping-pong in parts (as `latency.json`'s `iceoryx_pingpong.breakdown_us`):
+/// per ping-pong, the pinger's readings `(seq, sent, answer held)` joined with the echo's of the
+/// same seq.
+fn pingpong_parts(pings: &[TimedPings]) -> Result<Value> {
+    let mut parts: Vec<Vec<u64>> = vec![Vec::new(); 4];
+    for (pinger, echo) in pings {
+        let by_seq: std::collections::HashMap<u64, &EchoStamp> =
+            echo.iter().map(|e| (e.seq, e)).collect();
+        for (seq, t0, t1) in pinger {
+            let Some(e) = by_seq.get(seq) else { continue };
+            // as the loop's parts: each from the last reading before it (the echo's reading
+            // after its publication can fall after the pinger already holds the answer)
+            let marks = [*t0, e.received_ns, e.publish_ns, e.published_ns, *t1];
+            for (i, w) in marks.windows(2).enumerate() {
+                parts[i].push(w[1].saturating_sub(w[0]).max(1));
+            }
+        }
+    }
+    let h = |v: &[u64]| -> Result<Value> {
+        Ok(if v.is_empty() {
+            Value::Null
+        } else {
+            hist_json(&ns_histogram_of(v)?)
+        })
+    };
+    Ok(json!({
+        "what": "one paced ping in 8, timed by the echo too: publication -> the sample copied out \
+                 at the echo; -> the answer's publication starts; -> published; -> the pinger \
+                 holds the answer",
+        "pings": parts[0].len(),
+        "to_echo": h(&parts[0])?,
+        "turnaround": h(&parts[1])?,
+        "publish": h(&parts[2])?,
+        "to_pinger": h(&parts[3])?,
+    }))
 }
 
 /// The sleeping and the spinning reference loop on `cpus`, `seconds` each, as `latency.json`'s
@@ -543,6 +677,19 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
             x("p50_after"),
             x("p99_after"),
         );
+        let pb = &pp["breakdown_us"];
+        if !pb["to_echo"].is_null() {
+            let part = |k: &str| format!("{} / {}", us(&pb[k]["p50"]), us(&pb[k]["p99"]));
+            println!(
+                "ping-pong in parts (p50 / p99, {} timed pings): to the echo, sample copied out \
+                 {}, turnaround {}, publish {}, back to the pinger {}",
+                pb["pings"],
+                part("to_echo"),
+                part("turnaround"),
+                part("publish"),
+                part("to_pinger"),
+            );
+        }
     }
 }
 
