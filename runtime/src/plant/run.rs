@@ -308,6 +308,8 @@ pub fn run_plant<P: PlantDevice>(
         let mut latency_ns = u64::MAX;
         if stopping.is_none() {
             ep.send(sample)?;
+            // the next sample's loan, while the command is on its way
+            ep.prepare_next(&sample);
             while let WaitOutcome::Got(c) = if k == 0 {
                 // the start-up wait can be long: an operator stop ends it
                 ep.receive_until_or_stop(cmd_deadline, stop)?

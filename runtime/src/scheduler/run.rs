@@ -113,6 +113,8 @@ pub fn run_scheduler(
     let mut rec =
         Recorder::<SchedRecord>::start_with_tap(log_path, 1 << 16, Some(tap)).map_err(log_err)?;
     let mut cmd = ActuatorCommand::empty(axis_count as u32, tag);
+    // the sample being answered (received into, cycle after cycle)
+    let mut s = SensorSample::empty(axis_count as u32, tag);
     let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
     hello.flags = FLAG_HELLO;
     let start_timeout = (cfg.peer_timeout_s * 1e9) as u64;
@@ -147,12 +149,19 @@ pub fn run_scheduler(
         let deadline = now_ns() + wait.max(1);
         // before the start an operator stop (or the launcher's death) ends the wait at once
         let got = if started {
-            ep.receive_until(deadline)?
+            // into the buffer kept across cycles: no copy of the whole sample on the way
+            ep.receive_until_into(deadline, &mut s)?
         } else {
-            ep.receive_until_or_stop(deadline, stop)?
+            match ep.receive_until_or_stop(deadline, stop)? {
+                WaitOutcome::Got(m) => {
+                    s = m;
+                    WaitOutcome::Got(())
+                }
+                WaitOutcome::TimedOut => WaitOutcome::TimedOut,
+            }
         };
-        let mut s = match got {
-            WaitOutcome::Got(s) => s,
+        match got {
+            WaitOutcome::Got(()) => {}
             WaitOutcome::TimedOut => {
                 if !started && stop.load(std::sync::atomic::Ordering::Relaxed) {
                     out.end = SchedulerEnd::OperatorStop { cycle: 0 };
@@ -176,9 +185,15 @@ pub fn run_scheduler(
             }
         };
         // Realtime catch-up: answer the newest sample; every other queued one is either skipped
-        // (older than the newest, but not answered before) or a sequence fault (counted).
+        // (older than the newest, but not answered before) or a sequence fault (counted). Only
+        // needed when the sample was already waiting: one that came while we polled is the
+        // newest, the next is a period away.
         let mut skipped = 0u32;
-        if started {
+        if started && ep.waited() {
+            if !accept(&mut out, next_seq, &s) {
+                continue;
+            }
+        } else if started {
             let mut best = screen(&mut out, next_seq, None, s);
             while let Some(newer) = ep.try_receive()? {
                 if newer.flags & FLAG_HELLO == 0 {
@@ -246,7 +261,7 @@ pub fn run_scheduler(
             c.before_cycle(cycle, s.seq);
         }
         let c0 = now_ns();
-        if cfg.mode == Mode::Realtime && s.seq % 1024 == 0 {
+        if cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
             // samples arrive at the plant's cycle starts: keep the writer in the slack after them
             rec.set_phase(c0, (cycle.period_s() * 1e9) as u64);
         }
@@ -279,6 +294,7 @@ pub fn run_scheduler(
         ep.send(cmd)?;
         prev_end_ns = now_ns();
         lost_ns = lost_ns.max(prev_end_ns - c1);
+        ep.prepare_next(&cmd);
         if let Some(c) = control.as_deref_mut() {
             c.after_cycle(cycle, &cmd, s.seq);
         }
@@ -322,6 +338,20 @@ pub fn run_scheduler(
     Ok(out)
 }
 
+/// [`screen`] of a sample with no other queued (`best` = `None`), without copying it: whether
+/// to answer it.
+fn accept(out: &mut SchedulerOutcome, next_seq: u64, m: &SensorSample) -> bool {
+    if m.flags & FLAG_END != 0 || m.seq >= next_seq {
+        return true;
+    }
+    if m.seq + 1 == next_seq {
+        out.duplicated += 1;
+    } else {
+        out.out_of_order += 1;
+    }
+    false
+}
+
 /// Keeps the sample to answer among `best` and the newly received `m`: a sample behind the last
 /// answered one is counted (`duplicated` when it repeats the last answered number or the one
 /// already held, `out_of_order` otherwise) and dropped; of two valid ones the newer wins. The
@@ -348,4 +378,53 @@ fn screen(
         return best;
     }
     Some(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outcome() -> SchedulerOutcome {
+        SchedulerOutcome {
+            end: SchedulerEnd::Completed,
+            commands: 0,
+            out_of_order: 0,
+            duplicated: 0,
+            skipped: 0,
+            missing: 0,
+            dropped_records: 0,
+        }
+    }
+
+    #[test]
+    fn a_lone_sample_is_judged_as_the_catch_up_judges_it() {
+        let next_seq = 10;
+        for seq in [0u64, 5, 8, 9, 10, 11, 40] {
+            for flags in [0, FLAG_END] {
+                let mut m = SensorSample::empty(2, 1);
+                m.seq = seq;
+                m.flags = flags;
+                let (mut a, mut b) = (outcome(), outcome());
+                let kept = screen(&mut a, next_seq, None, m).is_some();
+                assert_eq!(
+                    accept(&mut b, next_seq, &m),
+                    kept,
+                    "seq {seq} flags {flags}"
+                );
+                assert_eq!(
+                    (a.duplicated, a.out_of_order),
+                    (b.duplicated, b.out_of_order),
+                    "seq {seq} flags {flags}"
+                );
+            }
+        }
+        // a repeat of the last answered cycle is a duplicate, an older one out of order
+        let mut o = outcome();
+        let mut m = SensorSample::empty(2, 1);
+        m.seq = 9;
+        assert!(!accept(&mut o, 10, &m));
+        m.seq = 3;
+        assert!(!accept(&mut o, 10, &m));
+        assert_eq!((o.duplicated, o.out_of_order), (1, 1));
+    }
 }

@@ -21,6 +21,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
 
 use crate::shared::wire::{ActuatorCommand, SensorSample, WireMessage};
 use feedloop_model::job::WaitKind;
@@ -112,11 +113,11 @@ fn service_name(instance: &str, leaf: &str) -> Result<ServiceName, IpcError> {
         .map_err(|e| setup_err(format!("name service {leaf}"), e))
 }
 
-type PsFactory<T> =
+pub(crate) type PsFactory<T> =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
 type EvFactory = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
 
-fn pubsub<T: std::fmt::Debug + ZeroCopySend>(
+pub(crate) fn pubsub<T: std::fmt::Debug + ZeroCopySend>(
     node: &Node<ipc::Service>,
     instance: &str,
     leaf: &str,
@@ -150,6 +151,9 @@ pub struct Endpoint<
     subscriber: Subscriber<ipc::Service, In, ()>,
     notifier: Notifier<ipc::Service>,
     listener: Listener<ipc::Service>,
+    /// The next message's shared-memory sample, loaned and filled with the last message in the
+    /// slack after a send (see [`Endpoint::send`]).
+    next: Cell<Option<SampleMut<ipc::Service, Out, ()>>>,
     out_service: PsFactory<Out>,
     in_service: PsFactory<In>,
     wait: WaitKind,
@@ -160,6 +164,8 @@ pub struct Endpoint<
     last_poll_ns: Cell<u64>,
     /// Clock reading at the start of the last `receive_until`, ns.
     wait_start_ns: Cell<u64>,
+    /// Whether the last `receive_until` polled an empty queue before its message came.
+    waited: Cell<bool>,
     // keep the node alive as long as the ports
     _node: Node<ipc::Service>,
 }
@@ -214,7 +220,7 @@ pub enum WaitOutcome<T> {
 
 impl<Out, In> Endpoint<Out, In>
 where
-    Out: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+    Out: std::fmt::Debug + ZeroCopySend + WireMessage + 'static,
     In: std::fmt::Debug + ZeroCopySend + WireMessage + 'static,
 {
     fn open(
@@ -249,6 +255,7 @@ where
             subscriber,
             notifier,
             listener,
+            next: Cell::new(None),
             out_service,
             in_service,
             wait,
@@ -256,6 +263,7 @@ where
             poll_gap_ns: Cell::new(0),
             last_poll_ns: Cell::new(0),
             wait_start_ns: Cell::new(0),
+            waited: Cell::new(false),
             _node: node,
         })
     }
@@ -266,25 +274,54 @@ where
             && self.in_service.dynamic_config().number_of_publishers() >= 1
     }
 
-    /// Publishes `msg` (zero-copy loan) and, for blocking/hybrid peers, notifies the event.
+    /// Publishes `msg` and, for blocking/hybrid peers, notifies the event.
+    ///
+    /// If [`Endpoint::prepare_next`] ran since the last send, the shared-memory sample is
+    /// already loaned and its cache lines are this core's: the send writes only the header and
+    /// the used axes ([`WireMessage::write_used`]) and hands the sample over. Otherwise it
+    /// loans one and writes the whole message.
     pub fn send(&self, msg: Out) -> Result<(), IpcError> {
         IN_SEND.with(|f| f.set(true));
-        let sent = self
-            .publisher
-            .loan_uninit()
-            .map(|sample| sample.write_payload(msg).send());
+        let sent = self.publish(msg);
         IN_SEND.with(|f| f.set(false));
-        match sent {
-            Ok(Ok(_)) => {}
-            Ok(Err(e)) => return Err(IpcError::Send(format!("{e:?}"))),
-            Err(e) => return Err(IpcError::Send(format!("{e:?}"))),
-        }
+        sent?;
         if self.wait != WaitKind::Busy {
             self.notifier
                 .notify()
                 .map_err(|e| IpcError::Send(format!("{e:?}")))?;
         }
         Ok(())
+    }
+
+    /// Loans the next message's sample and fills it with `template` (the message just sent),
+    /// off the round trip: the plant calls it while its command is on the way, the scheduler
+    /// in its slack. A failed loan is only retried by the next send.
+    pub fn prepare_next(&self, template: &Out) {
+        IN_SEND.with(|f| f.set(true));
+        if let Ok(s) = self.publisher.loan_uninit() {
+            // a sample still held is given back to the publisher by its drop
+            self.next.set(Some(s.write_payload(*template)));
+        }
+        IN_SEND.with(|f| f.set(false));
+    }
+
+    #[inline]
+    fn publish(&self, msg: Out) -> Result<(), IpcError> {
+        let sample = match self.next.take() {
+            Some(mut s) => {
+                msg.write_used(s.payload_mut());
+                s
+            }
+            None => self
+                .publisher
+                .loan_uninit()
+                .map_err(|e| IpcError::Send(format!("{e:?}")))?
+                .write_payload(msg),
+        };
+        sample
+            .send()
+            .map(|_| ())
+            .map_err(|e| IpcError::Send(format!("{e:?}")))
     }
 
     /// Takes the next message if one is there (no waiting).
@@ -297,9 +334,38 @@ where
         }
     }
 
+    /// Copies the next message into `dst` if one is there (no waiting): its header and used
+    /// axes ([`WireMessage::write_used`]), the rest of `dst` left as it was. `Ok(true)` when a
+    /// message was copied.
+    #[inline]
+    pub fn try_receive_into(&self, dst: &mut In) -> Result<bool, IpcError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => {
+                s.payload().write_used(dst);
+                Ok(true)
+            }
+            Ok(None) => Ok(false),
+            Err(e) => Err(IpcError::Receive(format!("{e:?}"))),
+        }
+    }
+
     /// Waits for the next message until the monotonic time `deadline_ns` (see
     /// [`crate::shared::clock::now_ns`]), with this endpoint's wait strategy.
     pub fn receive_until(&self, deadline_ns: u64) -> Result<WaitOutcome<In>, IpcError> {
+        let mut m = In::zeroed();
+        Ok(match self.receive_until_into(deadline_ns, &mut m)? {
+            WaitOutcome::Got(()) => WaitOutcome::Got(m),
+            WaitOutcome::TimedOut => WaitOutcome::TimedOut,
+        })
+    }
+
+    /// [`Endpoint::receive_until`] into `dst` ([`Endpoint::try_receive_into`]): no copy of
+    /// the whole message on the way.
+    pub fn receive_until_into(
+        &self,
+        deadline_ns: u64,
+        dst: &mut In,
+    ) -> Result<WaitOutcome<()>, IpcError> {
         let start = now_ns();
         let spin_until = match self.wait {
             WaitKind::Busy => deadline_ns,
@@ -312,18 +378,22 @@ where
         self.wait_start_ns.set(start);
         let mut prev = start;
         let mut gap = 0u64;
+        let mut waited = false;
         loop {
-            if let Some(m) = self.try_receive()? {
+            if self.try_receive_into(dst)? {
                 self.poll_gap_ns.set(gap);
                 self.last_poll_ns.set(prev);
-                return Ok(WaitOutcome::Got(m));
+                self.waited.set(waited);
+                return Ok(WaitOutcome::Got(()));
             }
+            waited = true;
             let now = now_ns();
             gap = gap.max(now.saturating_sub(prev));
             prev = now;
             if now >= deadline_ns {
                 self.poll_gap_ns.set(gap);
                 self.last_poll_ns.set(prev);
+                self.waited.set(waited);
                 return Ok(WaitOutcome::TimedOut);
             }
             if now < spin_until {
@@ -342,6 +412,14 @@ where
             // the time spent blocked was given away on purpose
             prev = now_ns();
         }
+    }
+
+    /// Whether the last [`Endpoint::receive_until`] found its queue empty at least once
+    /// before the message came: then that message was the newest there, and the next one is a
+    /// period away. `false` when the message was already waiting (the receiver came late, and
+    /// a newer one may be queued behind it).
+    pub fn waited(&self) -> bool {
+        self.waited.get()
     }
 
     /// [`Endpoint::receive_until`] for long waits (start-up, handshake): gives up early, with

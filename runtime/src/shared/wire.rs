@@ -133,9 +133,19 @@ impl ActuatorCommand {
 pub trait WireMessage: Copy {
     /// The header and the first `min(axis_count, MAX_AXES)` axes of `self`, the rest zero.
     fn copy_used(&self) -> Self;
+    /// A message of zeros (the starting point of a receiver's buffer).
+    fn zeroed() -> Self;
+    /// Writes the header and the first `min(axis_count, MAX_AXES)` axes of `self` into `dst`,
+    /// leaving the rest of `dst` as it was: a sender that owns `dst`'s cache lines already
+    /// touches only the lines a receiver reads.
+    fn write_used(&self, dst: &mut Self);
 }
 
 impl WireMessage for SensorSample {
+    fn zeroed() -> Self {
+        SensorSample::empty(0, 0)
+    }
+
     #[inline]
     fn copy_used(&self) -> Self {
         let n = (self.axis_count as usize).min(MAX_AXES);
@@ -148,9 +158,26 @@ impl WireMessage for SensorSample {
         out.axes[..n].copy_from_slice(&self.axes[..n]);
         out
     }
+
+    #[inline]
+    fn write_used(&self, dst: &mut Self) {
+        let n = (self.axis_count as usize).min(MAX_AXES);
+        dst.seq = self.seq;
+        dst.plant_time_s = self.plant_time_s;
+        dst.protocol = self.protocol;
+        dst.flags = self.flags;
+        dst.instance_tag = self.instance_tag;
+        dst.axis_count = self.axis_count;
+        dst.deadline_misses = self.deadline_misses;
+        dst.axes[..n].copy_from_slice(&self.axes[..n]);
+    }
 }
 
 impl WireMessage for ActuatorCommand {
+    fn zeroed() -> Self {
+        ActuatorCommand::empty(0, 0)
+    }
+
     #[inline]
     fn copy_used(&self) -> Self {
         let n = (self.axis_count as usize).min(MAX_AXES);
@@ -161,6 +188,18 @@ impl WireMessage for ActuatorCommand {
         out.reserved = self.reserved;
         out.axes[..n].copy_from_slice(&self.axes[..n]);
         out
+    }
+
+    #[inline]
+    fn write_used(&self, dst: &mut Self) {
+        let n = (self.axis_count as usize).min(MAX_AXES);
+        dst.seq = self.seq;
+        dst.protocol = self.protocol;
+        dst.flags = self.flags;
+        dst.instance_tag = self.instance_tag;
+        dst.axis_count = self.axis_count;
+        dst.reserved = self.reserved;
+        dst.axes[..n].copy_from_slice(&self.axes[..n]);
     }
 }
 
@@ -222,6 +261,43 @@ mod tests {
         );
         assert_eq!(c.axes[0].torque, 2.0);
         assert_eq!(c.axes[1].torque, 0.0);
+    }
+
+    #[test]
+    fn write_used_overwrites_the_header_and_the_used_axes_and_leaves_the_rest() {
+        let mut s = SensorSample::empty(2, 77);
+        s.seq = 12;
+        s.plant_time_s = 1.25;
+        s.flags = FLAG_HELLO;
+        s.deadline_misses = 3;
+        s.axes[0].motor_pos = 1.0;
+        s.axes[1].load_pos = -2.0;
+        s.axes[2].motor_vel = 9.0; // beyond axis_count: not sent
+        let mut dst = SensorSample::empty(5, 1);
+        dst.axes[1].motor_vel = 4.0;
+        dst.axes[3].applied_torque = 8.0;
+        s.write_used(&mut dst);
+        // what a receiver reads of it is exactly what it would read of `s`
+        assert_eq!(dst.copy_used(), s.copy_used());
+        assert_eq!(dst.axes[..2], s.axes[..2]);
+        assert_eq!(dst.axes[3].applied_torque, 8.0);
+        assert_eq!(dst.axes[2].motor_vel, 0.0);
+
+        let mut m = ActuatorCommand::empty(1, 5);
+        m.seq = 4;
+        m.flags = FLAG_FAULT;
+        m.axes[0].torque = -3.0;
+        let mut d = ActuatorCommand::empty(8, 0);
+        d.axes[0].reference = 6.0;
+        d.axes[5].torque = 1.0;
+        m.write_used(&mut d);
+        assert_eq!(d.copy_used(), m.copy_used());
+        assert_eq!(d.axes[0], m.axes[0]);
+        assert_eq!(d.axes[5].torque, 1.0);
+        // an impossible axis count writes everything there is, without panicking
+        m.axis_count = u32::MAX;
+        m.write_used(&mut d);
+        assert_eq!(d, m);
     }
 
     #[test]
