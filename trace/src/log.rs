@@ -1,7 +1,7 @@
 //! The per-cycle records both processes log, and the binary log format they are stored in.
 //!
-//! Each block is `magic u32 | payload length u32 | crc32 u32 | payload` (bincode records); a
-//! reader stops at the first torn or corrupt block (e.g. after a crash) instead of half-parsing
+//! Each block is `magic u32 | payload length u32 | crc32 u32 | payload` (bincode records; the
+//! per-axis arrays of a record hold only their used prefix, see [`used_prefix`]); a reader stops at the first torn or corrupt block (e.g. after a crash) instead of half-parsing
 //! it. The ring and writer thread that produce such logs live in the runtime
 //! (`feedloop_runtime::shared::record::Recorder`).
 
@@ -94,6 +94,7 @@ pub struct PlantRecord {
     /// `REC_*` flags.
     pub flags: u8,
     /// Per-axis rows.
+    #[serde(with = "used_prefix")]
     pub axes: [AxisRecord; MAX_AXES],
 }
 
@@ -121,20 +122,99 @@ pub struct SchedRecord {
     /// ... when the command's publication returned, ns.
     pub sent_ns: u64,
     /// Per-axis torque commanded and reference, (N m or N, m or rad).
+    #[serde(with = "used_prefix")]
     pub axes: [(f64, f64); MAX_AXES],
     /// Per-axis stage outputs: the velocity command the velocity stage followed (position stage
     /// plus feedforward, motor units/s) and the torque feedforward added to its output
     /// (feedforward and compensator stages, N m or N).
+    #[serde(with = "used_prefix")]
     pub stages: [(f64, f64); MAX_AXES],
 }
 
+/// An entry of a per-axis array whose bits are all zero (an axis the job does not have).
+pub trait Blank {
+    /// Whether every field is +0.0 (bit for bit, so that leaving it out loses nothing).
+    fn is_blank(&self) -> bool;
+}
+
+impl Blank for AxisRecord {
+    fn is_blank(&self) -> bool {
+        [self.cmd, self.load, self.motor, self.motor_vel, self.torque]
+            .iter()
+            .all(|v| v.to_bits() == 0)
+    }
+}
+
+impl Blank for (f64, f64) {
+    fn is_blank(&self) -> bool {
+        self.0.to_bits() == 0 && self.1.to_bits() == 0
+    }
+}
+
+/// Serde of a per-axis array as its used prefix: a length, then the entries up to the last one
+/// that is not [`Blank`]; read back into the whole array with blank entries after it. A job with
+/// two axes writes two entries instead of eight, which makes a record about three times smaller
+/// and its encoding, on the recorder's thread in the loop's slack, as much faster. Lossless: the
+/// entries left out are exactly the array's defaults.
+pub mod used_prefix {
+    use super::Blank;
+    use serde::de::{Deserializer, Error, SeqAccess, Visitor};
+    use serde::{Deserialize, Serialize, Serializer};
+    use std::marker::PhantomData;
+
+    /// Writes the used prefix of `a`.
+    pub fn serialize<S: Serializer, T: Serialize + Blank, const N: usize>(
+        a: &[T; N],
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        let n = a.iter().rposition(|x| !x.is_blank()).map_or(0, |i| i + 1);
+        s.collect_seq(&a[..n])
+    }
+
+    struct Prefix<T, const N: usize>(PhantomData<T>);
+
+    impl<'de, T: Deserialize<'de> + Default + Copy, const N: usize> Visitor<'de> for Prefix<T, N> {
+        type Value = [T; N];
+
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "at most {N} per-axis entries")
+        }
+
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+            let mut out = [T::default(); N];
+            let mut i = 0;
+            while let Some(x) = seq.next_element()? {
+                if i == N {
+                    return Err(A::Error::invalid_length(i + 1, &self));
+                }
+                out[i] = x;
+                i += 1;
+            }
+            Ok(out)
+        }
+    }
+
+    /// Reads a used prefix back into the whole array.
+    pub fn deserialize<
+        'de,
+        D: Deserializer<'de>,
+        T: Deserialize<'de> + Default + Copy,
+        const N: usize,
+    >(
+        d: D,
+    ) -> Result<[T; N], D::Error> {
+        d.deserialize_seq(Prefix::<T, N>(PhantomData))
+    }
+}
+
 /// Log file magic; bumped with every record layout change (0xFEED_100F before the round-trip
-/// timestamps of issue 18, 0xFEED_1010 before the stage outputs of issue 16), so an older log
-/// is refused instead of misread.
-const MAGIC: u32 = 0xFEED_1011;
-const OLDER_MAGICS: [(u32, &str); 2] = [
+/// timestamps of issue 18, 0xFEED_1010 before the stage outputs of issue 16, 0xFEED_1011 before
+/// the used-prefix per-axis arrays), so an older log is refused instead of misread.
+const MAGIC: u32 = 0xFEED_1012;
+const OLDER_MAGICS: [(u32, &str); 3] = [
     (0xFEED_100F, "records without the round-trip timestamps"),
     (0xFEED_1010, "scheduler records without the stage outputs"),
+    (0xFEED_1011, "records with all eight axes written out"),
 ];
 
 fn bincode_config() -> impl bincode::config::Config {
@@ -266,5 +346,60 @@ mod tests {
         let log = read_log::<SchedRecord>(&p).unwrap();
         assert_eq!(log.records.len(), 60);
         assert!(log.torn_bytes > 0);
+    }
+
+    #[test]
+    fn records_keep_every_bit_of_their_used_axes_and_take_the_space_of_those_only() {
+        let mut a = PlantRecord {
+            seq: 7,
+            latency_ns: u64::MAX,
+            flags: REC_MISSED,
+            ..Default::default()
+        };
+        a.axes[0].cmd = 1.5;
+        a.axes[1].torque = -0.0; // not +0.0: must survive
+        a.axes[1].load = f64::NAN;
+        let mut b = a;
+        b.axes[4].motor_vel = 3.0; // a gap of blank axes before a used one is kept
+        let mut s = SchedRecord {
+            seq: 9,
+            ..Default::default()
+        };
+        s.axes[0] = (2.0, 3.0);
+        s.stages[2] = (0.0, 5e-300);
+        let mut buf = vec![0u8; 4096];
+        let n_ab = encode_records(&[a, b], &mut buf).unwrap();
+        let back: Vec<PlantRecord> = decode_records(&buf[..n_ab]).unwrap();
+        assert_eq!(back.len(), 2);
+        for (x, y) in back.iter().zip([a, b]) {
+            assert_eq!(x.seq, y.seq);
+            assert_eq!((x.latency_ns, x.flags), (y.latency_ns, y.flags));
+            for (p, q) in x.axes.iter().zip(&y.axes) {
+                let bits = |r: &AxisRecord| {
+                    [r.cmd, r.load, r.motor, r.motor_vel, r.torque].map(f64::to_bits)
+                };
+                assert_eq!(bits(p), bits(q));
+            }
+        }
+        let n_s = encode_records(&[s], &mut buf).unwrap();
+        assert_eq!(decode_records::<SchedRecord>(&buf[..n_s]).unwrap(), vec![s]);
+        // two used axes cost two entries: a record of all eight takes four times their room
+        let full = PlantRecord {
+            axes: [AxisRecord {
+                cmd: 1.0,
+                ..Default::default()
+            }; MAX_AXES],
+            ..Default::default()
+        };
+        let n_full = encode_records(&[full], &mut buf).unwrap();
+        let n_a = encode_records(&[a], &mut buf).unwrap();
+        let entry = 5 * 8;
+        assert_eq!(n_full - n_a, (MAX_AXES - 2) * entry);
+        // more entries than the array holds is an error, not a panic
+        let mut long = buf[..n_full].to_vec();
+        let len_at = n_full - MAX_AXES * entry - 8;
+        long[len_at..len_at + 8].copy_from_slice(&(MAX_AXES as u64 + 1).to_le_bytes());
+        long.extend(std::iter::repeat_n(0u8, entry));
+        assert!(decode_records::<PlantRecord>(&long).is_none());
     }
 }
