@@ -160,6 +160,14 @@ pub trait Controller: Send {
     fn loop_gains(&self) -> crate::loop_model::LoopGains {
         crate::loop_model::LoopGains::default()
     }
+    /// Whether [`Controller::step`] reads nothing of `io` but `reference` (besides the cycle's
+    /// context and its own state) and only adds to `vel_cmd` and `torque_ff`: a feedforward computed from the references alone. The chain may then run it ahead,
+    /// in the slack before the cycle's sample arrives (the references depend on time only),
+    /// starting from zero outputs, and add what it produced when the sample comes: off the
+    /// round trip. Once per cycle all the same. The default: no.
+    fn reference_only(&self) -> bool {
+        false
+    }
 }
 
 /// A multi-axis law that runs after the pre-velocity stages of all axes (e.g. a contour coupler).
@@ -170,6 +178,12 @@ pub trait Coupler: Send {
     fn axes(&self) -> &[usize];
     /// Runs one cycle over all axes' signals.
     fn step(&mut self, ctx: &CycleContext, axes: &mut [AxisSignals]);
+    /// Ahead of cycle `ctx.cycle`, in the slack before its sample arrives: `axes` hold that
+    /// cycle's references (`reference`, motor units; nothing else is set). A coupler may work
+    /// out here what depends on the references alone and use it in [`Coupler::step`] of the same
+    /// cycle, off the round trip. The step's outputs must be the same whether or not this ran
+    /// (it does not run in every cycle). The default does nothing.
+    fn prepare(&mut self, _ctx: &CycleContext, _axes: &[AxisSignals]) {}
 }
 
 /// Creates controllers by plugin id. The built-in registry lives in the `plugins` crate and is

@@ -55,6 +55,11 @@ impl Controller for FrictionFeedforward {
         Self::ID
     }
 
+    fn reference_only(&self) -> bool {
+        // reads the references only and adds to vel_cmd / torque_ff
+        true
+    }
+
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let v = io.reference[1];
         if v > 0.0 {

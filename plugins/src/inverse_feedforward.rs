@@ -473,6 +473,11 @@ impl Controller for InverseFeedforward {
         Self::ID
     }
 
+    fn reference_only(&self) -> bool {
+        // reads the references only and adds to vel_cmd / torque_ff
+        true
+    }
+
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let (v, tau) = self.compute(&io.reference);
         if v.is_finite() && tau.is_finite() {

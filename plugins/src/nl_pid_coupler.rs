@@ -294,7 +294,13 @@ pub struct NlPidCoupler {
     /// Integral term, m/s.
     integral: f64,
     terms: CouplerTerms,
+    /// The commanded contact of a cycle, solved ahead ([`Coupler::prepare`]): the cycle, the
+    /// commanded C and warm-start guess it was solved for, and the solution.
+    ahead: Option<(u64, f64, f64, Contact0)>,
 }
+
+/// A contact solution of [`XcGeometry::contact_of_c`]: angle, X on the profile, gains.
+type Contact0 = (f64, f64, (f64, f64));
 
 impl NlPidCoupler {
     /// Plugin id.
@@ -342,6 +348,7 @@ impl NlPidCoupler {
             warm: [WarmStart::COLD; 2],
             integral: 0.0,
             terms: CouplerTerms::default(),
+            ahead: None,
         })
     }
 
@@ -363,6 +370,19 @@ impl NlPidCoupler {
 }
 
 impl Coupler for NlPidCoupler {
+    fn prepare(&mut self, ctx: &CycleContext, axes: &[AxisSignals]) {
+        let ic = self.axes[1];
+        let Some(sc) = axes.get(ic) else { return };
+        let c_ref = sc.reference[0] / self.scale[1];
+        let guess = self.warm[0].guess();
+        self.ahead = Some((
+            ctx.cycle,
+            c_ref,
+            guess,
+            self.params.geometry.contact_of_c(c_ref, guess),
+        ));
+    }
+
     fn id(&self) -> &str {
         Self::ID
     }
@@ -384,7 +404,19 @@ impl Coupler for NlPidCoupler {
         let (x_m, c_m) = (sx.load_pos / kx, sc.load_pos / kc);
         let (vx, vc) = (sx.motor_vel / kx, sc.motor_vel / kc);
         let geometry = &self.params.geometry;
-        let (phi_c, x_on_c, (gxc, gcc)) = geometry.contact_of_c(c_ref, self.warm[0].guess());
+        // the commanded contact, solved ahead in the slack when it was for this very command
+        // and guess (the same solve: the same result)
+        let guess = self.warm[0].guess();
+        let (phi_c, x_on_c, (gxc, gcc)) = match self.ahead.take() {
+            Some((cycle, c, g, out))
+                if cycle == ctx.cycle
+                    && c.to_bits() == c_ref.to_bits()
+                    && g.to_bits() == guess.to_bits() =>
+            {
+                out
+            }
+            _ => geometry.contact_of_c(c_ref, guess),
+        };
         // the normal rate of the command (0 on the profile)
         let ref_rate = gxc * vx_ref + gcc * vc_ref;
         let (phi_m, gx, gc, eps) = match self.params.contact {

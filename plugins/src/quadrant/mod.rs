@@ -571,6 +571,11 @@ impl Controller for QuadrantCompensator {
         Self::ID
     }
 
+    fn reference_only(&self) -> bool {
+        // reads the references only and adds to vel_cmd / torque_ff
+        true
+    }
+
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
         let mpl = self.params.motor_per_load;
         let v = io.reference[1] / mpl;

@@ -52,6 +52,16 @@ pub struct Chain {
     axes: Vec<AxisChain>,
     couplers: Vec<Box<dyn Coupler>>,
     signals: Vec<AxisSignals>,
+    /// Outputs `(vel_cmd, torque_ff)` of each axis' reference-only stages (feedforward,
+    /// compensator; [`Controller::reference_only`]) for cycle `prepared_for`, run ahead by
+    /// [`Chain::prepare`].
+    prepared: Vec<[Option<(f64, f64)>; 2]>,
+    /// Those stages' states before they ran ahead: a preparation for a cycle that does not come
+    /// (a skipped sample) is undone, so that every stage steps once per answered cycle.
+    before_ahead: Vec<[ControllerState; 2]>,
+    prepared_for: Option<u64>,
+    /// The next cycle's references (motor units) for the couplers' [`Coupler::prepare`].
+    ahead: Vec<AxisSignals>,
     /// Cycles in which some axis produced a non-finite torque (forced to zero).
     pub nonfinite_faults: u64,
     /// Plugin steps that panicked (caught at the plugin boundary; the scheduler then asks the
@@ -158,6 +168,10 @@ impl Chain {
             axes,
             couplers,
             signals: vec![AxisSignals::default(); n],
+            prepared: vec![[None; 2]; n],
+            before_ahead: vec![[ControllerState::EMPTY; 2]; n],
+            prepared_for: None,
+            ahead: vec![AxisSignals::default(); n],
             nonfinite_faults: 0,
             plugin_panics: 0,
         })
@@ -210,7 +224,51 @@ impl Chain {
         mut new: Box<dyn Controller>,
     ) -> Option<Box<dyn Controller>> {
         new.initialize_from(&self.signals[axis]);
+        // what the old controller prepared for the next cycle is not the new one's
+        if let Some(p) = PREPARED_STAGES.iter().position(|s| *s == stage) {
+            self.prepared[axis][p] = None;
+        }
         self.axes[axis].stages[stage.index()].replace(new)
+    }
+
+    /// Runs the reference-only stages ([`Controller::reference_only`]) of every axis, and the
+    /// couplers' [`Coupler::prepare`], for the cycle of `ctx` with its references `refs` (load
+    /// units, job order), ahead of its sample: a scheduler calls it in the slack after
+    /// answering the previous cycle. [`Chain::step`]
+    /// of that cycle then adds their outputs instead of running them; it runs them itself when
+    /// nothing was prepared for its cycle, in the same way, so the command is the same.
+    pub fn prepare(&mut self, ctx: &CycleContext, refs: &[RefState]) {
+        for ((axis, a), r) in self.axes.iter().zip(self.ahead.iter_mut()).zip(refs) {
+            for (d, v) in a.reference.iter_mut().zip(r.iter()) {
+                *d = v * axis.motor_per_load;
+            }
+        }
+        for c in &mut self.couplers {
+            let ahead = &self.ahead;
+            if catch_unwind(AssertUnwindSafe(|| c.prepare(ctx, ahead))).is_err() {
+                self.plugin_panics += 1;
+            }
+        }
+        for (i, axis) in self.axes.iter_mut().enumerate() {
+            for (p, stage) in PREPARED_STAGES.iter().enumerate() {
+                let earlier = self.prepared[i][p].take();
+                self.prepared[i][p] = match &mut axis.stages[stage.index()] {
+                    Some(c) if c.reference_only() => {
+                        // a preparation no step used is undone first
+                        if earlier.is_some() {
+                            c.restore(&self.before_ahead[i][p]);
+                        }
+                        self.before_ahead[i][p] = c.snapshot();
+                        let (out, panicked) =
+                            run_ahead(c.as_mut(), ctx, &refs[i], axis.motor_per_load);
+                        self.plugin_panics += u64::from(panicked);
+                        Some(out)
+                    }
+                    _ => None,
+                };
+            }
+        }
+        self.prepared_for = Some(ctx.cycle);
     }
 
     /// One control cycle: `refs` are the references of every axis in load units (job order),
@@ -222,6 +280,8 @@ impl Chain {
         sample: &SensorSample,
         cmd: &mut ActuatorCommand,
     ) {
+        let ready = self.prepared_for == Some(ctx.cycle);
+        self.prepared_for = None;
         for (i, (axis, sig)) in self
             .axes
             .iter_mut()
@@ -240,10 +300,36 @@ impl Chain {
             sig.vel_cmd = 0.0;
             sig.torque_ff = 0.0;
             sig.torque = 0.0;
-            for c in axis.stages[..Stage::Velocity.index()].iter_mut().flatten() {
+            if let Some(c) = &mut axis.stages[Stage::Position.index()] {
                 if catch_unwind(AssertUnwindSafe(|| c.step(ctx, sig))).is_err() {
                     self.plugin_panics += 1;
                 }
+            }
+            for (p, stage) in PREPARED_STAGES.iter().enumerate() {
+                let Some(c) = &mut axis.stages[stage.index()] else {
+                    continue;
+                };
+                if !c.reference_only() {
+                    if catch_unwind(AssertUnwindSafe(|| c.step(ctx, sig))).is_err() {
+                        self.plugin_panics += 1;
+                    }
+                    continue;
+                }
+                // run ahead in the slack, or now in the same way (the same outputs); a stage
+                // that ran ahead for another cycle goes back to its state before
+                let (v, t) = match self.prepared[i][p].take() {
+                    Some(out) if ready => out,
+                    stale => {
+                        if stale.is_some() {
+                            c.restore(&self.before_ahead[i][p]);
+                        }
+                        let (out, panicked) = run_ahead(c.as_mut(), ctx, r, k);
+                        self.plugin_panics += u64::from(panicked);
+                        out
+                    }
+                };
+                sig.vel_cmd += v;
+                sig.torque_ff += t;
             }
         }
         for c in &mut self.couplers {
@@ -281,6 +367,28 @@ impl Chain {
         }
         cmd.axis_count = self.axes.len() as u32;
         cmd.seq = sample.seq;
+    }
+}
+
+/// The stages a reference-only controller may fill, in chain order.
+const PREPARED_STAGES: [Stage; 2] = [Stage::Feedforward, Stage::Compensator];
+
+/// One step of a reference-only stage on the references `r` (load units; `k` motor units per
+/// load unit) from zero outputs: its `(vel_cmd, torque_ff)`, and whether it panicked (then
+/// zero).
+fn run_ahead(
+    c: &mut dyn Controller,
+    ctx: &CycleContext,
+    r: &RefState,
+    k: f64,
+) -> ((f64, f64), bool) {
+    let mut sig = AxisSignals::default();
+    for (d, v) in sig.reference.iter_mut().zip(r.iter()) {
+        *d = v * k;
+    }
+    match catch_unwind(AssertUnwindSafe(|| c.step(ctx, &mut sig))) {
+        Ok(()) => ((sig.vel_cmd, sig.torque_ff), false),
+        Err(_) => ((0.0, 0.0), true),
     }
 }
 

@@ -122,14 +122,22 @@ impl ControlCycle {
         }
     }
 
-    /// Evaluates the references of cycle `seq` ahead of its sample: the trajectory depends on
-    /// time only, so a scheduler can do this in the slack after answering a cycle and take it
-    /// off the next round trip. [`ControlCycle::step`] uses them if its sample is cycle `seq`
-    /// (and evaluates them itself otherwise): the command is the same either way.
+    /// Evaluates the references of cycle `seq` ahead of its sample, and runs the chain's
+    /// reference-only stages on them ([`Chain::prepare`]): the trajectory depends on time only,
+    /// so a scheduler can do this in the slack after answering a cycle and take it off the next
+    /// round trip. [`ControlCycle::step`] uses them if its sample is cycle `seq` (and evaluates
+    /// them itself otherwise): the command is the same either way.
     #[inline]
     pub fn prepare(&mut self, seq: u64) {
-        self.eval(self.time_of(seq));
+        let t = self.time_of(seq);
+        self.eval(t);
         self.refs_for = Some(seq);
+        let ctx = CycleContext {
+            period_s: self.period_s,
+            cycle: seq,
+            t_s: t,
+        };
+        self.chain.prepare(&ctx, &self.refs);
     }
 
     /// Runs the cycle answering `sample`: writes the command (torques, references, seq).
