@@ -6,7 +6,7 @@
 //! (`feedloop_runtime::shared::record::Recorder`).
 
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{Read, Write};
 use std::path::Path;
 
 use serde::de::DeserializeOwned;
@@ -115,7 +115,8 @@ pub struct SchedRecord {
     pub poll_gap_ns: u32,
     /// Monotonic clock (shared with the plant) at the poll that found the sample, ns.
     pub received_ns: u64,
-    /// ... when the cycle's computation began (after the control plane's look), ns.
+    /// ... when the sample was held and the cycle's work began (the catch-up when needed, the
+    /// control plane's look, the chain), ns.
     pub started_ns: u64,
     /// ... when the command was ready (chain and vetting done), ns.
     pub computed_ns: u64,
@@ -223,7 +224,8 @@ fn bincode_config() -> impl bincode::config::Config {
 
 /// Appends blocks of records to a log file.
 pub struct LogWriter {
-    out: BufWriter<File>,
+    out: File,
+    /// A block being built: 12 header bytes, then the encoded records.
     buf: Vec<u8>,
 }
 
@@ -231,25 +233,33 @@ impl LogWriter {
     /// Creates (truncates) `path`.
     pub fn create(path: &Path) -> std::io::Result<Self> {
         Ok(Self {
-            out: BufWriter::with_capacity(1 << 20, File::create(path)?),
-            buf: Vec::with_capacity(1 << 20),
+            out: File::create(path)?,
+            buf: vec![0; 1 << 16],
         })
     }
 
-    /// Writes one block holding `records`, and flushes it to the OS.
+    /// Writes one block holding `records` to the OS: encoded in place behind the block's
+    /// header, one `write` for the whole block (a recorder writes in a control period's slack).
     pub fn write_block<T: Serialize>(&mut self, records: &[T]) -> std::io::Result<()> {
         if records.is_empty() {
             return Ok(());
         }
-        self.buf.clear();
-        bincode::serde::encode_into_std_write(records, &mut self.buf, bincode_config())
-            .map_err(std::io::Error::other)?;
-        let crc = crc32fast::hash(&self.buf);
-        self.out.write_all(&MAGIC.to_le_bytes())?;
-        self.out.write_all(&(self.buf.len() as u32).to_le_bytes())?;
-        self.out.write_all(&crc.to_le_bytes())?;
-        self.out.write_all(&self.buf)?;
-        self.out.flush()
+        let len = loop {
+            match bincode::serde::encode_into_slice(records, &mut self.buf[12..], bincode_config())
+            {
+                Ok(n) => break n,
+                Err(bincode::error::EncodeError::UnexpectedEnd) => {
+                    let grown = self.buf.len() * 2;
+                    self.buf.resize(grown, 0);
+                }
+                Err(e) => return Err(std::io::Error::other(e)),
+            }
+        };
+        let crc = crc32fast::hash(&self.buf[12..12 + len]);
+        self.buf[0..4].copy_from_slice(&MAGIC.to_le_bytes());
+        self.buf[4..8].copy_from_slice(&(len as u32).to_le_bytes());
+        self.buf[8..12].copy_from_slice(&crc.to_le_bytes());
+        self.out.write_all(&self.buf[..12 + len])
     }
 }
 

@@ -71,9 +71,11 @@ impl RunFigures {
 pub struct Breakdown {
     /// Sample published by the plant -> found by the scheduler's poll (transport out).
     pub to_scheduler: Histogram<u64>,
-    /// Found -> computation begins (the control plane's look, the recorder's phase).
+    /// Found -> held: the poll that found the sample (iceoryx2's receive, the copy of the used
+    /// axes).
     pub before_compute: Histogram<u64>,
-    /// The chain and the vetting of its command.
+    /// The catch-up when needed, the control plane's look, the chain and the vetting of its
+    /// command.
     pub chain: Histogram<u64>,
     /// The command's publication.
     pub publish: Histogram<u64>,

@@ -122,6 +122,7 @@ pub fn run_scheduler(
         Mode::Lockstep => start_timeout,
         Mode::Realtime => (cfg.stale_after_s * 1e9) as u64,
     };
+    let period_ns = (cycle.period_s() * 1e9) as u64;
     let mut started = false;
     let mut next_seq = 0u64;
     let mut out = SchedulerOutcome {
@@ -184,12 +185,19 @@ pub fn run_scheduler(
                 break;
             }
         };
+        // the sample is held: the computation (and the catch-up, and the control plane's look)
+        // starts now
+        let c0 = now_ns();
         // Realtime catch-up: answer the newest sample; every other queued one is either skipped
         // (older than the newest, but not answered before) or a sequence fault (counted). Only
-        // needed when the sample was already waiting: one that came while we polled is the
-        // newest, the next is a period away.
+        // needed when the sample may not be the newest: one held shortly after a poll found the
+        // queue empty is (the plant publishes once a period); one that was already waiting, or
+        // held after a stall since that poll, may have newer ones behind it.
         let mut skipped = 0u32;
-        if started && ep.waited() {
+        let newest = ep
+            .empty_poll_ns()
+            .is_some_and(|t| c0.saturating_sub(t) < period_ns / 4);
+        if started && newest {
             if !accept(&mut out, next_seq, &s) {
                 continue;
             }
@@ -260,10 +268,9 @@ pub fn run_scheduler(
             c.plant_deadline_misses = s.deadline_misses;
             c.before_cycle(cycle, s.seq);
         }
-        let c0 = now_ns();
         if cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
             // samples arrive at the plant's cycle starts: keep the writer in the slack after them
-            rec.set_phase(c0, (cycle.period_s() * 1e9) as u64);
+            rec.set_phase(c0, period_ns);
         }
         let mut lost_ns = ep
             .poll_gap_ns()

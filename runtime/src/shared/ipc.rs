@@ -164,8 +164,9 @@ pub struct Endpoint<
     last_poll_ns: Cell<u64>,
     /// Clock reading at the start of the last `receive_until`, ns.
     wait_start_ns: Cell<u64>,
-    /// Whether the last `receive_until` polled an empty queue before its message came.
-    waited: Cell<bool>,
+    /// Clock reading just before the last poll that found the queue empty, in the last
+    /// `receive_until` (`None`: its message was there at the first poll).
+    empty_poll_ns: Cell<Option<u64>>,
     // keep the node alive as long as the ports
     _node: Node<ipc::Service>,
 }
@@ -263,7 +264,7 @@ where
             poll_gap_ns: Cell::new(0),
             last_poll_ns: Cell::new(0),
             wait_start_ns: Cell::new(0),
-            waited: Cell::new(false),
+            empty_poll_ns: Cell::new(None),
             _node: node,
         })
     }
@@ -378,22 +379,22 @@ where
         self.wait_start_ns.set(start);
         let mut prev = start;
         let mut gap = 0u64;
-        let mut waited = false;
+        let mut empty = None;
         loop {
             if self.try_receive_into(dst)? {
                 self.poll_gap_ns.set(gap);
                 self.last_poll_ns.set(prev);
-                self.waited.set(waited);
+                self.empty_poll_ns.set(empty);
                 return Ok(WaitOutcome::Got(()));
             }
-            waited = true;
+            empty = Some(prev);
             let now = now_ns();
             gap = gap.max(now.saturating_sub(prev));
             prev = now;
             if now >= deadline_ns {
                 self.poll_gap_ns.set(gap);
                 self.last_poll_ns.set(prev);
-                self.waited.set(waited);
+                self.empty_poll_ns.set(empty);
                 return Ok(WaitOutcome::TimedOut);
             }
             if now < spin_until {
@@ -414,12 +415,13 @@ where
         }
     }
 
-    /// Whether the last [`Endpoint::receive_until`] found its queue empty at least once
-    /// before the message came: then that message was the newest there, and the next one is a
-    /// period away. `false` when the message was already waiting (the receiver came late, and
-    /// a newer one may be queued behind it).
-    pub fn waited(&self) -> bool {
-        self.waited.get()
+    /// Clock reading just before the last poll of the last [`Endpoint::receive_until`] that
+    /// found the queue empty; `None` when its message was already waiting at the first poll.
+    /// A message held shortly after such a poll is the newest there (the peer publishes once a
+    /// period); one that was waiting, or held long after it (a stall in between), may have newer
+    /// ones queued behind it.
+    pub fn empty_poll_ns(&self) -> Option<u64> {
+        self.empty_poll_ns.get()
     }
 
     /// [`Endpoint::receive_until`] for long waits (start-up, handshake): gives up early, with

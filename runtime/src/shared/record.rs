@@ -12,72 +12,63 @@ use serde::Serialize;
 
 use feedloop_trace::log::LogWriter;
 
-use crate::shared::clock::{now_ns, sleep_until_ns};
+use crate::shared::clock::now_ns;
 
-/// How often the writer thread looks at the ring when it has caught up and knows no phase.
+/// How long the writer waits for a kick before it looks at the ring anyway: without a phase
+/// (a lockstep run, a test), and as a fallback with one.
 const WRITER_PERIOD: Duration = Duration::from_millis(2);
-/// Most records the writer encodes and writes in one go before it looks at the clock.
-const WRITER_CHUNK: usize = 16;
-/// Pause between two chunks while a small backlog is left (no phase).
-const WRITER_GAP: Duration = Duration::from_micros(100);
-/// With a phase, the writer wakes about this often (a power of two of cycles, see
-/// [`Phase::every`]): each wake takes a core from a spinning loop and leaves its caches cold
+/// The same with a phase: the loop kicks the writer (see [`Recorder::push`]), so this only
+/// matters when the loop has stopped pushing.
+const WRITER_IDLE: Duration = Duration::from_millis(100);
+/// Most records the writer encodes into one block (one `write`) before it looks at the clock:
+/// a wake of the writer costs the loop more than the records it writes, so each writes many.
+const WRITER_CHUNK: usize = 256;
+/// With a phase, the loop kicks the writer about this often (a power of two of cycles, see
+/// [`Phase::every`]): each wake takes the core from a spinning loop and leaves its caches cold
 /// for the next round trip, so fewer, fuller wakes touch fewer cycles.
 const WRITER_EVERY_S: f64 = 0.03;
-
-/// Where in the control period the writer should run: anchor (a cycle's start on
-/// [`crate::shared::clock::now_ns`]) and period, ns; period 0 = anywhere.
-#[derive(Debug, Default)]
-struct Phase {
-    anchor_ns: AtomicU64,
-    period_ns: AtomicU64,
-}
-
-/// Fraction of the period after a cycle's start at which the writer wakes: past the round trip
-/// (a few microseconds) and the wake-up jitter of the loop, with most of the period left to
-/// write before the next cycle starts.
-const WRITER_PHASE: f64 = 0.3;
 /// Fraction of the period after a cycle's start by which the writer lets the core go again,
 /// leaving the loop's next wake-up and round trip to it.
 const WRITER_PHASE_END: f64 = 0.75;
 
+/// Where the loop's control periods lie: anchor (a cycle's start on
+/// [`crate::shared::clock::now_ns`]) and period, ns; period 0 = unknown (no budget).
+#[derive(Debug)]
+struct Phase {
+    anchor_ns: AtomicU64,
+    period_ns: AtomicU64,
+    /// Records between two kicks of the writer.
+    every: AtomicU64,
+}
+
+impl Default for Phase {
+    fn default() -> Self {
+        Self {
+            anchor_ns: AtomicU64::new(0),
+            period_ns: AtomicU64::new(0),
+            every: AtomicU64::new(WRITER_CHUNK as u64),
+        }
+    }
+}
+
 impl Phase {
-    /// The writer's wake-ups fall on the cycles whose number is a multiple of this: a power of
-    /// two of about [`WRITER_EVERY_S`] (at most 1024, which both processes' anchors are
-    /// multiples of), so that the plant's and the scheduler's writers wake in the same cycles.
+    /// Cycles between two kicks at `period_ns`: a power of two of about [`WRITER_EVERY_S`]
+    /// (1 to 1024), never more than a block holds.
     fn every(period_ns: u64) -> u64 {
         let n = (WRITER_EVERY_S * 1e9 / period_ns.max(1) as f64).clamp(1.0, 1024.0) as u64;
-        1 << n.ilog2()
+        (1u64 << n.ilog2()).min(WRITER_CHUNK as u64)
     }
 
-    /// The first slot at or after `earliest_ns` that sits `WRITER_PHASE` into a period whose
-    /// cycle is a multiple of `every` cycles after the anchor.
-    fn next_slot_every(&self, earliest_ns: u64, every: u64) -> Option<u64> {
+    /// When a writer kicked at `now_ns` must stop: `WRITER_PHASE_END` into the period `now_ns`
+    /// falls in; `None` without a phase.
+    fn budget_end(&self, now_ns: u64) -> Option<u64> {
         let period = self.period_ns.load(Ordering::Relaxed);
         if period == 0 {
             return None;
         }
-        let step = period * every.max(1);
-        let first = self.anchor_ns.load(Ordering::Relaxed) + (period as f64 * WRITER_PHASE) as u64;
-        let k = earliest_ns.saturating_sub(first).div_ceil(step);
-        Some(first + k * step)
-    }
-
-    /// The first slot at or after `earliest_ns` that sits `WRITER_PHASE` into a period.
-    fn next_slot(&self, earliest_ns: u64) -> Option<u64> {
-        self.next_slot_every(earliest_ns, 1)
-    }
-
-    /// The next slot of the writer's wake-up grid (every [`Phase::every`] cycles).
-    fn next_grid_slot(&self, earliest_ns: u64) -> Option<u64> {
-        let period = self.period_ns.load(Ordering::Relaxed);
-        self.next_slot_every(earliest_ns, Self::every(period))
-    }
-
-    /// When the writer, woken at `slot_ns`, must stop: `WRITER_PHASE_END` into that period.
-    fn budget_end(&self, slot_ns: u64) -> Option<u64> {
-        let period = self.period_ns.load(Ordering::Relaxed);
-        (period > 0).then(|| slot_ns + (period as f64 * (WRITER_PHASE_END - WRITER_PHASE)) as u64)
+        let anchor = self.anchor_ns.load(Ordering::Relaxed);
+        let start = anchor + now_ns.saturating_sub(anchor) / period * period;
+        Some(start + (period as f64 * WRITER_PHASE_END) as u64)
     }
 }
 
@@ -93,6 +84,10 @@ pub type TapFactory<T> = Box<dyn FnOnce() -> Option<Tap<T>> + Send>;
 pub struct Recorder<T: Copy + Send + 'static> {
     producer: rtrb::Producer<T>,
     phase: Arc<Phase>,
+    /// The writer thread, to kick.
+    writer: std::thread::Thread,
+    /// Records pushed (kicks fall on multiples of the phase's `every`).
+    pushed: u64,
     dropped: Arc<AtomicU64>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<std::io::Result<u64>>>,
@@ -129,13 +124,28 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                 let mut tap = tap.and_then(|make| make());
                 let mut block: Vec<T> = Vec::with_capacity(WRITER_CHUNK);
                 let mut written = 0u64;
-                // the slot this wake was meant for (with a phase), for its time budget
-                let mut slot: Option<u64> = None;
+                // how long the last block took to write, ns
+                let mut chunk_ns = 0u64;
                 loop {
                     let finishing = stop2.load(Ordering::Acquire);
-                    let budget_end = slot.and_then(|s| phase2.budget_end(s));
-                    // write chunks until the ring is empty or this period's budget is spent
+                    let budget_end = if finishing {
+                        None
+                    } else {
+                        phase2.budget_end(now_ns())
+                    };
+                    // write blocks until the ring is empty or this period's budget is spent: a
+                    // further block starts only when the last one's time still fits (the first
+                    // needs only to start in time: an estimate that never fits must not stop
+                    // the writing)
+                    let mut chunks = 0u32;
                     loop {
+                        if let Some(end) = budget_end {
+                            let need = if chunks == 0 { 0 } else { chunk_ns };
+                            if now_ns().saturating_add(need) >= end {
+                                break;
+                            }
+                        }
+                        chunks += 1;
                         while block.len() < WRITER_CHUNK {
                             match consumer.pop() {
                                 Ok(r) => block.push(r),
@@ -145,19 +155,14 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                         if block.is_empty() {
                             break;
                         }
+                        let t0 = now_ns();
                         writer.write_block(&block)?;
                         if let Some(t) = tap.as_mut() {
                             t(&block, dropped2.load(Ordering::Relaxed));
                         }
                         written += block.len() as u64;
                         block.clear();
-                        match budget_end {
-                            Some(end) if !finishing && now_ns() < end => {}
-                            Some(_) => break,
-                            // no phase: one chunk per wake, as before
-                            None if finishing => {}
-                            None => break,
-                        }
+                        chunk_ns = now_ns().saturating_sub(t0);
                     }
                     let backlog = consumer.slots();
                     if backlog == 0 && finishing {
@@ -165,36 +170,25 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
                     }
                     // On a small machine this thread preempts a spinning loop whenever it runs:
                     // a loop preempted for more than a period misses its deadline, and the round
-                    // trip after a wake finds its caches cold. So with a phase (a realtime loop)
-                    // it wakes rarely, on the same cycles in both processes, in the slack after
-                    // a round trip, writes for at most part of that period, and comes back in
-                    // the next period's slack while a backlog is left. Without one (a lockstep
-                    // run goes as fast as it can) it writes short chunks and lets the core go in
-                    // between. A backlog near the ring's size is written without pausing, so
-                    // that nothing is dropped.
+                    // trip after a wake finds its caches cold; a timer wakes it tens of
+                    // microseconds late on a VM, often into the next cycle. So the loop kicks it,
+                    // in its slack right after a cycle, every `every` records (about 30 ms, on
+                    // the same cycles in both processes), and it writes for at most part of
+                    // that period. A backlog near the ring's size is written without pausing,
+                    // so that nothing is dropped.
                     if finishing || backlog > capacity / 8 {
-                        slot = None;
                         continue;
                     }
-                    let now = now_ns();
-                    slot = if backlog > 0 {
-                        phase2.next_slot(now + 1)
-                    } else {
-                        phase2.next_grid_slot(now + 1)
-                    };
-                    match slot {
-                        Some(t) => sleep_until_ns(t),
-                        None => std::thread::sleep(if backlog >= WRITER_CHUNK {
-                            WRITER_GAP
-                        } else {
-                            WRITER_PERIOD
-                        }),
-                    }
+                    let phased = phase2.period_ns.load(Ordering::Relaxed) > 0;
+                    std::thread::park_timeout(if phased { WRITER_IDLE } else { WRITER_PERIOD });
                 }
             })?;
+        let writer = thread.thread().clone();
         Ok(Self {
             producer,
             phase,
+            writer,
+            pushed: 0,
             dropped,
             stop,
             thread: Some(thread),
@@ -202,11 +196,21 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
         })
     }
 
-    /// Hands one record to the writer (wait-free). A full ring counts a dropped record.
+    /// Hands one record to the writer (wait-free). A full ring counts a dropped record. Every
+    /// so many records (about 30 ms of a realtime loop's cycles) it kicks the writer, which then
+    /// writes in the rest of this period: called after a cycle's work, so the writer runs in
+    /// its slack. A kick is an atomic swap, and a futex wake when the writer sleeps.
     #[inline]
     pub fn push(&mut self, r: T) {
         if self.producer.push(r).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+        self.pushed += 1;
+        if self
+            .pushed
+            .is_multiple_of(self.phase.every.load(Ordering::Relaxed).max(1))
+        {
+            self.writer.unpark();
         }
     }
 
@@ -218,6 +222,9 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
     pub fn set_phase(&self, anchor_ns: u64, period_ns: u64) {
         self.phase.anchor_ns.store(anchor_ns, Ordering::Relaxed);
         self.phase.period_ns.store(period_ns, Ordering::Relaxed);
+        self.phase
+            .every
+            .store(Phase::every(period_ns), Ordering::Relaxed);
     }
 
     /// Records dropped because the ring was full.
@@ -228,6 +235,7 @@ impl<T: Copy + Send + Serialize + 'static> Recorder<T> {
     /// Flushes everything and stops the writer thread; returns the number of records written.
     pub fn finish(mut self) -> std::io::Result<u64> {
         self.stop.store(true, Ordering::Release);
+        self.writer.unpark();
         match self.thread.take() {
             Some(t) => t.join().map_err(|_| {
                 std::io::Error::other(format!(
@@ -250,55 +258,48 @@ mod tests {
     }
 
     #[test]
-    fn the_writer_slot_sits_three_tenths_into_the_first_period_not_before_the_earliest() {
+    fn the_writer_is_kicked_every_power_of_two_cycles_and_stops_by_three_quarters_of_the_period() {
+        assert_eq!(Phase::every(100_000), 256); // 10 kHz: 25.6 ms
+        assert_eq!(Phase::every(1_000_000), 16); // 1 kHz: 16 ms
+        assert_eq!(Phase::every(10_000_000_000), 1); // a 10 s period: every cycle
+                                                     // both processes count records from their cycle 0, so kicks at multiples of `every`
+                                                     // fall on the same cycles in both
+        assert!(1024 % Phase::every(250_000) == 0);
         let p = Phase::default();
-        assert_eq!(p.next_slot(5), None);
-        p.anchor_ns.store(1_000, Ordering::Relaxed);
-        p.period_ns.store(100, Ordering::Relaxed);
-        assert_eq!(p.next_slot(0), Some(1_030));
-        assert_eq!(p.next_slot(1_030), Some(1_030));
-        assert_eq!(p.next_slot(1_031), Some(1_130));
-        assert_eq!(p.next_slot(10_000), Some(10_030));
-        for e in [0u64, 999, 1_234, 987_654] {
-            let t = p.next_slot(e).unwrap();
-            assert!(
-                t >= e && t < e.max(1_030) + 100 && (t - 1_030) % 100 == 0,
-                "{e} -> {t}"
-            );
-        }
+        assert_eq!(p.budget_end(123), None);
+        p.anchor_ns.store(5_000, Ordering::Relaxed);
+        p.period_ns.store(1_000, Ordering::Relaxed);
+        // kicked 30 ns into the period that starts at 9_000: done by 9_750
+        assert_eq!(p.budget_end(9_030), Some(9_750));
+        assert_eq!(p.budget_end(9_999), Some(9_750));
+        assert_eq!(p.budget_end(10_000), Some(10_750));
+        assert_eq!(p.budget_end(4_000), Some(5_750));
     }
 
     #[test]
-    fn the_writer_wakes_on_the_same_cycles_from_any_anchor_that_is_a_multiple_of_1024_cycles() {
-        let period = 100_000u64; // 10 kHz
-        let every = Phase::every(period);
-        assert!(every.is_power_of_two() && 1024 % every == 0);
-        assert_eq!(every, 256); // 25.6 ms, about WRITER_EVERY_S
-        assert_eq!(Phase::every(1_000_000), 16); // 1 kHz
-        assert_eq!(Phase::every(10_000_000_000), 1); // a 10 s period: every cycle
-                                                     // the plant anchors at cycle 0, the scheduler at a cycle it answered that is a
-                                                     // multiple of 1024 (a little later: the sample's way to it)
-        let plant = Phase::default();
-        plant.anchor_ns.store(5_000_000, Ordering::Relaxed);
-        plant.period_ns.store(period, Ordering::Relaxed);
-        let sched = Phase::default();
-        sched
-            .anchor_ns
-            .store(5_000_000 + 3 * 1024 * period + 900, Ordering::Relaxed);
-        sched.period_ns.store(period, Ordering::Relaxed);
-        let cycle_of = |t: u64| (t - 5_000_000) / period;
-        for earliest in [5_400_000_000u64, 5_400_012_345, 6_000_000_000] {
-            let (p, s) = (
-                plant.next_grid_slot(earliest).unwrap(),
-                sched.next_grid_slot(earliest).unwrap(),
-            );
-            assert_eq!(cycle_of(p), cycle_of(s), "{earliest}");
-            assert_eq!(cycle_of(p) % every, 0);
-            assert!(p >= earliest && p < earliest + every * period);
-            // 0.3 into its period, done by 0.75 of it
-            assert_eq!((p - 5_000_000) % period, 30_000);
-            assert_eq!(plant.budget_end(p), Some(p + 45_000));
+    fn a_kicked_writer_keeps_every_record_of_a_paced_loop() {
+        let p = tmp("kicked.log");
+        let period = 100_000u64;
+        let mut r = Recorder::<PlantRecord>::start(&p, 1 << 12).unwrap();
+        let t0 = now_ns();
+        r.set_phase(t0, period);
+        for i in 0..5_000u64 {
+            crate::shared::clock::spin_until_ns(t0 + i * period);
+            r.push(PlantRecord {
+                seq: i,
+                ..Default::default()
+            });
         }
+        assert_eq!(r.dropped(), 0);
+        assert_eq!(r.finish().unwrap(), 5_000);
+        let log = read_log::<PlantRecord>(&p).unwrap();
+        assert!(log
+            .records
+            .iter()
+            .enumerate()
+            .all(|(i, r)| r.seq == i as u64));
+        assert_eq!(log.records.len(), 5_000);
+        let _ = std::fs::remove_file(&p);
     }
 
     #[test]
