@@ -51,13 +51,14 @@ pub enum BenchCmd {
         #[arg(long, default_value_t = 10.0)]
         reference_s: f64,
         /// Round trips of the bare iceoryx2 ping-pong of the loop's own messages, measured on
-        /// the same CPUs just before the run, back to back and again one per period (default:
-        /// --cycles, at most 100,000; 0 skips it).
+        /// the same CPUs just before the run (before each of its parts), back to back and again
+        /// one per period (default: --cycles, so that the floor is measured as long as the loop;
+        /// 0 skips it).
         #[arg(long)]
         pingpong_cycles: Option<u64>,
         /// Slices the run into this many parts, each preceded by its share of the ping-pong, so
         /// that the loop and its floor see the same states of the host (which can move the floor
-        /// 2.5x within minutes); the figures pool all parts. Default: one part per 60,000
+        /// 2.5x within minutes); the figures pool all parts. Default: one part per 30,000
         /// cycles, at most 10. The parts' logs go to `segment-K/` in --out.
         #[arg(long)]
         segments: Option<u64>,
@@ -103,8 +104,8 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             pingpong_cycles,
             segments,
         } => latency(&LatencyOpts {
-            pingpong_cycles: pingpong_cycles.unwrap_or(cycles.min(100_000)),
-            segments: segments.unwrap_or(cycles.div_ceil(60_000).clamp(1, 10)),
+            pingpong_cycles: pingpong_cycles.unwrap_or(cycles),
+            segments: segments.unwrap_or(cycles.div_ceil(30_000).clamp(1, 10)),
             cycles,
             period_s,
             wait,
