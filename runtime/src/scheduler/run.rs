@@ -70,6 +70,21 @@ pub struct SchedulerOutcome {
     pub dropped_records: u64,
 }
 
+impl SchedulerOutcome {
+    /// Nothing counted yet; ends `Completed` unless told otherwise.
+    fn new() -> Self {
+        SchedulerOutcome {
+            end: SchedulerEnd::Completed,
+            commands: 0,
+            out_of_order: 0,
+            duplicated: 0,
+            skipped: 0,
+            missing: 0,
+            dropped_records: 0,
+        }
+    }
+}
+
 /// Errors of a scheduler run.
 #[derive(Debug, thiserror::Error)]
 pub enum SchedulerError {
@@ -125,15 +140,7 @@ pub fn run_scheduler(
     let period_ns = (cycle.period_s() * 1e9) as u64;
     let mut started = false;
     let mut next_seq = 0u64;
-    let mut out = SchedulerOutcome {
-        end: SchedulerEnd::Completed,
-        commands: 0,
-        out_of_order: 0,
-        duplicated: 0,
-        skipped: 0,
-        missing: 0,
-        dropped_records: 0,
-    };
+    let mut out = SchedulerOutcome::new();
     let t_start = now_ns();
     let mut stop_sent = false;
     let mut fault_sent = false;
@@ -391,18 +398,6 @@ fn screen(
 mod tests {
     use super::*;
 
-    fn outcome() -> SchedulerOutcome {
-        SchedulerOutcome {
-            end: SchedulerEnd::Completed,
-            commands: 0,
-            out_of_order: 0,
-            duplicated: 0,
-            skipped: 0,
-            missing: 0,
-            dropped_records: 0,
-        }
-    }
-
     #[test]
     fn a_lone_sample_is_judged_as_the_catch_up_judges_it() {
         let next_seq = 10;
@@ -411,7 +406,7 @@ mod tests {
                 let mut m = SensorSample::empty(2, 1);
                 m.seq = seq;
                 m.flags = flags;
-                let (mut a, mut b) = (outcome(), outcome());
+                let (mut a, mut b) = (SchedulerOutcome::new(), SchedulerOutcome::new());
                 let kept = screen(&mut a, next_seq, None, m).is_some();
                 assert_eq!(
                     accept(&mut b, next_seq, &m),
@@ -426,7 +421,7 @@ mod tests {
             }
         }
         // a repeat of the last answered cycle is a duplicate, an older one out of order
-        let mut o = outcome();
+        let mut o = SchedulerOutcome::new();
         let mut m = SensorSample::empty(2, 1);
         m.seq = 9;
         assert!(!accept(&mut o, 10, &m));

@@ -328,11 +328,8 @@ where
     /// Takes the next message if one is there (no waiting).
     #[inline]
     pub fn try_receive(&self) -> Result<Option<In>, IpcError> {
-        match self.subscriber.receive() {
-            Ok(Some(s)) => Ok(Some(s.payload().copy_used())),
-            Ok(None) => Ok(None),
-            Err(e) => Err(IpcError::Receive(format!("{e:?}"))),
-        }
+        let mut m = In::zeroed();
+        Ok(self.try_receive_into(&mut m)?.then_some(m))
     }
 
     /// Copies the next message into `dst` if one is there (no waiting): its header and used

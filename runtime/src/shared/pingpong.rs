@@ -1,6 +1,6 @@
 //! The floor the loop's round trip is measured against (issue 18): a bare iceoryx2 ping-pong of
 //! the loop's own wire types, on services configured as the loop's ([`crate::shared::ipc`]) but
-//! through plain iceoryx2 ports (loan, write, send; spin on receive), not the loop's endpoints,
+//! through plain iceoryx2 ports (`send_copy`: loan, write, send; spin on receive), not the loop's endpoints,
 //! between two processes. The pinging side publishes a [`SensorSample`] and spins until the
 //! echoing side's [`ActuatorCommand`] with the same `seq` is back; the echo copies the sample
 //! out as the scheduler does and answers, nothing else. The round trip is timed exactly as the
@@ -108,7 +108,7 @@ fn receive_err(e: impl std::fmt::Debug) -> IpcError {
 /// `back_to_back` round trips, then `paced` ones, one every `period_ns`; the samples carry
 /// `axis_count` axes (the loop's size). Ends the echo with `FLAG_END`.
 ///
-/// Plain iceoryx2, as its examples use it: loan, write the whole message, send; spin on
+/// Plain iceoryx2, as its examples use it: `send_copy` (loan, write the whole message, send); spin on
 /// `receive` and copy the message out (the used axes, as the loop's receivers do).
 pub fn ping(
     instance: &str,
@@ -134,12 +134,7 @@ pub fn ping(
     let one = |sample: &mut SensorSample| -> Result<(u64, u64), IpcError> {
         sample.seq = sample.seq.wrapping_add(1);
         let t0 = now_ns();
-        publisher
-            .loan_uninit()
-            .map_err(send_err)?
-            .write_payload(*sample)
-            .send()
-            .map_err(send_err)?;
+        publisher.send_copy(*sample).map_err(send_err)?;
         let deadline = t0.saturating_add(1_000_000_000);
         let mut polls = 0u32;
         loop {
@@ -187,12 +182,7 @@ pub fn ping(
     }
     sample.flags = FLAG_END;
     sample.seq = sample.seq.wrapping_add(1);
-    publisher
-        .loan_uninit()
-        .map_err(send_err)?
-        .write_payload(sample)
-        .send()
-        .map_err(send_err)?;
+    publisher.send_copy(sample).map_err(send_err)?;
     Ok(out)
 }
 
@@ -231,12 +221,7 @@ pub fn echo(instance: &str, idle_timeout: Duration) -> Result<(u64, Vec<EchoStam
         let mut c = ActuatorCommand::empty(s.axis_count, s.instance_tag);
         c.seq = s.seq;
         let publish_ns = if timed { now_ns() } else { 0 };
-        publisher
-            .loan_uninit()
-            .map_err(send_err)?
-            .write_payload(c)
-            .send()
-            .map_err(send_err)?;
+        publisher.send_copy(c).map_err(send_err)?;
         if timed && stamps.len() < stamps.capacity() {
             stamps.push(EchoStamp {
                 seq: s.seq,

@@ -132,7 +132,12 @@ impl ActuatorCommand {
 /// between cores.
 pub trait WireMessage: Copy {
     /// The header and the first `min(axis_count, MAX_AXES)` axes of `self`, the rest zero.
-    fn copy_used(&self) -> Self;
+    #[inline]
+    fn copy_used(&self) -> Self {
+        let mut out = Self::zeroed();
+        self.write_used(&mut out);
+        out
+    }
     /// A message of zeros (the starting point of a receiver's buffer).
     fn zeroed() -> Self;
     /// Writes the header and the first `min(axis_count, MAX_AXES)` axes of `self` into `dst`,
@@ -144,19 +149,6 @@ pub trait WireMessage: Copy {
 impl WireMessage for SensorSample {
     fn zeroed() -> Self {
         SensorSample::empty(0, 0)
-    }
-
-    #[inline]
-    fn copy_used(&self) -> Self {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        let mut out = SensorSample::empty(self.axis_count, self.instance_tag);
-        out.seq = self.seq;
-        out.plant_time_s = self.plant_time_s;
-        out.protocol = self.protocol;
-        out.flags = self.flags;
-        out.deadline_misses = self.deadline_misses;
-        out.axes[..n].copy_from_slice(&self.axes[..n]);
-        out
     }
 
     #[inline]
@@ -176,18 +168,6 @@ impl WireMessage for SensorSample {
 impl WireMessage for ActuatorCommand {
     fn zeroed() -> Self {
         ActuatorCommand::empty(0, 0)
-    }
-
-    #[inline]
-    fn copy_used(&self) -> Self {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        let mut out = ActuatorCommand::empty(self.axis_count, self.instance_tag);
-        out.seq = self.seq;
-        out.protocol = self.protocol;
-        out.flags = self.flags;
-        out.reserved = self.reserved;
-        out.axes[..n].copy_from_slice(&self.axes[..n]);
-        out
     }
 
     #[inline]
