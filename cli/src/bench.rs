@@ -18,7 +18,7 @@ use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 use crate::processes::{read_json, spawn, write_json};
-use feedloop_runtime::shared::pingpong::{echo, ping, EchoStamp, PingPong};
+use feedloop_runtime::shared::pingpong::{echo, ping, EchoStamp, Pacing, PingPong};
 use feedloop_runtime::shared::rt::{apply, RtRequest};
 
 /// Benchmark subcommands.
@@ -62,6 +62,11 @@ pub enum BenchCmd {
         /// cycles, at most 10. The parts' logs go to `segment-K/` in --out.
         #[arg(long)]
         segments: Option<u64>,
+        /// How long the plant (and the ping-pong's pinger) watch their core before starting,
+        /// to start the cycles at the phase of the period the host's periodic interruptions
+        /// leave alone (the job's `[run] phase_probe_s`); 0 starts them at whatever phase.
+        #[arg(long, default_value_t = feedloop_model::job::DEFAULT_PHASE_PROBE_S)]
+        phase_probe_s: f64,
     },
     /// One table row per `latency.json` (of `bench latency` runs, e.g. from
     /// `scripts/latency-series`): the host's state, the bare ping-pong, the loop, their ratio,
@@ -103,7 +108,9 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
             reference_s,
             pingpong_cycles,
             segments,
+            phase_probe_s,
         } => latency(&LatencyOpts {
+            phase_probe_s,
             pingpong_cycles: pingpong_cycles.unwrap_or(cycles),
             segments: segments.unwrap_or(cycles.div_ceil(30_000).clamp(1, 10)),
             cycles,
@@ -141,14 +148,15 @@ pub fn run(cmd: BenchCmd) -> Result<ExitCode> {
     }
 }
 
-/// The bare iceoryx2 ping-pong of the loop's messages (`axis_count` axes) between this process
-/// (a thread pinned to the first of `cpus`) and an echo process (on the second): `n` round
-/// trips back to back, then `n` one per `period_ns`.
+/// The bare iceoryx2 ping-pong of the loop's messages (2 axes, as the bench job's) between
+/// this process (a thread pinned to the first of `cpus`) and an echo process (on the second):
+/// `n` round trips back to back, then `n` one per `period_ns`, at the phase a probe of
+/// `phase_probe_s` chose (as the plant does; 0: at whatever phase).
 fn pingpong(
     cpus: &[usize],
     period_ns: u64,
     n: u64,
-    axis_count: u32,
+    phase_probe_s: f64,
     dir: &Path,
 ) -> Result<(PingPong, Vec<EchoStamp>)> {
     let instance = format!("pingpong{}", std::process::id());
@@ -172,10 +180,13 @@ fn pingpong(
             });
             ping(
                 &instance,
-                axis_count,
+                2,
                 n,
                 n,
-                period_ns,
+                Pacing {
+                    period_ns,
+                    phase_probe_s,
+                },
                 Duration::from_secs(10),
             )
         })
@@ -213,7 +224,13 @@ const QUADRANT_TABLE: &str = include_str!("../../examples/tables/xy-circle-quadr
 /// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
 /// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
 /// `cycles`.
-pub(crate) fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) -> Result<PathBuf> {
+pub(crate) fn bench_job(
+    dir: &Path,
+    period_s: f64,
+    wait: WaitKind,
+    cycles: u64,
+    phase_probe_s: f64,
+) -> Result<PathBuf> {
     std::fs::write(dir.join("bench-x.toml"), MODEL_X)?;
     std::fs::write(dir.join("bench-c.toml"), MODEL_C)?;
     std::fs::write(dir.join("bench-quadrant.toml"), QUADRANT_TABLE)?;
@@ -225,7 +242,8 @@ pub(crate) fn bench_job(dir: &Path, period_s: f64, wait: WaitKind, cycles: u64) 
         let line = match key {
             "name" => "name = \"bench-latency\"".to_string(),
             "period_s" => format!(
-                "period_s = {period_s:e}\n\n[run]\nmode = \"realtime\"\nwait = \"{}\"",
+                "period_s = {period_s:e}\n\n[run]\nmode = \"realtime\"\nwait = \"{}\"\n\
+                 phase_probe_s = {phase_probe_s:e}",
                 wait.id()
             ),
             "turns" => format!("turns = {turns}"),
@@ -253,6 +271,7 @@ struct LatencyOpts {
     reference_s: f64,
     pingpong_cycles: u64,
     segments: u64,
+    phase_probe_s: f64,
 }
 
 fn latency(o: &LatencyOpts) -> Result<ExitCode> {
@@ -282,7 +301,13 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         Some(p) => crate::processes::parse_pin(p)?.to_vec(),
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let job = bench_job(out, period_s, wait_kind, cycles)?;
+    if !(o.phase_probe_s.is_finite() && (0.0..=10.0).contains(&o.phase_probe_s)) {
+        bail!(
+            "--phase-probe-s {}: must be within [0, 10] s",
+            o.phase_probe_s
+        );
+    }
+    let job = bench_job(out, period_s, wait_kind, cycles, o.phase_probe_s)?;
     let period_ns = (period_s * 1e9).round() as u64;
     let probe_cpus: Vec<usize> = if cpus.is_empty() {
         (0..std::thread::available_parallelism()
@@ -311,6 +336,8 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     let mut pp: Option<PingPong> = None;
     let mut stamps: Vec<TimedPings> = Vec::new();
     let mut last_dir = out.to_path_buf();
+    // per part: the phase the plant's probe chose, and the ping-pong's
+    let (mut loop_phases, mut pp_phases) = (Vec::new(), Vec::new());
     for k in 0..segments {
         let share = |n: u64| n / segments + u64::from(k < n % segments);
         if pingpong_cycles > 0 {
@@ -320,10 +347,17 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
                 share(pingpong_cycles),
                 share(pingpong_cycles)
             );
-            let (p, st) = pingpong(&probe_cpus, period_ns, share(pingpong_cycles), 2, out)?;
+            let (p, st) = pingpong(
+                &probe_cpus,
+                period_ns,
+                share(pingpong_cycles),
+                o.phase_probe_s,
+                out,
+            )?;
             let all = pp.get_or_insert_with(PingPong::default);
             all.back_to_back_ns.extend(&p.back_to_back_ns);
             all.paced_ns.extend(&p.paced_ns);
+            pp_phases.push(p.phase.map_or(Value::Null, crate::processes::phase_json));
             stamps.push((p.stamped, st));
         }
         let n = share(cycles);
@@ -344,6 +378,8 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         };
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         run_processes(&job, &dir, wait_kind, n, &cpus, fifo, &instance)?;
+        loop_phases
+            .push(read_json(&dir.join("plant.json")).map_or(Value::Null, |v| v["phase"].clone()));
         let base = recs.last().map_or(0, |r| r.seq + 1_000);
         let mut p = read_log::<PlantRecord>(&dir.join("plant.log"))?.records;
         let mut s = read_log::<SchedRecord>(&dir.join("scheduler.log"))
@@ -363,7 +399,7 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
                 &probe_cpus,
                 period_ns,
                 pingpong_cycles.div_ceil(segments),
-                2,
+                o.phase_probe_s,
                 out,
             )?
             .0,
@@ -436,6 +472,16 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
         "misses_outside_stalls_and_core_losses": attribution.unexplained,
         "reference": reference,
         "iceoryx_pingpong": pingpong_json,
+        "phase": {
+            "what": "per part, what a probe of the core saw before the cycles started (the \
+                     plant's, and the ping-pong pinger's before its paced pings) and the phase \
+                     of the period they were started at: the one whose window the host's \
+                     interruptions hit least (hit_share: share of periods hit at that phase, \
+                     worst_hit_share: at the worst phase)",
+            "probe_s": o.phase_probe_s,
+            "loop": loop_phases,
+            "pingpong": pp_phases,
+        },
         "breakdown_us": {
             "what": "each answered cycle's round trip in parts, from the shared monotonic clock",
             "cycles": parts.cycles,
@@ -661,6 +707,9 @@ fn print_report(v: &Value, f: &RunFigures, a: &Attribution, period_ns: u64) {
         part("publish"),
         part("to_plant"),
     );
+    if let Some(line) = phase_line(&v["phase"]) {
+        println!("{line}");
+    }
     let pp = &v["iceoryx_pingpong"];
     if !pp.is_null() {
         let x = |k: &str| sig(pp["ratio"][k].as_f64().unwrap_or(f64::NAN));
@@ -728,4 +777,42 @@ fn table(runs: &[PathBuf]) -> Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The summary's line on the start phase: where the parts' cycles started against where the
+/// host's interruptions fell; `None` without probes.
+fn phase_line(ph: &Value) -> Option<String> {
+    let parts: Vec<&Value> = ph["loop"]
+        .as_array()?
+        .iter()
+        .filter(|p| p["phase_us"].is_number())
+        .collect();
+    if parts.is_empty() {
+        return None;
+    }
+    let range = |k: &str| {
+        let xs: Vec<f64> = parts.iter().filter_map(|p| p[k].as_f64()).collect();
+        let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = xs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (lo, hi)
+    };
+    let pct = |(lo, hi): (f64, f64)| format!("{}-{} %", sig(lo * 100.0), sig(hi * 100.0));
+    let (ph_lo, ph_hi) = range("phase_us");
+    let per_s = range("interruptions");
+    let probe_s = parts[0]["probe_s"].as_f64().unwrap_or(f64::NAN);
+    Some(format!(
+        "start phase: the plant's probe ({} s) saw the core taken {}-{} times; cycles started \
+         {}-{} us into the period, where the host's interruptions hit the round trip's {} us \
+         window in {} of periods, against {} at the worst phase ({} of {} parts)",
+        sig(probe_s),
+        per_s.0,
+        per_s.1,
+        sig(ph_lo),
+        sig(ph_hi),
+        sig(parts[0]["window_us"].as_f64().unwrap_or(f64::NAN)),
+        pct(range("hit_share")),
+        pct(range("worst_hit_share")),
+        parts.len(),
+        ph["loop"].as_array().map_or(0, |a| a.len()),
+    ))
 }

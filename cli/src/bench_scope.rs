@@ -175,7 +175,13 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
         Some(p) => crate::processes::parse_pin(p)?.to_vec(),
     };
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let job = crate::bench::bench_job(&a.out, a.period_s, wait, a.cycles)?;
+    let job = crate::bench::bench_job(
+        &a.out,
+        a.period_s,
+        wait,
+        a.cycles,
+        feedloop_model::job::DEFAULT_PHASE_PROBE_S,
+    )?;
     let period_ns = (a.period_s * 1e9).round() as u64;
     let exe = std::env::current_exe().context("locating the feedloop binary")?;
     let mut pairs = Vec::new();

@@ -228,6 +228,7 @@ fn plant_loop_config(
         watchdog_cycles: job.run.watchdog_cycles,
         peer_timeout_s: job.run.peer_timeout_s,
         startup_grace_s: job.run.startup_grace_s,
+        phase_probe_s: job.run.phase_probe_s,
         safety: job.safety.clone(),
         brake_gain: job
             .axes
@@ -314,6 +315,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 dropped_records: 0,
                 sequence: Default::default(),
                 loop_closed_after_s: None,
+                phase: None,
             }
         }
         Err(e) => return Err(e.into()),
@@ -339,6 +341,7 @@ pub fn plant(a: &ProcArgs, export: bool) -> Result<ExitCode> {
                 "commands": {"bad_sequence": outcome.sequence.bad_sequence, "duplicates": outcome.sequence.duplicates,
                              "late": outcome.sequence.late, "missing": outcome.sequence.missing},
                 "startup": {"loop_closed_after_s": outcome.loop_closed_after_s, "grace_s": cfg.startup_grace_s},
+                "phase": outcome.phase.map(phase_json),
                 "realtime": rt, "peak_rss_bytes": feedloop_runtime::shared::rt::peak_resident_bytes()}),
     )?;
     if export {
@@ -794,6 +797,22 @@ fn misses_near(records: &[PlantRecord], swaps: &[u64], window: u64) -> (WindowCo
         slot.late += u64::from(r.flags & (REC_MISSED | REC_OVERRUN) != 0);
     }
     (near, far)
+}
+
+/// `plant.json`'s `phase`: what the start-up probe saw of the host's interruptions and the
+/// phase of the period the cycles kept (`phase_us` null: nothing to avoid).
+pub(crate) fn phase_json(p: feedloop_runtime::shared::phase::PhaseChoice) -> serde_json::Value {
+    json!({
+        "probe_s": p.probe_s,
+        "interruptions": p.interruptions,
+        "longest_us": p.longest_ns as f64 * 1e-3,
+        "window_us": p.window_ns as f64 * 1e-3,
+        "phase_us": p.quiet.map(|q| q.phase_ns as f64 * 1e-3),
+        "hit_share": p.quiet.map(|q| q.hit_share),
+        "delay_us_per_cycle": p.quiet.map(|q| q.delay_ns * 1e-3),
+        "worst_hit_share": p.quiet.map(|q| q.worst_hit_share),
+        "worst_delay_us_per_cycle": p.quiet.map(|q| q.worst_delay_ns * 1e-3),
+    })
 }
 
 #[cfg(test)]

@@ -103,7 +103,16 @@ pub struct RunOptions {
     /// Realtime start-up: how long the plant waits, holding the axes, for the first command
     /// before the loop counts as closed, s. The watchdog runs only after that. Default 2.
     pub startup_grace_s: f64,
+    /// Realtime start-up: how long the plant watches its core, before the first sample, for the
+    /// phase of the period that the host's periodic interruptions (a timer tick, a hypervisor's
+    /// rhythm) leave alone; cycles then start at that phase. 0 starts them when the loop closes,
+    /// at whatever phase that is. Default [`DEFAULT_PHASE_PROBE_S`].
+    pub phase_probe_s: f64,
 }
+
+/// Default `[run] phase_probe_s`: 125 ticks of a 250 Hz kernel tick, enough for the phase not
+/// to move with the interruptions that come at other rhythms.
+pub const DEFAULT_PHASE_PROBE_S: f64 = 0.5;
 
 /// How the plant brings the axes to rest when a run must stop early.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -503,6 +512,11 @@ fn run_options(t: &toml::Table, path: &Path, period_s: f64) -> Result<RunOptions
         .map_or(default_watchdog, |c| c as u64);
     let peer_timeout_s = f.f64_or("peer_timeout_s", Range::Within(0.01, 3600.0), 5.0)?;
     let startup_grace_s = f.f64_or("startup_grace_s", Range::Within(0.001, 3600.0), 2.0)?;
+    let phase_probe_s = f.f64_or(
+        "phase_probe_s",
+        Range::Within(0.0, 10.0),
+        DEFAULT_PHASE_PROBE_S,
+    )?;
     f.finish()?;
     Ok(RunOptions {
         mode,
@@ -511,6 +525,7 @@ fn run_options(t: &toml::Table, path: &Path, period_s: f64) -> Result<RunOptions
         watchdog_cycles,
         peer_timeout_s,
         startup_grace_s,
+        phase_probe_s,
     })
 }
 
@@ -560,6 +575,22 @@ mod tests {
         let r = job("1.0e-4", "startup_grace_s = 0.5");
         assert_eq!(r.startup_grace_s, 0.5);
         assert_eq!(job("1.0e-4", "").startup_grace_s, 2.0);
+    }
+
+    #[test]
+    fn the_phase_probe_defaults_to_half_a_second_and_is_refused_beyond_its_range() {
+        let run = |run: &str| {
+            setup(&format!(
+                "period_s = 1e-4\n[run]\n{run}\n[axes.x]\nmodel = \"m.toml\"\n[trajectory]\nkind = \"dwell\"\n"
+            ))
+            .1
+            .map(|j| j.run.phase_probe_s)
+        };
+        assert_eq!(run("").unwrap(), DEFAULT_PHASE_PROBE_S);
+        assert_eq!(run("phase_probe_s = 0").unwrap(), 0.0);
+        assert_eq!(run("phase_probe_s = 1.5").unwrap(), 1.5);
+        let e = run("phase_probe_s = -1").unwrap_err().to_string();
+        assert!(e.contains("phase_probe_s") && e.contains("j.toml"), "{e}");
     }
 
     #[test]

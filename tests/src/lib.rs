@@ -345,6 +345,8 @@ pub struct PlantThread {
     pub watchdog_cycles: u64,
     /// Realtime: how long cycle 0 waits for the first command, s.
     pub startup_grace_s: f64,
+    /// Realtime: the plant's phase probe before the first sample, s (0: none).
+    pub phase_probe_s: f64,
     pub cycle_hook: Option<fn(u64)>,
 }
 
@@ -386,6 +388,7 @@ pub fn spawn_plant_loop(
             watchdog_cycles: how.watchdog_cycles,
             peer_timeout_s: 10.0,
             startup_grace_s: how.startup_grace_s,
+            phase_probe_s: how.phase_probe_s,
             safety: job.safety.clone(),
             brake_gain: vec![5.0; job.axes.len()],
             torque_limit: vec![30.0; job.axes.len()],

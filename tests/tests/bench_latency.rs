@@ -194,6 +194,7 @@ fn bad_arguments_are_refused_with_the_flag_named() {
         (vec!["--period-s", "0"], "--period-s"),
         (vec!["--pin", "0"], "--pin"),
         (vec!["--reference-s=-1"], "--reference-s"),
+        (vec!["--phase-probe-s", "11"], "--phase-probe-s"),
     ] {
         let mut a = vec![
             "bench",
@@ -265,4 +266,23 @@ fn a_run_in_parts_pools_every_part_and_its_share_of_the_ping_pong() {
     assert_eq!(pp["breakdown_us"]["pings"], 100, "{v}");
     assert_eq!(pp["paced_us"]["count"], 801 - 100, "{v}");
     assert!(pp["ratio"]["p50"].as_f64().unwrap() > 0.0, "{v}");
+    // each part's loop and ping-pong probed the core (the default 0.5 s) before starting, and
+    // started at a phase of the 1 ms period when the probe saw something to avoid
+    let ph = &v["phase"];
+    assert_eq!(ph["probe_s"], 0.5, "{v}");
+    for side in ["loop", "pingpong"] {
+        let parts = ph[side].as_array().unwrap_or_else(|| panic!("{side}: {v}"));
+        assert_eq!(parts.len(), 2, "{v}");
+        for p in parts {
+            assert!(p["probe_s"].as_f64().unwrap() >= 0.5, "{p}");
+            match p["phase_us"].as_f64() {
+                Some(us) => {
+                    assert!((0.0..1000.0).contains(&us), "{p}");
+                    let (hit, worst) = (p["hit_share"].as_f64(), p["worst_hit_share"].as_f64());
+                    assert!(hit.unwrap() <= worst.unwrap(), "{p}");
+                }
+                None => assert_eq!(p["interruptions"], 0, "{p}"),
+            }
+        }
+    }
 }

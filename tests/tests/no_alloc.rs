@@ -87,6 +87,7 @@ fn ten_thousand_cycles_of_both_loops_allocate_nothing_outside_iceoryx2_send() {
             cycles: TOTAL,
             watchdog_cycles: 100,
             startup_grace_s: 2.0,
+            phase_probe_s: 0.0,
             cycle_hook: Some(hook),
         },
     );

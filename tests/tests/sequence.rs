@@ -58,6 +58,7 @@ fn the_plant_counts_bad_duplicate_late_and_missing_commands() {
             cycles: CYCLES,
             watchdog_cycles: 50,
             startup_grace_s: 2.0,
+            phase_probe_s: 0.0,
             cycle_hook: None,
         },
     );

@@ -85,6 +85,7 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
             cycles: CYCLES,
             watchdog_cycles: 200,
             startup_grace_s: 2.0,
+            phase_probe_s: 0.0,
             cycle_hook: None,
         },
     );
@@ -138,6 +139,7 @@ fn a_scheduler_that_never_answers_is_lost_after_the_start_up_grace_not_before() 
             cycles: CYCLES,
             watchdog_cycles: 5,
             startup_grace_s: 0.3,
+            phase_probe_s: 0.0,
             cycle_hook: None,
         },
     );
@@ -160,4 +162,56 @@ fn a_scheduler_that_never_answers_is_lost_after_the_start_up_grace_not_before() 
     }
     // The plant waited the whole grace (not 5 cycles of 100 us) before it gave up.
     assert!(took >= 0.3, "gave up after {took} s, grace 0.3 s");
+}
+
+#[test]
+fn realtime_cycles_start_at_the_phase_the_probe_chose_and_keep_it() {
+    let _g = feedloop_tests::process_lock();
+    let (job, instance, log, _dir) = start("startphase");
+    let n = job.axes.len();
+    let stop = Arc::new(AtomicBool::new(false));
+    let period_ns = 100_000u64;
+    let plant = spawn_plant_loop(
+        &job,
+        &instance,
+        log.clone(),
+        stop,
+        PlantThread {
+            mode: Mode::Realtime,
+            period_s: 1e-4,
+            cycles: CYCLES,
+            watchdog_cycles: 200,
+            startup_grace_s: 2.0,
+            phase_probe_s: 0.2,
+            cycle_hook: None,
+        },
+    );
+    rogue_scheduler(&instance, n, Some(Duration::ZERO), 0.004);
+    let out = plant.join().unwrap();
+    assert_eq!(out.end, PlantEnd::Completed, "{out:?}");
+    let phase = out.phase.expect("a realtime run with a probe reports it");
+    assert!(phase.probe_s >= 0.2, "{phase:?}");
+    let Some(q) = phase.quiet else {
+        // nothing took the core during the probe: no phase to prefer
+        assert_eq!(phase.interruptions, 0, "{phase:?}");
+        eprintln!("the probe saw no interruption: nothing to check of the phase");
+        return;
+    };
+    assert!(
+        q.phase_ns < period_ns && q.hit_share <= q.worst_hit_share,
+        "{q:?}"
+    );
+    // each cycle's deadline: the plant woke wake_late_ns after it and published a few us later
+    // (unless the host took the core between)
+    let recs = read_log::<PlantRecord>(&log).unwrap().records;
+    let mut off: Vec<u64> = recs[1..]
+        .iter()
+        .map(|r| (r.published_ns - r.wake_late_ns + period_ns - q.phase_ns) % period_ns)
+        .collect();
+    off.sort_unstable();
+    let median = off[off.len() / 2];
+    assert!(
+        median < 3_000,
+        "cycles published {median} ns after the chosen phase {q:?} (median)"
+    );
 }

@@ -7,7 +7,10 @@
 //!   than half a period late is a plant overrun; more than 1 ms, a stall (the machine stopped).
 //!   Start-up: sample 0 waits up to `startup_grace_s` for its command, the axes held (nothing is
 //!   stepped); its arrival closes the loop and starts the schedule (t0) and the watchdog, so
-//!   no cycle runs or is judged on a command the scheduler never sent.
+//!   no cycle runs or is judged on a command the scheduler never sent. Before sample 0 the
+//!   plant watches its core for `phase_probe_s` and starts t0 at the phase of the period the
+//!   host's periodic interruptions leave alone ([`crate::shared::phase`]); after a stall it
+//!   skips the whole periods missed, so cycles keep that phase.
 //! - `lockstep`: the plant steps as soon as the command for the cycle arrives.
 //!
 //! Every cycle is logged (what was measured and applied, how late) through a [`Recorder`].
@@ -17,6 +20,7 @@ use std::time::Duration;
 
 use crate::shared::clock::{now_ns, wait_until_ns};
 use crate::shared::ipc::{IpcError, PlantEndpoint, WaitOutcome};
+use crate::shared::phase::{next_at_phase, PhaseChoice};
 use crate::shared::record::Recorder;
 use crate::shared::scope::{scope_tap, ScopeSource};
 use crate::shared::wire::{
@@ -52,6 +56,10 @@ pub struct PlantLoopConfig {
     /// Realtime: how long cycle 0 waits for the first command (the loop closing), s. The axes
     /// are held meanwhile (the physics is not stepped) and the watchdog starts after it.
     pub startup_grace_s: f64,
+    /// Realtime: before the first sample, watch the core this long and start the schedule at
+    /// the phase of the period the host's periodic interruptions leave alone
+    /// ([`crate::shared::phase`]), s; 0 starts it when the loop closes, at whatever phase.
+    pub phase_probe_s: f64,
     /// Drive-side limits and the safe-stop behaviour.
     pub safety: SafetyOptions,
     /// Per axis: braking gain on motor velocity for `brake_ramp` (N m s/rad or N s/m).
@@ -135,6 +143,8 @@ pub struct PlantOutcome {
     /// Time from publishing the first sample to receiving its command, s: when the loop closed.
     /// None when no command ever came (the scheduler was lost during start-up).
     pub loop_closed_after_s: Option<f64>,
+    /// Realtime with a phase probe: what it saw and the phase the schedule kept.
+    pub phase: Option<PhaseChoice>,
 }
 
 /// What the plant saw on the command service besides the one expected command per cycle.
@@ -204,6 +214,10 @@ pub fn run_plant<P: PlantDevice>(
         source: e,
     })?;
 
+    // before the handshake: once the scheduler is through it, it waits for sample 0 only as
+    // long as for any sample
+    let phase = (cfg.mode == Mode::Realtime && cfg.phase_probe_s > 0.0)
+        .then(|| crate::shared::phase::choose(period_ns, cfg.phase_probe_s));
     if !handshake(ep, tag, n as u32, timeout_ns, &cfg.instance, stop)? {
         // stopped before the loop started: nothing moved
         rec.finish().map_err(|e| PlantLoopError::Log {
@@ -220,6 +234,7 @@ pub fn run_plant<P: PlantDevice>(
             dropped_records: 0,
             sequence: CommandSequence::default(),
             loop_closed_after_s: None,
+            phase: None,
         });
     }
 
@@ -246,6 +261,11 @@ pub fn run_plant<P: PlantDevice>(
     };
     let grace_ns = (cfg.startup_grace_s * 1e9) as u64;
     let mut loop_closed_after_s = None;
+    // where in the period cycles start (after the loop closes, and after a stall)
+    let start_at = |now: u64| match phase.and_then(|p| p.quiet) {
+        Some(q) => next_at_phase(now, period_ns, q.phase_ns),
+        None => now,
+    };
     let mut t0 = now_ns() + 5_000_000;
     if cfg.mode == Mode::Realtime {
         rec.set_phase(t0, period_ns);
@@ -272,8 +292,9 @@ pub fn run_plant<P: PlantDevice>(
                 flags |= REC_OVERRUN;
             }
             if wake_late_ns > STALL_NS {
-                // Re-anchor the schedule at now instead of racing through the missed deadlines.
-                t0 += wake_late_ns;
+                // Re-anchor the schedule instead of racing through the missed deadlines: skip
+                // the whole periods missed, so that cycles keep their phase.
+                t0 += wake_late_ns / period_ns * period_ns;
                 rec.set_phase(t0, period_ns);
                 // A machine-wide stall, unless the lateness is our own: a timed-out blocking
                 // wait for a missing command can overshoot by a timer tick (socket timeouts have
@@ -342,8 +363,8 @@ pub fn run_plant<P: PlantDevice>(
                 if k == 0 {
                     loop_closed_after_s = Some(latency_ns as f64 * 1e-9);
                     if cfg.mode == Mode::Realtime {
-                        // The schedule starts when the loop has closed.
-                        t0 = now_ns();
+                        // The schedule starts when the loop has closed (at the quiet phase).
+                        t0 = start_at(now_ns());
                         rec.set_phase(t0, period_ns);
                     }
                 }
@@ -478,6 +499,7 @@ pub fn run_plant<P: PlantDevice>(
         dropped_records: dropped,
         sequence: seqs,
         loop_closed_after_s,
+        phase,
     })
 }
 

@@ -2,6 +2,7 @@
 
 pub mod clock;
 pub mod ipc;
+pub mod phase;
 pub mod pingpong;
 pub mod record;
 pub mod rt;

@@ -22,6 +22,7 @@ use iceoryx2::prelude::*;
 
 use super::clock::{now_ns, spin_until_ns};
 use super::ipc::{create_node, pubsub, IpcError};
+use super::phase::{choose, next_at_phase, PhaseChoice};
 use super::wire::{ActuatorCommand, SensorSample, WireMessage, FLAG_END};
 
 /// Round trips measured by [`ping`], ns.
@@ -35,6 +36,18 @@ pub struct PingPong {
     /// The paced pings the echo timed: (seq, sent by the pinger, answer held by the pinger),
     /// clock readings in ns; with [`EchoStamp`]s of the same seq they split the round trip.
     pub stamped: Vec<(u64, u64, u64)>,
+    /// What the probe before the paced pings saw and chose (none without a probe).
+    pub phase: Option<PhaseChoice>,
+}
+
+/// How the paced pings are spaced.
+#[derive(Debug, Clone, Copy)]
+pub struct Pacing {
+    /// One ping per period, ns.
+    pub period_ns: u64,
+    /// Before the paced pings, watch the core this long and send them at the phase of the
+    /// period the host's interruptions leave alone, as the plant does (0: at whatever phase).
+    pub phase_probe_s: f64,
 }
 
 /// What the echo timed of one ping: clock readings ([`now_ns`]), ns.
@@ -105,7 +118,8 @@ fn receive_err(e: impl std::fmt::Debug) -> IpcError {
 }
 
 /// The pinging side on `instance`: waits up to `peer_timeout` for the echo, then measures
-/// `back_to_back` round trips, then `paced` ones, one every `period_ns`; the samples carry
+/// `back_to_back` round trips, then `paced` ones, one per period (at the quiet phase when
+/// `pacing` asks for a probe, as the plant starts its cycles); the samples carry
 /// `axis_count` axes (the loop's size). Ends the echo with `FLAG_END`.
 ///
 /// Plain iceoryx2, as its examples use it: `send_copy` (loan, write the whole message, send); spin on
@@ -115,9 +129,10 @@ pub fn ping(
     axis_count: u32,
     back_to_back: u64,
     paced: u64,
-    period_ns: u64,
+    pacing: Pacing,
     peer_timeout: Duration,
 ) -> Result<PingPong, IpcError> {
+    let period_ns = pacing.period_ns;
     let (_node, publisher, subscriber, sensors) =
         ports::<SensorSample, ActuatorCommand>(instance, "plant", "sensors", "commands")?;
     let give_up = now_ns().saturating_add(peer_timeout.as_nanos() as u64);
@@ -161,12 +176,17 @@ pub fn ping(
         back_to_back_ns: Vec::with_capacity(back_to_back as usize),
         paced_ns: Vec::with_capacity(paced as usize),
         stamped: Vec::with_capacity((paced / STAMP_EVERY) as usize + 1),
+        phase: None,
     };
     for _ in 0..back_to_back {
         let (t0, t1) = one(&mut sample)?;
         out.back_to_back_ns.push(t1 - t0);
     }
+    out.phase = (pacing.phase_probe_s > 0.0).then(|| choose(period_ns, pacing.phase_probe_s));
     let mut next = now_ns().saturating_add(period_ns);
+    if let Some(q) = out.phase.and_then(|p| p.quiet) {
+        next = next_at_phase(next, period_ns, q.phase_ns);
+    }
     for i in 0..paced {
         spin_until_ns(next);
         next = next.saturating_add(period_ns);
@@ -243,11 +263,29 @@ mod tests {
         let instance = format!("pptest{}", std::process::id());
         let i2 = instance.clone();
         let e = std::thread::spawn(move || echo(&i2, Duration::from_secs(10)));
-        let p = ping(&instance, 2, 500, 80, 200_000, Duration::from_secs(10)).unwrap();
+        let pacing = Pacing {
+            period_ns: 200_000,
+            phase_probe_s: 0.01,
+        };
+        let p = ping(&instance, 2, 500, 80, pacing, Duration::from_secs(10)).unwrap();
         assert_eq!(p.back_to_back_ns.len(), 500);
         assert_eq!(p.paced_ns.len() + p.stamped.len(), 80);
         assert_eq!(p.stamped.len() as u64, 80 / STAMP_EVERY);
         assert!(p.back_to_back_ns.iter().all(|t| *t > 0));
+        // the paced pings left at the phase the probe chose (the median one: a ping may be sent
+        // late when the host takes the core)
+        let phase = p.phase.expect("a probe was asked for");
+        if let Some(q) = phase.quiet {
+            let mut late: Vec<u64> = p
+                .stamped
+                .iter()
+                .map(|&(_, t0, _)| (t0 + 200_000 - q.phase_ns) % 200_000)
+                .collect();
+            late.sort_unstable();
+            assert!(late[late.len() / 2] < 20_000, "{late:?} {q:?}");
+        } else {
+            assert_eq!(phase.interruptions, 0, "{phase:?}");
+        }
         let (answered, stamps) = e.join().unwrap().unwrap();
         assert_eq!(answered, WARM_UP + 580);
         // the echo timed exactly the pings the pinger left out of its paced figures, and its
