@@ -748,9 +748,10 @@ fn table(runs: &[PathBuf]) -> Result<ExitCode> {
     println!(
         "| run | host: spinning loop lost its core (per s, max) | ping-pong p50 / p99 (paced) | \
          loop p50 / p99 | ratio p50 / p99 | jitter p99: loop / sleeping loop | misses outside \
-         stalls and core losses |"
+         stalls and core losses | start phase: time the host took from a cycle's window, at \
+         the chosen / the worst phase (median of the parts' probes) |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for r in runs {
         let path = if r.is_dir() {
             r.join("latency.json")
@@ -763,7 +764,7 @@ fn table(runs: &[PathBuf]) -> Result<ExitCode> {
         let pair = |h: &Value| format!("{} / {}", us(&h["p50"]), us(&h["p99"]));
         let spin = &v["reference"]["spinning_loop"];
         println!(
-            "| {} | {} /s, max {} | {} | {} | {} x / {} x | {} / {} | {} |",
+            "| {} | {} /s, max {} | {} | {} | {} x / {} x | {} / {} | {} | {} |",
             path.parent().unwrap_or(&path).display(),
             sig(f(&spin["interruptions_per_s"])),
             us(&spin["max_us"]),
@@ -774,9 +775,37 @@ fn table(runs: &[PathBuf]) -> Result<ExitCode> {
             us(&v["jitter_us"]["p99"]),
             us(&v["reference"]["sleeping_loop"]["jitter_us"]["p99"]),
             v["misses_outside_stalls_and_core_losses"],
+            phase_cell(&v["phase"]["loop"]),
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The table's start-phase cell: per cycle, the time the host's interruptions took from the
+/// window around a cycle's start during the plant's probes, at the chosen phase and at the
+/// worst one (medians over the parts); `-` without probes.
+fn phase_cell(parts: &Value) -> String {
+    let median = |k: &str| {
+        let mut xs: Vec<f64> = parts
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|p| p[k].as_f64())
+            .collect();
+        xs.sort_by(f64::total_cmp);
+        xs.get(xs.len() / 2).copied()
+    };
+    match (
+        median("delay_us_per_cycle"),
+        median("worst_delay_us_per_cycle"),
+    ) {
+        (Some(at), Some(worst)) => format!(
+            "{} / {} per cycle",
+            si(at * 1e-6, "s"),
+            si(worst * 1e-6, "s")
+        ),
+        _ => "-".to_string(),
+    }
 }
 
 /// The summary's line on the start phase: where the parts' cycles started against where the

@@ -165,6 +165,11 @@ fn a_short_hybrid_run_reports_consistent_figures_and_its_references() {
     let text = String::from_utf8_lossy(&t.stdout);
     let rows: Vec<&str> = text.lines().filter(|l| l.contains("lat |")).collect();
     assert_eq!(rows.len(), 1, "{text}");
+    assert_eq!(rows[0].matches('|').count(), 9, "{text}");
+    // the last cell: the start phase the plant's probes chose against the worst one
+    let phase_cell = rows[0].trim_end().trim_end_matches('|').trim_end();
+    let probed = v["phase"]["loop"][0]["phase_us"].is_number();
+    assert_eq!(phase_cell.ends_with("per cycle"), probed, "{text}");
     let ratio = v["iceoryx_pingpong"]["ratio"]["p50"].as_f64().unwrap();
     assert!(
         rows[0].contains(&format!("{} x", feedloop_model::units::sig(ratio))),

@@ -129,9 +129,14 @@ fn two_instances_run_at_the_same_time_without_interfering() {
             .unwrap()
     };
     let (a, b) = (dir.join("a"), dir.join("b"));
+    // names of this test process only: another checkout's suite may run the same test at once
+    let (ia, ib) = (
+        format!("twin-a-{}", std::process::id()),
+        format!("twin-b-{}", std::process::id()),
+    );
     let (oa, ob) = std::thread::scope(|sc| {
-        let ha = sc.spawn(|| spawn("twin-a", &a));
-        let hb = sc.spawn(|| spawn("twin-b", &b));
+        let ha = sc.spawn(|| spawn(&ia, &a));
+        let hb = sc.spawn(|| spawn(&ib, &b));
         (ha.join().unwrap(), hb.join().unwrap())
     });
     assert!(oa.status.success(), "{}", describe(&oa));

@@ -261,7 +261,7 @@ pub fn run_plant<P: PlantDevice>(
     };
     let grace_ns = (cfg.startup_grace_s * 1e9) as u64;
     let mut loop_closed_after_s = None;
-    // where in the period cycles start (after the loop closes, and after a stall)
+    // where the schedule starts once the loop has closed: at the quiet phase, if one was found
     let start_at = |now: u64| match phase.and_then(|p| p.quiet) {
         Some(q) => next_at_phase(now, period_ns, q.phase_ns),
         None => now,

@@ -28,8 +28,8 @@ pub const AWAY_NS: u64 = 1_000;
 const MAX_BINS: u64 = 4_096;
 /// Narrowest phase bin, ns.
 const MIN_BIN_NS: u64 = 250;
-/// At most this many stretches away are kept (a probe of 0.1 s on a noisy host sees ~50).
-const MAX_AWAY: usize = 1 << 16;
+/// At most this many stretches away are kept (a probe of 0.5 s on a noisy host sees 100-1,600).
+const MAX_AWAY: usize = 1 << 13;
 
 /// What a probe saw: the stretches the core was away.
 #[derive(Debug, Clone, PartialEq)]
