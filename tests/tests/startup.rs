@@ -66,6 +66,19 @@ fn start(name: &str) -> (Job, String, std::path::PathBuf, feedloop_tests::Scratc
     (job, instance, log, dir)
 }
 
+/// A realtime plant of [`CYCLES`] cycles at 10 kHz.
+fn realtime(watchdog_cycles: u64, startup_grace_s: f64, phase_probe_s: f64) -> PlantThread {
+    PlantThread {
+        mode: Mode::Realtime,
+        period_s: 1e-4,
+        cycles: CYCLES,
+        watchdog_cycles,
+        startup_grace_s,
+        phase_probe_s,
+        cycle_hook: None,
+    }
+}
+
 #[test]
 fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_start() {
     let _g = feedloop_tests::process_lock();
@@ -74,21 +87,7 @@ fn a_scheduler_slow_to_answer_its_first_sample_closes_the_loop_without_a_false_s
     let stop = Arc::new(AtomicBool::new(false));
     // 10 kHz with a 200-cycle watchdog: the 60 ms wait for the first answer is 600 periods,
     // which must not count against it.
-    let plant = spawn_plant_loop(
-        &job,
-        &instance,
-        log.clone(),
-        stop,
-        PlantThread {
-            mode: Mode::Realtime,
-            period_s: 1e-4,
-            cycles: CYCLES,
-            watchdog_cycles: 200,
-            startup_grace_s: 2.0,
-            phase_probe_s: 0.0,
-            cycle_hook: None,
-        },
-    );
+    let plant = spawn_plant_loop(&job, &instance, log.clone(), stop, realtime(200, 2.0, 0.0));
     let answered = rogue_scheduler(&instance, n, Some(Duration::from_millis(60)), 0.004);
     let out = plant.join().unwrap();
     assert_eq!(out.end, PlantEnd::Completed, "{out:?}");
@@ -128,21 +127,7 @@ fn a_scheduler_that_never_answers_is_lost_after_the_start_up_grace_not_before() 
     let n = job.axes.len();
     let stop = Arc::new(AtomicBool::new(false));
     let t0 = std::time::Instant::now();
-    let plant = spawn_plant_loop(
-        &job,
-        &instance,
-        log,
-        stop,
-        PlantThread {
-            mode: Mode::Realtime,
-            period_s: 1e-4,
-            cycles: CYCLES,
-            watchdog_cycles: 5,
-            startup_grace_s: 0.3,
-            phase_probe_s: 0.0,
-            cycle_hook: None,
-        },
-    );
+    let plant = spawn_plant_loop(&job, &instance, log, stop, realtime(5, 0.3, 0.0));
     let answered = rogue_scheduler(&instance, n, None, 0.0);
     let out = plant.join().unwrap();
     let took = t0.elapsed().as_secs_f64();
@@ -171,21 +156,7 @@ fn realtime_cycles_start_at_the_phase_the_probe_chose_and_keep_it() {
     let n = job.axes.len();
     let stop = Arc::new(AtomicBool::new(false));
     let period_ns = 100_000u64;
-    let plant = spawn_plant_loop(
-        &job,
-        &instance,
-        log.clone(),
-        stop,
-        PlantThread {
-            mode: Mode::Realtime,
-            period_s: 1e-4,
-            cycles: CYCLES,
-            watchdog_cycles: 200,
-            startup_grace_s: 2.0,
-            phase_probe_s: 0.2,
-            cycle_hook: None,
-        },
-    );
+    let plant = spawn_plant_loop(&job, &instance, log.clone(), stop, realtime(200, 2.0, 0.2));
     rogue_scheduler(&instance, n, Some(Duration::ZERO), 0.004);
     let out = plant.join().unwrap();
     assert_eq!(out.end, PlantEnd::Completed, "{out:?}");
