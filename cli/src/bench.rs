@@ -296,17 +296,18 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     if !(reference_s.is_finite() && (0.0..=3600.0).contains(&reference_s)) {
         bail!("--reference-s {reference_s}: must be within [0, 3600] s");
     }
+    let max_probe_s = feedloop_model::job::MAX_PHASE_PROBE_S;
+    if !(o.phase_probe_s.is_finite() && (0.0..=max_probe_s).contains(&o.phase_probe_s)) {
+        bail!(
+            "--phase-probe-s {}: must be within [0, {max_probe_s}] s",
+            o.phase_probe_s
+        );
+    }
     let cpus: Vec<usize> = match pin {
         None => vec![],
         Some(p) => crate::processes::parse_pin(p)?.to_vec(),
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    if !(o.phase_probe_s.is_finite() && (0.0..=10.0).contains(&o.phase_probe_s)) {
-        bail!(
-            "--phase-probe-s {}: must be within [0, 10] s",
-            o.phase_probe_s
-        );
-    }
     let job = bench_job(out, period_s, wait_kind, cycles, o.phase_probe_s)?;
     let period_ns = (period_s * 1e9).round() as u64;
     let probe_cpus: Vec<usize> = if cpus.is_empty() {
@@ -827,15 +828,15 @@ fn phase_line(ph: &Value) -> Option<String> {
     };
     let pct = |(lo, hi): (f64, f64)| format!("{}-{} %", sig(lo * 100.0), sig(hi * 100.0));
     let (ph_lo, ph_hi) = range("phase_us");
-    let per_s = range("interruptions");
+    let seen = range("interruptions");
     let probe_s = parts[0]["probe_s"].as_f64().unwrap_or(f64::NAN);
     Some(format!(
         "start phase: the plant's probe ({} s) saw the core taken {}-{} times; cycles started \
          {}-{} us into the period, where the host's interruptions hit the round trip's {} us \
          window in {} of periods, against {} at the worst phase ({} of {} parts)",
         sig(probe_s),
-        per_s.0,
-        per_s.1,
+        seen.0,
+        seen.1,
         sig(ph_lo),
         sig(ph_hi),
         sig(parts[0]["window_us"].as_f64().unwrap_or(f64::NAN)),

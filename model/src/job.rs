@@ -113,6 +113,8 @@ pub struct RunOptions {
 /// Default `[run] phase_probe_s`: 125 ticks of a 250 Hz kernel tick, enough for the phase not
 /// to move with the interruptions that come at other rhythms.
 pub const DEFAULT_PHASE_PROBE_S: f64 = 0.5;
+/// Longest `[run] phase_probe_s` accepted, s.
+pub const MAX_PHASE_PROBE_S: f64 = 10.0;
 
 /// How the plant brings the axes to rest when a run must stop early.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -514,7 +516,7 @@ fn run_options(t: &toml::Table, path: &Path, period_s: f64) -> Result<RunOptions
     let startup_grace_s = f.f64_or("startup_grace_s", Range::Within(0.001, 3600.0), 2.0)?;
     let phase_probe_s = f.f64_or(
         "phase_probe_s",
-        Range::Within(0.0, 10.0),
+        Range::Within(0.0, MAX_PHASE_PROBE_S),
         DEFAULT_PHASE_PROBE_S,
     )?;
     f.finish()?;

@@ -192,7 +192,8 @@ pub fn run_plant<P: PlantDevice>(
 ) -> Result<PlantOutcome, PlantLoopError> {
     let tag = crate::shared::wire::instance_tag(&cfg.instance);
     let n = plant.axis_count();
-    let period_ns = (cfg.period_s * 1e9).round() as u64;
+    // at least 1 ns: the schedule divides by it
+    let period_ns = ((cfg.period_s * 1e9).round() as u64).max(1);
     let timeout_ns = (cfg.peer_timeout_s * 1e9) as u64;
     let spin_ns = match cfg.wait {
         WaitKind::Busy => u64::MAX,
@@ -234,7 +235,7 @@ pub fn run_plant<P: PlantDevice>(
             dropped_records: 0,
             sequence: CommandSequence::default(),
             loop_closed_after_s: None,
-            phase: None,
+            phase,
         });
     }
 

@@ -8,11 +8,11 @@
 //! trip is the interruption's length; a few microseconds later in the period, it costs nothing.
 //! Which of the two a run gets used to be decided by the instant the loop happened to close.
 //!
-//! [`probe`] spins on the clock for a short while and adds up, per phase of the period
-//! (`CLOCK_MONOTONIC` modulo the period), the time the core was away. [`Probe::quiet_phase`]
-//! then names the phase where a window the length of a round trip was least often interrupted,
-//! and [`next_at_phase`] the first instant at that phase: the plant starts its schedule there,
-//! and keeps the phase when it re-anchors after a stall.
+//! [`probe`] spins on the clock for a short while and keeps every stretch the core was away.
+//! [`Probe::quiet_phase`] then names the phase of the period (`CLOCK_MONOTONIC` modulo the
+//! period) at which a window around a cycle's start lost the least time to those stretches, and
+//! [`next_at_phase`] the first instant at that phase: the plant starts its schedule there, and
+//! keeps the phase when it re-anchors after a stall.
 //!
 //! When nothing interrupted the probe, or the interruptions do not keep a phase (their rhythm
 //! does not divide into the period), every phase costs about the same and the choice changes
@@ -49,7 +49,7 @@ pub struct QuietPhase {
     pub phase_ns: u64,
     /// Share of the probe's periods whose window at that phase was interrupted (0..1).
     pub hit_share: f64,
-    /// Time those interruptions lasted, per period, ns (each counted up to a period).
+    /// Time those interruptions lasted, per period, ns.
     pub delay_ns: f64,
     /// Share of periods interrupted at the worst phase: what an unlucky start would have cost.
     pub worst_hit_share: f64,
@@ -150,7 +150,8 @@ impl Probe {
         let cost: Vec<u64> = hits.iter().map(|h| h.1).collect();
         let n = cost.len();
         let min = *cost.iter().min()?;
-        let max = *cost.iter().max()?;
+        let worst = (0..n).max_by_key(|&i| cost[i])?;
+        let max = cost[worst];
         let good = |c: u64| c <= min + (max - min) / 20;
         // the widest circular run of good bins, and its middle
         let mut best_mid = cost.iter().position(|&c| c == min)?;
@@ -170,7 +171,6 @@ impl Probe {
             }
         }
         let periods = self.span_ns as f64 / self.period_ns as f64;
-        let worst = (0..n).max_by_key(|&i| cost[i])?;
         let bin = self.period_ns as f64 / n as f64;
         Some(QuietPhase {
             phase_ns: (((best_mid as f64 + 0.5) * bin) as u64).min(self.period_ns - 1),
