@@ -305,8 +305,14 @@ ramp_s = {ramp_s:?}
     path.to_path_buf()
 }
 
+/// How long after a realtime run's processes appeared its loop has cycled for `settle`: the
+/// plant first probes its core for the job's default `phase_probe_s`.
+pub fn after_start(settle: std::time::Duration) -> std::time::Duration {
+    std::time::Duration::from_secs_f64(feedloop_model::job::DEFAULT_PHASE_PROBE_S) + settle
+}
+
 /// Starts `feedloop run JOB --mode realtime` into `dir/out` on the instance `PREFIX-<pid>`,
-/// waits for its scheduler and lets the loop settle for `settle`; returns the run, the
+/// waits for its scheduler and lets the loop cycle for `settle`; returns the run, the
 /// instance and the out folder.
 pub fn start_realtime_run(
     dir: &Path,
@@ -318,7 +324,7 @@ pub fn start_realtime_run(
     let out = dir.join("out");
     let run = start_run(job, &out, "realtime", &inst);
     wait_for_process(&["scheduler", "--instance", &inst]);
-    std::thread::sleep(settle);
+    std::thread::sleep(after_start(settle));
     (run, inst, out)
 }
 

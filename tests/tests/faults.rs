@@ -138,7 +138,7 @@ fn a_killed_launcher_leaves_no_loop_running_and_its_logs_merge() {
     let out = dir.join("out");
     let mut run = start_run(&job, &out, "realtime", &inst);
     wait_for_process(&["scheduler", "--instance", &inst]);
-    std::thread::sleep(after_start(400));
+    std::thread::sleep(feedloop_tests::after_start(Duration::from_millis(400)));
     signal(run.id(), "KILL");
     let _ = run.wait();
     let t = std::time::Instant::now();
@@ -183,12 +183,6 @@ fn a_killed_launcher_leaves_no_loop_running_and_its_logs_merge() {
     assert!(again.status.success(), "{}", describe(&again));
 }
 
-/// `ms` of cycles after a realtime run's processes appeared: the plant's phase probe (the job's
-/// default `phase_probe_s`) runs before the first cycle.
-fn after_start(ms: u64) -> Duration {
-    Duration::from_secs_f64(feedloop_model::job::DEFAULT_PHASE_PROBE_S) + Duration::from_millis(ms)
-}
-
 /// Whether a plant or scheduler process of `inst` is still there (zombies are gone processes).
 fn find_loop(inst: &str) -> bool {
     ["plant", "scheduler"].iter().any(|role| {
@@ -209,7 +203,7 @@ fn killed_plant_is_reported_as_plant_lost_with_the_trace_kept() {
     let inst = format!("killplant-{}", std::process::id());
     let mut run = start_run(&job, &out, "realtime", &inst);
     let plant = wait_for_process(&["plant", "--instance", &inst]);
-    std::thread::sleep(after_start(300));
+    std::thread::sleep(feedloop_tests::after_start(Duration::from_millis(300)));
     signal(plant, "KILL");
     let st = run.wait().unwrap();
     assert!(!st.success());
@@ -230,7 +224,7 @@ fn operator_stop_of_the_run_or_the_scheduler_brakes_and_exits_cleanly() {
         let inst = format!("opstop-{}-{target}", std::process::id());
         let mut run = start_run(&job, &out, "realtime", &inst);
         let sched = wait_for_process(&["scheduler", "--instance", &inst]);
-        std::thread::sleep(after_start(300));
+        std::thread::sleep(feedloop_tests::after_start(Duration::from_millis(300)));
         let pid = if target == "run" { run.id() } else { sched };
         signal(pid, "TERM");
         let st = run.wait().unwrap();
