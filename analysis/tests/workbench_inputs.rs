@@ -50,7 +50,11 @@ fn an_imported_foreign_export_gets_a_nominal_model_close_to_the_truth_and_a_repo
     let tr = Trace::read(&d.join("t.csv")).unwrap();
     let m = model_init(&tr, "rigid", None, None, &d.join("m.toml")).unwrap();
     // without Coulomb friction the viscous term absorbs it; the mass is close
-    assert!((m.base_value("mass_kg") - 50.0).abs() < 2.5, "{:?}", m.base);
+    assert!(
+        (m.base_value(feedloop_analysis::workbench::base::BaseParam::MassKg) - 50.0).abs() < 2.5,
+        "{:?}",
+        m.base
+    );
     let m = WbModel::load(&d.join("m.toml")).unwrap();
     let ax = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
     let r = fit(&m, &ax, &[EffectId::CoulombFriction], None, 0.05).unwrap();

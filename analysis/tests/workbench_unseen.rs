@@ -18,9 +18,10 @@ use std::path::{Path, PathBuf};
 
 use feedloop_analysis::workbench::{
     auto::auto,
+    base::BaseParam,
     data::{load_axis, AxisData, Prep},
     diagnose::{diagnose, DiagOptions, Diagnosis},
-    effects::{base_class, class_of, EffectId, WbModel},
+    effects::{class_of, EffectId, WbModel},
     fit::{fit_with, Errors},
     window::window_sim,
 };
@@ -115,7 +116,14 @@ fn table(dg: &Diagnosis) -> String {
 /// The class of a guided-loop step label (`refit KEY`, `ID`, `ID (replaces ...)`).
 fn step_class(label: &str) -> String {
     match label.strip_prefix("refit ") {
-        Some(k) => base_class(k).to_string(),
+        Some(k) => [BaseParam::RIGID.as_slice(), &BaseParam::TWO_MASS]
+            .concat()
+            .into_iter()
+            .find(|p| p.key() == k)
+            .expect("a base parameter's key")
+            .class()
+            .id()
+            .to_string(),
         None => {
             let id = label.split_whitespace().next().unwrap();
             class_of(EffectId::parse(id).unwrap()).to_string()
@@ -516,7 +524,8 @@ fn two_hidden_effects_give_both_classes_and_nothing_else() {
     // motor and load move together through the stiff screw: the data see their sum
     let ax = Axis::default();
     let d_true = ax.dm + ax.dl + 900.0 * ax.r() * ax.r();
-    let d_fit = a.model.base_value("dm_nms_per_rad") + a.model.base_value("dl_nms_per_rad");
+    let d_fit =
+        a.model.base_value(BaseParam::DmNmsPerRad) + a.model.base_value(BaseParam::DlNmsPerRad);
     assert!(
         (d_fit / d_true - 1.0).abs() < 0.1,
         "dm + dl {d_fit} for {d_true} after {added:?}"
@@ -582,7 +591,8 @@ fn a_weakly_excited_mode_is_inertia_on_these_moves_and_the_verdict_says_how_to_t
         let ax = Axis::default();
         let extra = 60.0 * ax.r() * ax.r();
         let k = top.effect.as_str();
-        let moved = top.params[k] - m.base_value(k);
+        let p = BaseParam::parse(m.kind(), k).expect("a base parameter of the model");
+        let moved = top.params[k] - m.base_value(p);
         assert!(
             (moved / extra - 1.0).abs() < 0.05,
             "{k} moves by {moved}, the mass adds {extra}"

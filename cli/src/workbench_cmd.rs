@@ -445,7 +445,7 @@ fn init_model(
     let params: serde_json::Map<String, serde_json::Value> = m
         .base
         .iter()
-        .map(|(k, v)| (k.clone(), serde_json::json!(v)))
+        .map(|(k, v)| (k.key().to_string(), serde_json::json!(v)))
         .collect();
     if json {
         println!(

@@ -24,10 +24,11 @@ use rayon::prelude::*;
 
 use serde_json::{json, Value};
 
+use super::base::{BaseClass, BaseParam};
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
 use super::effects::{
-    base_class, base_column, base_keys, channel, class_of, constant_force_words, evidence, fmt,
+    channel, class_of, constant_force_value, constant_force_words, evidence, fmt, round_sig,
     Channel, Effect, EffectId, Side, WbModel,
 };
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
@@ -209,7 +210,7 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
                 .into_iter()
                 .map(|p| vec![p])
                 .collect(),
-            _ => (1..=120)
+            AxisKind::BallScrew | AxisKind::Rotary => (1..=120)
                 .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
                 .collect(),
         },
@@ -243,7 +244,12 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
             let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
             vec![vec![lead]]
         }
-        _ => vec![vec![]],
+        // linear in their coefficients: nothing to search (backlash takes its dead band from
+        // the model where it is fitted)
+        EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::ConstantForce
+        | EffectId::Backlash => vec![vec![]],
     }
 }
 
@@ -274,15 +280,11 @@ pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
 
 /// The current values of the inertias (and the mass) among `keys`, 0 for the other keys: what
 /// [`best_effect`] keeps physical.
-pub fn inertias_now<K: AsRef<str>>(model: &WbModel, keys: &[K]) -> Vec<f64> {
+pub fn inertias_now(model: &WbModel, keys: &[BaseParam]) -> Vec<f64> {
     keys.iter()
-        .map(|k| {
-            let k = k.as_ref();
-            if base_class(k) == "inertia" {
-                model.base_value(k)
-            } else {
-                0.0
-            }
+        .map(|k| match k.class() {
+            BaseClass::Inertia => model.base_value(*k),
+            BaseClass::Damping => 0.0,
         })
         .collect()
 }
@@ -492,7 +494,7 @@ struct TorqueChannel<'d> {
     /// Cross-validation blocks.
     bl: Vec<(usize, usize)>,
     /// Base-parameter keys that can be refitted on this trace.
-    free_keys: Vec<&'static str>,
+    free_keys: Vec<BaseParam>,
     /// Their regressor columns.
     base_cols: Vec<&'d [f64]>,
     /// Rows that carry information (see [`moving_mask`]).
@@ -520,12 +522,12 @@ impl<'d> TorqueChannel<'d> {
         let res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
         let bl = blocks(d.range, FOLDS);
         // with one position column, motor and load columns coincide: keep one of each pair
-        let free_keys: Vec<&'static str> = base_keys(d.kind)
+        let free_keys: Vec<BaseParam> = BaseParam::of_kind(d.kind)
             .iter()
             .copied()
-            .filter(|k| d.has_motor() || !matches!(*k, "jl_kgm2" | "dl_nms_per_rad"))
+            .filter(|k| d.has_motor() || !k.on_load())
             .collect();
-        let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
+        let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
         let mask = moving_mask(d);
         let cv0 = cv_cols_masked(&[], &[], &res, &bl, mask.as_deref());
         let e0 = cv0.rms.max(1e-300);
@@ -557,12 +559,12 @@ fn base_parameter_candidates(
     let (a, b) = d.range;
     let mut cands = Vec::new();
     for k in &ch.free_keys {
-        let col = base_column(k, d);
+        let col = k.column(d);
         let cv = cv_cols_masked(&[col], &[], &ch.res, &ch.bl, ch.mask.as_deref());
         let red = 100.0 * (ch.e0 - cv.rms) / ch.e0;
         let wins = fold_wins(&cv, &ch.cv0.fold_mse);
         let delta = cv.theta[0];
-        let old = model.base_value(k);
+        let old = model.base_value(*k);
         let mut params = BTreeMap::new();
         params.insert(k.to_string(), old + delta);
         let contribution: Vec<f64> = decimate(col, a, b).iter().map(|x| x * delta).collect();
@@ -572,7 +574,7 @@ fn base_parameter_candidates(
         cands.push(Candidate {
             effect: k.to_string(),
             is_param: true,
-            class: base_class(k).to_string(),
+            class: k.class().id().to_string(),
             significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && outside,
             error_reduction_pct: red.min(100.0),
             evidence: format!(
@@ -700,11 +702,11 @@ fn deflection_candidate(
         significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && resolvable,
         error_reduction_pct: red.min(100.0),
         evidence: if resolvable {
-            evidence(&e, d, &params)
+            evidence(&e, d)
         } else {
             format!(
                 "{}; below the 1 nm any feed-drive encoder resolves: not significant",
-                evidence(&e, d, &params)
+                evidence(&e, d)
             )
         },
         params,
@@ -733,7 +735,7 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
         class: "damping".into(),
         significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS,
         error_reduction_pct: red.min(100.0),
-        evidence: evidence(&e, d, &params),
+        evidence: evidence(&e, d),
         params,
         same_as: vec![],
         contribution: decimate(&e.contribution(d), a, b),
@@ -806,7 +808,7 @@ fn mode_candidate(model: &WbModel, d: &AxisData, ch: &TorqueChannel<'_>) -> Opti
         error_reduction_pct: red.min(100.0),
         evidence: format!(
             "{}; in the band up to {} Hz it lowers the error by {:.1} % beyond a refit of the base parameters",
-            evidence(&e, d, &params),
+            evidence(&e, d),
             fmt(wide_hz),
             wide.error_reduction_pct
         ),
@@ -834,7 +836,7 @@ fn torque_effect_candidate(
     let mut add = vec![e.clone()];
     let mut cv = cv;
     let mut params = flat(&e.to_table(d.kind, d.r));
-    let mut ev = evidence(&e, d, &params);
+    let mut ev = evidence(&e, d);
     if id == EffectId::CoulombFriction {
         if let Some(with_offset) = coulomb_with_offset(&e, &cv, d, ch) {
             (add, cv, params, ev) = with_offset;
@@ -938,16 +940,7 @@ fn coulomb_with_offset(
     let mut params = flat(&ec.to_table(kind, d.r));
     // the offset in the sign of the model file's constant_force (the force on the axis, see
     // docs/workbench.md "Signs"), i.e. minus the torque-balance coefficient
-    let force_key = if kind == AxisKind::Rotary {
-        "torque_nm"
-    } else {
-        "force_n"
-    };
-    let off = cf
-        .to_table(kind, d.r)
-        .get(force_key)
-        .and_then(toml::Value::as_float)
-        .unwrap_or(0.0);
+    let off = round_sig(constant_force_value(cf.coef[0], kind, d.r));
     let key = if kind == AxisKind::Rotary {
         "offset_nm"
     } else {
@@ -956,7 +949,7 @@ fn coulomb_with_offset(
     params.insert(key.into(), off);
     let ev = format!(
         "{}, with {} in both directions (asymmetric Coulomb friction and Coulomb plus constant_force are one class while the axis moves)",
-        evidence(&ec, d, &params),
+        evidence(&ec, d),
         constant_force_words(off, kind)
     );
     Some((vec![ec, cf], cv2, params, ev))
@@ -1199,7 +1192,7 @@ fn condition_on_top(
         if extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci {
             if let Some((e, _)) = rescored {
                 c.params = flat(&e.to_table(d.kind, d.r));
-                c.evidence = evidence(&e, d, &c.params);
+                c.evidence = evidence(&e, d);
                 c.add = vec![e];
             }
             if !was_significant {

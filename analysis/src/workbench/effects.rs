@@ -10,13 +10,18 @@
 //! need both position columns. These forms are deliberately simple and generic: the diagnosis
 //! must not depend on the exact formula of any simulator.
 
-use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::path::Path;
 
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
-use feedloop_model::params::{read_toml_file, ConfigError};
+use feedloop_model::params::read_toml_file;
+use feedloop_plant::effects::{
+    read_effects, BacklashParams, CoggingParams, CoggingPeriod, ConstantForceParams,
+    CoulombFrictionParams, Ctx, CurrentLagParams, DelayParams, EffectParams, PitchErrorParams,
+    StribeckFrictionParams, ThirdMassParams, TorqueSaturationParams, ViscousFrictionParams,
+};
 
+use super::base::BaseParam;
 use super::data::AxisData;
 use super::signal::{quantile, sub_sample_means, zoh_mid};
 use super::WorkbenchError;
@@ -159,9 +164,9 @@ impl Effect {
     }
 
     fn raw_columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
-        let (q, v) = match self.side {
-            Side::Motor => (&d.qm, &d.vm),
-            Side::Load => (&d.ql, &d.vl),
+        let v = match self.side {
+            Side::Motor => &d.vm,
+            Side::Load => &d.vl,
         };
         if d.sub > 1 {
             if let Some(cols) = self.held_columns(d, v) {
@@ -217,10 +222,8 @@ impl Effect {
                     d.qm.clone(),
                 ]
             }
-            _ => {
-                let _ = q;
-                vec![]
-            }
+            // the torque-path effects transform the recorded torque instead
+            EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => vec![],
         }
     }
 
@@ -255,7 +258,14 @@ impl Effect {
                 vec![m(v, &|x| sgn(x, eps)), m(v, &hump)]
             }
             EffectId::Cogging => held_ripple(&d.qm, 2.0 * PI / self.hyper[0], d.sub),
-            _ => return None,
+            EffectId::ViscousFriction
+            | EffectId::ConstantForce
+            | EffectId::ThirdMass
+            | EffectId::Backlash
+            | EffectId::PitchError
+            | EffectId::Delay
+            | EffectId::CurrentLag
+            | EffectId::TorqueSaturation => return None,
         })
     }
 
@@ -311,224 +321,210 @@ impl Effect {
                 let l = self.hyper[0];
                 y.iter().map(|x| x.clamp(-l, l)).collect()
             }
-            _ => y.to_vec(),
+            EffectId::ViscousFriction
+            | EffectId::CoulombFriction
+            | EffectId::StribeckFriction
+            | EffectId::Backlash
+            | EffectId::PitchError
+            | EffectId::Cogging
+            | EffectId::ConstantForce
+            | EffectId::ThirdMass => y.to_vec(),
         }
     }
 
-    /// Model-file keys and values of this effect (SI, the units the plant library documents).
-    /// Kept as one function (about 100 lines): one arm per effect, the mirror of `from_table`.
-    pub fn to_table(&self, kind: AxisKind, r: f64) -> toml::Table {
-        let mut t = toml::Table::new();
-        let put = |t: &mut toml::Table, k: &str, v: f64| {
-            t.insert(k.to_string(), toml::Value::Float(round_sig(v)));
-        };
-        let load_lin =
-            kind != AxisKind::Rotary && (self.side == Side::Load || kind == AxisKind::Rigid);
-        // factor from motor-unit torque to the key's unit, and from motor velocity
-        let (tf, vf, ts, vs, cs) = if load_lin {
-            let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
-            (rr, 1.0 / rr, "n", "m_per_s", "ns_per_m")
-        } else {
-            (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
-        };
-        let side = || toml::Value::String(self.side.id().into());
+    /// The model file's typed form of this effect (SI, the units the plant library documents).
+    /// One arm per effect, the mirror of [`Effect::from_params`].
+    pub fn to_params(&self, kind: AxisKind, r: f64) -> EffectParams {
+        let (tf, vf) = side_factors(kind, self.side, r);
+        let side = self.side;
         match self.id {
             EffectId::ViscousFriction => {
-                put(&mut t, &format!("c_{cs}"), self.coef[0] * tf / vf);
+                let c = self.coef[0] * tf / vf;
+                EffectParams::ViscousFriction(ViscousFrictionParams { side, c, c_neg: c })
             }
             EffectId::CoulombFriction => {
                 let (s, a) = (self.coef[0], self.coef[1]);
-                put(&mut t, &format!("fc_{ts}"), (s + a) * tf);
-                if a.abs() > 1e-12 * s.abs().max(1e-300) {
-                    put(&mut t, &format!("fc_neg_{ts}"), (s - a) * tf);
-                }
+                let fc = (s + a) * tf;
+                // an asymmetry below 1e-12 of the level is rounding, not a second level
+                let fc_neg = if a.abs() > 1e-12 * s.abs().max(1e-300) {
+                    (s - a) * tf
+                } else {
+                    fc
+                };
+                EffectParams::CoulombFriction(CoulombFrictionParams { side, fc, fc_neg })
             }
             EffectId::StribeckFriction => {
-                put(&mut t, &format!("fc_{ts}"), self.coef[0] * tf);
-                put(
-                    &mut t,
-                    &format!("fs_{ts}"),
-                    (self.coef[0] + self.coef[1].max(0.0)) * tf,
-                );
-                put(&mut t, &format!("vs_{vs}"), self.hyper[0] * vf);
-                put(&mut t, "exponent", self.hyper[1]);
+                let fc = self.coef[0] * tf;
+                let fs = (self.coef[0] + self.coef[1].max(0.0)) * tf;
+                EffectParams::StribeckFriction(StribeckFrictionParams {
+                    side,
+                    fc,
+                    fs,
+                    fc_neg: fc,
+                    fs_neg: fs,
+                    vs: self.hyper[0] * vf,
+                    exponent: self.hyper[1],
+                })
             }
-            EffectId::ConstantForce => match kind {
-                AxisKind::Rotary => put(&mut t, "torque_nm", -self.coef[0]),
-                AxisKind::BallScrew => put(&mut t, "force_n", -self.coef[0] * r),
-                AxisKind::Rigid => put(&mut t, "force_n", -self.coef[0]),
-            },
+            EffectId::ConstantForce => EffectParams::ConstantForce(ConstantForceParams {
+                value: constant_force_value(self.coef[0], kind, r),
+            }),
             EffectId::Cogging => {
                 let (a, b) = (self.coef[0], self.coef[1]);
-                let amp = a.hypot(b);
-                let phase = (-b).atan2(-a);
-                match kind {
-                    AxisKind::Rigid => {
-                        put(&mut t, "amplitude_n", amp);
-                        put(&mut t, "period_m", self.hyper[0]);
-                    }
-                    _ => {
-                        put(&mut t, "amplitude_nm", amp);
-                        t.insert(
-                            "periods_per_rev".into(),
-                            toml::Value::Integer((2.0 * PI / self.hyper[0]).round() as i64),
-                        );
-                    }
-                }
-                t.insert("phase_rad".into(), toml::Value::Float(round_sig(phase)));
+                EffectParams::Cogging(CoggingParams {
+                    amplitude: a.hypot(b),
+                    period: match kind {
+                        AxisKind::Rigid => CoggingPeriod::Metres(self.hyper[0]),
+                        AxisKind::BallScrew | AxisKind::Rotary => {
+                            CoggingPeriod::PerRev((2.0 * PI / self.hyper[0]).round() as i64)
+                        }
+                    },
+                    phase_rad: (-b).atan2(-a),
+                })
             }
             EffectId::ThirdMass => {
                 let w = 2.0 * PI * self.hyper[0];
-                let m = self.coef[0].max(0.0);
-                let (k1, k2, k3, f) = third_mass_keys(kind, r);
-                put(&mut t, k1, m * f);
-                put(&mut t, k2, m * f * w * w);
-                put(&mut t, k3, 2.0 * self.hyper[1] * w * m * f);
+                let (m, f) = (self.coef[0].max(0.0), third_mass_factor(kind, r));
+                EffectParams::ThirdMass(ThirdMassParams {
+                    mass: m * f,
+                    stiffness: m * f * w * w,
+                    damping: 2.0 * self.hyper[1] * w * m * f,
+                })
             }
-            EffectId::Delay => {
-                t.insert(
-                    "delay_cycles".into(),
-                    toml::Value::Integer(self.hyper[0].round() as i64),
-                );
-            }
-            EffectId::CurrentLag => put(&mut t, "tau_s", self.hyper[0]),
-            EffectId::TorqueSaturation => match kind {
-                AxisKind::Rigid => put(&mut t, "limit_n", self.hyper[0]),
-                _ => put(&mut t, "limit_nm", self.hyper[0]),
-            },
-            EffectId::Backlash => match kind {
-                AxisKind::BallScrew => put(&mut t, "gap_m", (2.0 * self.coef[0] / r).max(0.0)),
-                _ => put(&mut t, "gap_rad", (2.0 * self.coef[0]).max(0.0)),
-            },
-            EffectId::PitchError => {
-                // the deflection carries minus the lead error (the motor angle makes up for it)
-                let (a, b) = (-self.coef[0], -self.coef[1]);
-                put(&mut t, "amplitude_m", a.hypot(b) / r);
-                put(&mut t, "period_m", self.hyper[0]);
-                t.insert(
-                    "phase_rad".into(),
-                    toml::Value::Float(round_sig(b.atan2(a))),
-                );
-                put(&mut t, "slope_um_per_m", -self.coef[2] * 1e6);
-            }
+            EffectId::Delay => EffectParams::Delay(DelayParams {
+                cycles: self.hyper[0].round() as i64,
+            }),
+            EffectId::CurrentLag => EffectParams::CurrentLag(CurrentLagParams {
+                tau_s: self.hyper[0],
+            }),
+            EffectId::TorqueSaturation => EffectParams::TorqueSaturation(TorqueSaturationParams {
+                limit: self.hyper[0],
+            }),
+            EffectId::Backlash => EffectParams::Backlash(self.backlash_params(kind, r)),
+            EffectId::PitchError => EffectParams::PitchError(self.pitch_params(r)),
         }
-        if self.id.has_side() && kind != AxisKind::Rigid {
-            t.insert("side".into(), side());
+    }
+
+    /// The model file's form of a `backlash` effect: the full gap at the load.
+    fn backlash_params(&self, kind: AxisKind, r: f64) -> BacklashParams {
+        BacklashParams {
+            gap: match kind {
+                AxisKind::BallScrew => (2.0 * self.coef[0] / r).max(0.0),
+                AxisKind::Rotary | AxisKind::Rigid => (2.0 * self.coef[0]).max(0.0),
+            },
+        }
+    }
+
+    /// The model file's form of a `pitch_error` effect.
+    fn pitch_params(&self, r: f64) -> PitchErrorParams {
+        // the deflection carries minus the lead error (the motor angle makes up for it)
+        let (a, b) = (-self.coef[0], -self.coef[1]);
+        PitchErrorParams {
+            amplitude_m: a.hypot(b) / r,
+            period_m: self.hyper[0],
+            phase_rad: b.atan2(a),
+            slope_um_per_m: -self.coef[2] * 1e6,
+        }
+    }
+
+    /// Model-file keys and values of this effect, rounded to 7 significant digits.
+    pub fn to_table(&self, kind: AxisKind, r: f64) -> toml::Table {
+        let ctx = Ctx {
+            kind,
+            motor_per_load: r,
+            lead_m: None,
+        };
+        let mut t = self.to_params(kind, r).to_table(&ctx);
+        for (_, v) in t.iter_mut() {
+            if let toml::Value::Float(x) = v {
+                *x = round_sig(*x);
+            }
         }
         t
     }
 
-    /// Reads an effect table of a model file (keys as the plant library documents them).
-    /// Kept as one function (about 120 lines): one arm per effect, so that an effect's keys are
-    /// read where its `to_table` arm writes them.
-    pub fn from_table(
-        id: EffectId,
-        t: &toml::Table,
-        kind: AxisKind,
-        r: f64,
-        lead: f64,
-        file: &Path,
-        key: &str,
-    ) -> Result<Self, ConfigError> {
-        let num = |k: &str| -> Result<Option<f64>, ConfigError> {
-            match t.get(k) {
-                None => Ok(None),
-                Some(toml::Value::Float(f)) if f.is_finite() => Ok(Some(*f)),
-                Some(toml::Value::Integer(i)) => Ok(Some(*i as f64)),
-                Some(other) => Err(ConfigError::new(
-                    file,
-                    format!("{key}.{k}"),
-                    format!("must be a finite number, got {other}"),
-                )),
+    /// The regressor form of an effect of a model file. One arm per effect, the mirror of
+    /// [`Effect::to_params`].
+    pub fn from_params(p: &EffectParams, kind: AxisKind, r: f64) -> Self {
+        let side = p.side().unwrap_or(Side::Motor);
+        let (tf, vf) = side_factors(kind, side, r);
+        let mut e = Effect::new(p.id(), side, vec![]);
+        match p {
+            EffectParams::ViscousFriction(p) => e.coef = vec![0.5 * (p.c + p.c_neg) * vf / tf],
+            EffectParams::CoulombFriction(p) => {
+                e.coef = vec![0.5 * (p.fc + p.fc_neg) / tf, 0.5 * (p.fc - p.fc_neg) / tf];
             }
-        };
-        let need = |k: &str| -> Result<f64, ConfigError> {
-            num(k)?.ok_or_else(|| {
-                ConfigError::new(file, format!("{key}.{k}"), "is required but missing")
-            })
-        };
-        let side = t
-            .get("side")
-            .and_then(|v| v.as_str())
-            .and_then(Side::parse)
-            .unwrap_or(Side::Motor);
-        let load_lin = kind != AxisKind::Rotary && (side == Side::Load || kind == AxisKind::Rigid);
-        let (tf, vf, ts, vs, cs) = if load_lin {
-            let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
-            (rr, 1.0 / rr, "n", "m_per_s", "ns_per_m")
-        } else {
-            (1.0, 1.0, "nm", "rad_per_s", "nms_per_rad")
-        };
-        let mut e = Effect::new(id, side, vec![]);
-        match id {
-            EffectId::ViscousFriction => {
-                let c = need(&format!("c_{cs}"))?;
-                let cn = num(&format!("c_neg_{cs}"))?.unwrap_or(c);
-                e.coef = vec![0.5 * (c + cn) * vf / tf];
+            EffectParams::StribeckFriction(p) => {
+                e.hyper = vec![p.vs / vf, p.exponent];
+                e.coef = vec![p.fc / tf, (p.fs - p.fc) / tf];
             }
-            EffectId::CoulombFriction => {
-                let fc = need(&format!("fc_{ts}"))?;
-                let fcn = num(&format!("fc_neg_{ts}"))?.unwrap_or(fc);
-                e.coef = vec![0.5 * (fc + fcn) / tf, 0.5 * (fc - fcn) / tf];
-            }
-            EffectId::StribeckFriction => {
-                let fc = need(&format!("fc_{ts}"))?;
-                let fs = need(&format!("fs_{ts}"))?;
-                let v = need(&format!("vs_{vs}"))?;
-                e.hyper = vec![v / vf, num("exponent")?.unwrap_or(2.0)];
-                e.coef = vec![fc / tf, (fs - fc) / tf];
-            }
-            EffectId::ConstantForce => {
+            EffectParams::ConstantForce(p) => {
                 e.coef = vec![match kind {
-                    AxisKind::Rotary => -need("torque_nm")?,
-                    AxisKind::BallScrew => -need("force_n")? / r,
-                    AxisKind::Rigid => -need("force_n")?,
+                    AxisKind::BallScrew => -p.value / r,
+                    AxisKind::Rotary | AxisKind::Rigid => -p.value,
                 }];
             }
-            EffectId::Cogging => {
-                let (amp, period) = match kind {
-                    AxisKind::Rigid => (need("amplitude_n")?, need("period_m")?),
-                    _ => (need("amplitude_nm")?, 2.0 * PI / need("periods_per_rev")?),
-                };
-                let ph = num("phase_rad")?.unwrap_or(0.0);
-                e.hyper = vec![period];
-                e.coef = vec![-amp * ph.cos(), -amp * ph.sin()];
-            }
-            EffectId::ThirdMass => {
-                let (k1, k2, k3, f) = third_mass_keys(kind, r);
-                let m = need(k1)?;
-                let k = need(k2)?;
-                let c = num(k3)?.unwrap_or(0.0);
-                let w = (k / m).sqrt();
-                e.hyper = vec![w / (2.0 * PI), c / (2.0 * m * w)];
-                e.coef = vec![m / f];
-            }
-            EffectId::Delay => e.hyper = vec![need("delay_cycles")?],
-            EffectId::CurrentLag => e.hyper = vec![need("tau_s")?],
-            EffectId::TorqueSaturation => {
-                e.hyper = vec![match kind {
-                    AxisKind::Rigid => need("limit_n")?,
-                    _ => need("limit_nm")?,
-                }]
-            }
-            EffectId::Backlash => {
-                e.coef = vec![match kind {
-                    AxisKind::BallScrew => 0.5 * need("gap_m")? * r,
-                    _ => 0.5 * need("gap_rad")?,
-                }]
-            }
-            EffectId::PitchError => {
-                let a = need("amplitude_m")? * r;
-                let ph = num("phase_rad")?.unwrap_or(0.0);
-                e.hyper = vec![num("period_m")?.unwrap_or(lead)];
+            EffectParams::Cogging(p) => {
+                e.hyper = vec![match p.period {
+                    CoggingPeriod::Metres(period) => period,
+                    CoggingPeriod::PerRev(n) => 2.0 * PI / n as f64,
+                }];
                 e.coef = vec![
-                    -a * ph.cos(),
-                    -a * ph.sin(),
-                    -num("slope_um_per_m")?.unwrap_or(0.0) * 1e-6,
+                    -p.amplitude * p.phase_rad.cos(),
+                    -p.amplitude * p.phase_rad.sin(),
                 ];
             }
+            EffectParams::ThirdMass(p) => {
+                let w = (p.stiffness / p.mass).sqrt();
+                e.hyper = vec![w / (2.0 * PI), p.damping / (2.0 * p.mass * w)];
+                e.coef = vec![p.mass / third_mass_factor(kind, r)];
+            }
+            EffectParams::Delay(p) => e.hyper = vec![p.cycles as f64],
+            EffectParams::CurrentLag(p) => e.hyper = vec![p.tau_s],
+            EffectParams::TorqueSaturation(p) => e.hyper = vec![p.limit],
+            EffectParams::Backlash(p) => {
+                e.coef = vec![match kind {
+                    AxisKind::BallScrew => 0.5 * p.gap * r,
+                    AxisKind::Rotary | AxisKind::Rigid => 0.5 * p.gap,
+                }];
+            }
+            EffectParams::PitchError(p) => {
+                let a = p.amplitude_m * r;
+                let ph = p.phase_rad;
+                e.hyper = vec![p.period_m];
+                e.coef = vec![-a * ph.cos(), -a * ph.sin(), -p.slope_um_per_m * 1e-6];
+            }
         }
-        Ok(e)
+        e
+    }
+}
+
+/// Factors from motor-unit torque and velocity to the units of the keys of a friction table on
+/// `side` (N and m/s on a linear body, else N m and rad/s).
+fn side_factors(kind: AxisKind, side: Side, r: f64) -> (f64, f64) {
+    let load_lin = kind != AxisKind::Rotary && (side == Side::Load || kind == AxisKind::Rigid);
+    if load_lin {
+        let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
+        (rr, 1.0 / rr)
+    } else {
+        (1.0, 1.0)
+    }
+}
+
+/// The model file's `constant_force` (the force on the axis, N, or its torque on a rotary axis,
+/// N m; positive along +x) of a torque-balance coefficient `coef` (motor units): minus it.
+pub fn constant_force_value(coef: f64, kind: AxisKind, r: f64) -> f64 {
+    match kind {
+        AxisKind::BallScrew => -coef * r,
+        AxisKind::Rotary | AxisKind::Rigid => -coef,
+    }
+}
+
+/// Factor from a third mass in motor units to the model file's (`r^2` on a ball screw).
+fn third_mass_factor(kind: AxisKind, r: f64) -> f64 {
+    match kind {
+        AxisKind::BallScrew => r * r,
+        AxisKind::Rotary | AxisKind::Rigid => 1.0,
     }
 }
 
@@ -590,36 +586,10 @@ pub struct WbModel {
     pub file: ModelFile,
     /// The raw TOML table (kept to write a new file with everything else unchanged).
     pub table: toml::Table,
-    /// Base parameters (model-file key, value) that enter the torque balance.
-    pub base: Vec<(String, f64)>,
+    /// Base parameters (and their values) that enter the torque balance.
+    pub base: Vec<(BaseParam, f64)>,
     /// Effects in regressor form.
     pub effects: Vec<Effect>,
-}
-
-/// Keys of the base parameters in the torque balance for an axis kind.
-pub fn base_keys(kind: AxisKind) -> &'static [&'static str] {
-    match kind {
-        AxisKind::Rigid => &["mass_kg", "viscous_ns_per_m"],
-        _ => &["jm_kgm2", "jl_kgm2", "dm_nms_per_rad", "dl_nms_per_rad"],
-    }
-}
-
-/// Regressor column of base parameter `key` (torque needed per unit of the parameter).
-pub fn base_column<'a>(key: &str, d: &'a AxisData) -> &'a [f64] {
-    match key {
-        "mass_kg" | "jm_kgm2" => &d.am,
-        "jl_kgm2" => &d.al,
-        "viscous_ns_per_m" | "dm_nms_per_rad" => &d.vm,
-        _ => &d.vl,
-    }
-}
-
-/// Identifiability class of a base parameter.
-pub fn base_class(key: &str) -> &'static str {
-    match key {
-        "mass_kg" | "jm_kgm2" | "jl_kgm2" => "inertia",
-        _ => "damping",
-    }
 }
 
 impl WbModel {
@@ -633,51 +603,15 @@ impl WbModel {
     /// Builds from a parsed model file and its table.
     pub fn from_parts(file: ModelFile, table: toml::Table) -> Result<Self, WorkbenchError> {
         let kind = file.plant.kind();
-        let base = match &file.plant {
-            PlantParams::Rigid(p) => vec![
-                ("mass_kg".to_string(), p.mass_kg),
-                ("viscous_ns_per_m".to_string(), p.viscous_ns_per_m),
-            ],
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-                vec![
-                    ("jm_kgm2".to_string(), t.jm_kgm2),
-                    ("jl_kgm2".to_string(), t.jl_kgm2),
-                    ("dm_nms_per_rad".to_string(), t.dm_nms_per_rad),
-                    ("dl_nms_per_rad".to_string(), t.dl_nms_per_rad),
-                ]
-            }
-        };
-        let lead = match &file.plant {
-            PlantParams::BallScrew { lead_m, .. } => *lead_m,
-            _ => 1.0,
-        };
+        let base = BaseParam::of_kind(kind)
+            .iter()
+            .map(|p| (*p, p.get(&file.plant).unwrap_or(0.0)))
+            .collect();
         let r = file.plant.motor_per_load();
-        let mut effects = Vec::new();
-        for (id, v) in &file.effects {
-            let key = format!("effects.{id}");
-            let tables: Vec<&toml::Table> = match v {
-                toml::Value::Table(t) => vec![t],
-                toml::Value::Array(a) => a.iter().filter_map(|x| x.as_table()).collect(),
-                _ => {
-                    return Err(ConfigError::new(&file.path, key, "must be a table").into());
-                }
-            };
-            let Some(eid) = EffectId::parse(id) else {
-                return Err(ConfigError::new(
-                    &file.path,
-                    key,
-                    format!(
-                        "unknown effect `{id}`{} (known: {})",
-                        EffectId::did_you_mean(id),
-                        EffectId::list(|_| true)
-                    ),
-                )
-                .into());
-            };
-            for t in tables {
-                effects.push(Effect::from_table(eid, t, kind, r, lead, &file.path, &key)?);
-            }
-        }
+        let effects = read_effects(&file)?
+            .iter()
+            .map(|p| Effect::from_params(p, kind, r))
+            .collect();
         Ok(Self {
             file,
             table,
@@ -691,11 +625,11 @@ impl WbModel {
         self.file.plant.kind()
     }
 
-    /// Value of base parameter `key`.
-    pub fn base_value(&self, key: &str) -> f64 {
+    /// Value of base parameter `p` (0 if the model's structure has no such parameter).
+    pub fn base_value(&self, p: BaseParam) -> f64 {
         self.base
             .iter()
-            .find(|(k, _)| k == key)
+            .find(|(k, _)| *k == p)
             .map(|(_, v)| *v)
             .unwrap_or(0.0)
     }
@@ -757,8 +691,7 @@ impl WbModel {
     pub fn torque_needed(&self, d: &AxisData) -> Vec<f64> {
         let mut out = vec![0.0; d.len()];
         for (k, v) in &self.base {
-            let c = base_column(k, d);
-            for (o, x) in out.iter_mut().zip(c) {
+            for (o, x) in out.iter_mut().zip(k.column(d)) {
                 *o += v * x;
             }
         }
@@ -810,22 +743,11 @@ impl WbModel {
         f
     }
 
-    /// Writes the current base values (`base`, model-file keys) into `plant`; keys the model
-    /// does not carry leave their parameter as it is. The one place the workbench's base
+    /// Writes the current base values into `plant`. The one place the workbench's base
     /// parameters go back into the typed model.
     pub fn base_into(&self, plant: &mut PlantParams) {
-        let get = |k: &str| self.base.iter().find(|(kk, _)| kk == k).map(|(_, v)| *v);
-        match plant {
-            PlantParams::Rigid(p) => {
-                p.mass_kg = get("mass_kg").unwrap_or(p.mass_kg);
-                p.viscous_ns_per_m = get("viscous_ns_per_m").unwrap_or(p.viscous_ns_per_m);
-            }
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-                t.jm_kgm2 = get("jm_kgm2").unwrap_or(t.jm_kgm2);
-                t.jl_kgm2 = get("jl_kgm2").unwrap_or(t.jl_kgm2);
-                t.dm_nms_per_rad = get("dm_nms_per_rad").unwrap_or(t.dm_nms_per_rad);
-                t.dl_nms_per_rad = get("dl_nms_per_rad").unwrap_or(t.dl_nms_per_rad);
-            }
+        for (p, v) in &self.base {
+            p.set(plant, *v);
         }
     }
 
@@ -833,7 +755,7 @@ impl WbModel {
     pub fn write(&self, path: &Path) -> Result<(), WorkbenchError> {
         let mut t = self.table.clone();
         for (k, v) in &self.base {
-            t.insert(k.clone(), toml::Value::Float(round_sig(*v)));
+            t.insert(k.key().to_string(), toml::Value::Float(round_sig(*v)));
         }
         let eff = self.effects_table();
         if eff.is_empty() {
@@ -848,21 +770,6 @@ impl WbModel {
         std::fs::write(path, text).map_err(|e| WorkbenchError::io(path, e))
     }
 }
-/// Keys of a `third_mass` table on an axis of `kind` (inertia or mass, stiffness, damping) and
-/// the factor from them to motor units (`r^2` on a ball screw, `r` rad per m).
-fn third_mass_keys(kind: AxisKind, r: f64) -> (&'static str, &'static str, &'static str, f64) {
-    match kind {
-        AxisKind::Rotary => (
-            "inertia_kgm2",
-            "stiffness_nm_per_rad",
-            "damping_nms_per_rad",
-            1.0,
-        ),
-        AxisKind::BallScrew => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", r * r),
-        AxisKind::Rigid => ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", 1.0),
-    }
-}
-
 // What `diagnose` says of each effect: its class and its evidence sentence, beside the
 // regressor so that the workbench's per-effect tables stand in one file.
 
@@ -916,7 +823,7 @@ pub(crate) fn units(kind: AxisKind) -> (&'static str, &'static str) {
     }
 }
 
-pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>) -> String {
+pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
     let (tu, _) = units(d.kind);
     let kind = d.kind;
     let (fu, r) = if kind == AxisKind::BallScrew {
@@ -968,13 +875,16 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData, params: &BTreeMap<String, f64>)
         ),
         EffectId::Backlash => format!(
             "motor minus load position steps by about {} at each of {} reversals",
-            params.get("gap_m").map(|g| format!("{} m", fmt(*g))).unwrap_or_else(|| format!("{} rad", fmt(2.0 * e.coef[0]))),
+            match kind {
+                AxisKind::BallScrew => format!("{} m", fmt(round_sig(e.backlash_params(kind, d.r).gap))),
+                AxisKind::Rotary | AxisKind::Rigid => format!("{} rad", fmt(2.0 * e.coef[0])),
+            },
             reversals(d)
         ),
         EffectId::PitchError => format!(
             "motor minus load position varies with load position, period {} m, amplitude {} m",
             fmt(e.hyper[0]),
-            fmt(params.get("amplitude_m").copied().unwrap_or(0.0))
+            fmt(round_sig(e.pitch_params(d.r).amplitude_m))
         ),
     }
 }

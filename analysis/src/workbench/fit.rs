@@ -9,11 +9,12 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
+use super::base::{BaseClass, BaseParam};
 use super::compare::equation_error;
 use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::diagnose::{best_effect, deflection, flat, inertias_now, moving_mask, FOLDS};
-use super::effects::{base_column, base_keys, channel, Channel, Effect, EffectId, Side, WbModel};
+use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
 use super::window::window_sim;
 use super::WorkbenchError;
@@ -123,7 +124,7 @@ pub fn fit(
 ) -> Result<FitResult, WorkbenchError> {
     let kind = d.kind;
     let free_keys = free_keys(model, d, free)?;
-    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| base_column(k, d)).collect();
+    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     let bl = blocks(d.range, FOLDS);
     let moving = moving_mask(d);
     let mut effects = Vec::new();
@@ -144,7 +145,7 @@ pub fn fit(
                     effects.push(e);
                 }
             }
-            _ => {
+            Channel::Torque | Channel::TorquePath => {
                 let y = d
                     .torque
                     .as_ref()
@@ -203,28 +204,28 @@ fn free_keys(
     model: &WbModel,
     d: &AxisData,
     free: Option<&[String]>,
-) -> Result<Vec<String>, WorkbenchError> {
-    let keys = base_keys(model.kind());
+) -> Result<Vec<BaseParam>, WorkbenchError> {
+    let keys = BaseParam::of_kind(model.kind());
     match free {
         None => Ok(keys
             .iter()
-            .filter(|k| d.has_motor() || !matches!(**k, "jl_kgm2" | "dl_nms_per_rad"))
-            .map(|k| k.to_string())
+            .copied()
+            .filter(|k| d.has_motor() || !k.on_load())
             .collect()),
         Some(list) => {
             let mut out = Vec::new();
             for s in comma_list(list) {
-                if !keys.contains(&s) {
+                let Some(p) = BaseParam::parse(model.kind(), s) else {
                     return Err(WorkbenchError::BadArgument {
                         arg: format!("--free {s}"),
                         reason: format!(
                             "not a base parameter of a {} model (free parameters: {})",
                             model.kind().id(),
-                            keys.join(", ")
+                            keys.iter().map(|k| k.key()).collect::<Vec<_>>().join(", ")
                         ),
                     });
-                }
-                out.push(s.to_string());
+                };
+                out.push(p);
             }
             Ok(out)
         }
@@ -284,16 +285,14 @@ pub fn fit_with(
         // active set: a base parameter whose refit leaves its valid range is held at its value
         let mut keys = free_keys.clone();
         let th = loop {
-            let mut refs: Vec<&[f64]> = keys.iter().map(|k| base_column(k, d)).collect();
+            let mut refs: Vec<&[f64]> = keys.iter().map(|k| k.column(d)).collect();
             refs.extend(ecols.iter().map(|c| c.as_slice()));
             let th = cross_validate(&normals(&refs, &target, &blocks(d.range, 1))).theta;
             let bad = keys.iter().enumerate().find(|(k, key)| {
-                let v = model.base_value(key) + th[*k];
-                let damping = key.as_str() == "viscous_ns_per_m" || key.starts_with('d');
-                if damping {
-                    v < 0.0
-                } else {
-                    v <= 0.0
+                let v = model.base_value(**key) + th[*k];
+                match key.class() {
+                    BaseClass::Damping => v < 0.0,
+                    BaseClass::Inertia => v <= 0.0,
                 }
             });
             match bad {
@@ -304,13 +303,13 @@ pub fn fit_with(
             }
         };
         for (k, key) in keys.iter().enumerate() {
-            let v = model.base_value(key) + th[k];
+            let v = model.base_value(*key) + th[k];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
                 b.1 = v;
             }
         }
         for key in &free_keys {
-            params.insert(key.clone(), new.base_value(key));
+            params.insert(key.key().to_string(), new.base_value(*key));
         }
         let mut fitted = effects.clone();
         for (s, (i, j)) in slots.iter().enumerate() {
@@ -352,7 +351,7 @@ pub fn fit_with(
     }
     for (k, v) in &new.base {
         if free_keys.contains(k) {
-            params.insert(k.clone(), *v);
+            params.insert(k.key().to_string(), *v);
         }
     }
     // the parsed model file must reflect the new base values for the simulation

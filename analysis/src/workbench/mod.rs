@@ -12,6 +12,7 @@
 //! - [`import`] brings foreign CSV exports into format v1 and builds a nominal model from a trace.
 
 pub mod auto;
+pub mod base;
 pub mod compare;
 pub mod controller;
 pub mod data;

@@ -19,6 +19,7 @@
 
 use feedloop_plant::AxisPlant;
 
+use super::base::BaseClass;
 use super::controller::AT_LIMIT_TOL;
 use super::data::AxisData;
 use super::effects::{dead_band, third_mass_track, EffectId, WbModel};
@@ -101,9 +102,9 @@ impl Body {
             limit: f64::INFINITY,
         };
         for (k, v) in &model.base {
-            match k.as_str() {
-                "mass_kg" | "jm_kgm2" | "jl_kgm2" => b.inertia += v,
-                _ => b.damping += v,
+            match k.class() {
+                BaseClass::Inertia => b.inertia += v,
+                BaseClass::Damping => b.damping += v,
             }
         }
         for e in &model.effects {
@@ -127,7 +128,11 @@ impl Body {
                 )),
                 EffectId::ThirdMass => b.inertia += e.coef[0].max(0.0),
                 EffectId::TorqueSaturation => b.limit = b.limit.min(e.hyper[0]),
-                _ => {}
+                // in the transmission or on the torque path: not part of the load balance
+                EffectId::Backlash
+                | EffectId::PitchError
+                | EffectId::Delay
+                | EffectId::CurrentLag => {}
             }
         }
         b.inertia = b.inertia.max(1e-300);

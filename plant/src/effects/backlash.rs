@@ -23,7 +23,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, table_error, Ctx};
+use super::{check_keys, put, table_error, Ctx};
 
 /// Contact state at deflection `d` (motor units) with half gap `gap_half`: +1 driving in +, -1
 /// driving in -, 0 inside the gap.
@@ -72,22 +72,43 @@ pub(crate) fn stretch(d: f64, gap_half: f64) -> f64 {
     }
 }
 
-/// Parses `[effects.backlash]`; returns the full gap in motor rad (None for a zero gap).
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<Option<f64>, ConfigError> {
-    if ctx.kind == AxisKind::Rigid {
-        return Err(table_error(
-            f,
-            "backlash needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none",
-        ));
+/// `[effects.backlash]`: the full gap at the load, m on a ball screw (`gap_m`), rad on a rotary
+/// axis (`gap_rad`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BacklashParams {
+    /// Full gap in load units, >= 0.
+    pub gap: f64,
+}
+
+impl BacklashParams {
+    /// Reads `[effects.backlash]`.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        if ctx.kind == AxisKind::Rigid {
+            return Err(table_error(
+                f,
+                "backlash needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none",
+            ));
+        }
+        let key = format!("gap_{}", ctx.load_units().pos);
+        check_keys(f, table, &[&key])?;
+        let gap = f.f64(&key, Range::NonNegative)?;
+        Ok(Self { gap })
     }
-    let u = ctx.load_units();
-    let key = format!("gap_{}", u.pos);
-    check_keys(f, table, &[&key])?;
-    let gap = f.f64(&key, Range::NonNegative)?;
-    let gap_motor = gap * u.vel_to_motor;
-    Ok((gap_motor > 0.0).then_some(gap_motor))
+
+    /// The model-file table.
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, format!("gap_{}", ctx.load_units().pos), self.gap);
+        t
+    }
+
+    /// The full gap in motor rad (`None` for a zero gap: no backlash).
+    pub(crate) fn motor(&self, ctx: &Ctx) -> Option<f64> {
+        let gap_motor = self.gap * ctx.load_units().vel_to_motor;
+        (gap_motor > 0.0).then_some(gap_motor)
+    }
 }

@@ -21,7 +21,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, Ctx};
+use super::{check_keys, put, Ctx};
 
 /// One cogging harmonic in motor units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,35 +49,86 @@ impl CoggingHarmonic {
     }
 }
 
-/// Parses one `[effects.cogging]` table.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<CoggingHarmonic, ConfigError> {
-    if ctx.kind == AxisKind::Rigid {
-        check_keys(f, table, &["amplitude_n", "period_m", "phase_rad"])?;
-        let amplitude = f.f64("amplitude_n", Range::NonNegative)?;
-        let period_m = f.f64("period_m", Range::Positive)?;
+/// How often a cogging harmonic repeats.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CoggingPeriod {
+    /// Periods per motor revolution (`periods_per_rev`, rotary motors).
+    PerRev(i64),
+    /// Period along the travel, m (`period_m`, a rigid linear axis).
+    Metres(f64),
+}
+
+/// One `[effects.cogging]` harmonic as the model file gives it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoggingParams {
+    /// Amplitude, N m (`amplitude_nm`) or N on a rigid axis (`amplitude_n`).
+    pub amplitude: f64,
+    /// Its period.
+    pub period: CoggingPeriod,
+    /// Phase, rad (`phase_rad`, default 0).
+    pub phase_rad: f64,
+}
+
+impl CoggingParams {
+    /// Reads one `[effects.cogging]` table.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        if ctx.kind == AxisKind::Rigid {
+            check_keys(f, table, &["amplitude_n", "period_m", "phase_rad"])?;
+            let amplitude = f.f64("amplitude_n", Range::NonNegative)?;
+            let period_m = f.f64("period_m", Range::Positive)?;
+            let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+            return Ok(Self {
+                amplitude,
+                period: CoggingPeriod::Metres(period_m),
+                phase_rad,
+            });
+        }
+        check_keys(f, table, &["amplitude_nm", "periods_per_rev", "phase_rad"])?;
+        let amplitude = f.f64("amplitude_nm", Range::NonNegative)?;
+        let n = f.opt_i64("periods_per_rev", 1, 100_000)?.ok_or_else(|| {
+            f.error(
+                "periods_per_rev",
+                "is required but missing (a positive integer)",
+            )
+        })?;
         let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
-        return Ok(CoggingHarmonic {
+        Ok(Self {
             amplitude,
-            wavenumber: 2.0 * std::f64::consts::PI / period_m,
+            period: CoggingPeriod::PerRev(n),
             phase_rad,
-        });
+        })
     }
-    check_keys(f, table, &["amplitude_nm", "periods_per_rev", "phase_rad"])?;
-    let amplitude = f.f64("amplitude_nm", Range::NonNegative)?;
-    let n = f.opt_i64("periods_per_rev", 1, 100_000)?.ok_or_else(|| {
-        f.error(
-            "periods_per_rev",
-            "is required but missing (a positive integer)",
-        )
-    })?;
-    let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
-    Ok(CoggingHarmonic {
-        amplitude,
-        wavenumber: n as f64,
-        phase_rad,
-    })
+
+    /// The model-file table.
+    pub fn to_table(&self) -> toml::Table {
+        let mut t = toml::Table::new();
+        match self.period {
+            CoggingPeriod::Metres(p) => {
+                put(&mut t, "amplitude_n", self.amplitude);
+                put(&mut t, "period_m", p);
+            }
+            CoggingPeriod::PerRev(n) => {
+                put(&mut t, "amplitude_nm", self.amplitude);
+                t.insert("periods_per_rev".into(), toml::Value::Integer(n));
+            }
+        }
+        put(&mut t, "phase_rad", self.phase_rad);
+        t
+    }
+
+    /// The harmonic in motor units.
+    pub(crate) fn motor(&self) -> CoggingHarmonic {
+        CoggingHarmonic {
+            amplitude: self.amplitude,
+            wavenumber: match self.period {
+                CoggingPeriod::Metres(p) => 2.0 * std::f64::consts::PI / p,
+                CoggingPeriod::PerRev(n) => n as f64,
+            },
+            phase_rad: self.phase_rad,
+        }
+    }
 }

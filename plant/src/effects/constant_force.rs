@@ -20,20 +20,47 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, Ctx};
+use super::{check_keys, put, Ctx};
 
-/// Parses `[effects.constant_force]`; returns the load torque in motor units.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<f64, ConfigError> {
-    let key = if ctx.kind == AxisKind::Rotary {
+/// `[effects.constant_force]`: the force on the load, N (`force_n`), or the torque on a rotary
+/// axis, N m (`torque_nm`); positive along +x.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConstantForceParams {
+    /// Force (N) or torque (N m) on the load.
+    pub value: f64,
+}
+
+/// The key of the force on an axis of `kind`.
+fn key(kind: AxisKind) -> &'static str {
+    if kind == AxisKind::Rotary {
         "torque_nm"
     } else {
         "force_n"
-    };
-    check_keys(f, table, &[key])?;
-    let v = f.f64(key, Range::Finite)?;
-    Ok(v * ctx.load_units().torque_to_motor)
+    }
+}
+
+impl ConstantForceParams {
+    /// Reads `[effects.constant_force]`.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let key = key(ctx.kind);
+        check_keys(f, table, &[key])?;
+        let value = f.f64(key, Range::Finite)?;
+        Ok(Self { value })
+    }
+
+    /// The model-file table.
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, key(ctx.kind), self.value);
+        t
+    }
+
+    /// The load torque in motor units.
+    pub(crate) fn motor(&self, ctx: &Ctx) -> f64 {
+        self.value * ctx.load_units().torque_to_motor
+    }
 }

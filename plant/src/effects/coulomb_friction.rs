@@ -24,7 +24,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, read_side, stribeck_friction, Ctx, Side};
+use super::{check_keys, put, put_side, read_side, stribeck_friction, Ctx, Side};
 
 /// Dry friction of one body, motor units (`coulomb_friction`, or `stribeck_friction` with a
 /// higher breakaway level).
@@ -100,26 +100,53 @@ impl DryLaw {
     }
 }
 
-/// Parses one `[effects.coulomb_friction]` table.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<(Side, DryFriction), ConfigError> {
-    let (side, u) = read_side(f, ctx)?;
-    let key = format!("fc_{}", u.torque);
-    let key_neg = format!("fc_neg_{}", u.torque);
-    check_keys(f, table, &["side", &key, &key_neg])?;
-    let fc = f.f64(&key, Range::NonNegative)?;
-    let fc_neg = f.f64_or(&key_neg, Range::NonNegative, fc)?;
-    let t = u.torque_to_motor;
-    Ok((
-        side,
+/// `[effects.coulomb_friction]` in the units of its body (N m or N).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoulombFrictionParams {
+    /// Body it acts on (`side`).
+    pub side: Side,
+    /// Level for positive velocity (`fc_nm` / `fc_n`), >= 0.
+    pub fc: f64,
+    /// Level for negative velocity (`fc_neg_*`; `fc` when not given), >= 0.
+    pub fc_neg: f64,
+}
+
+impl CoulombFrictionParams {
+    /// Reads one `[effects.coulomb_friction]` table.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let (side, u) = read_side(f, ctx)?;
+        let key = format!("fc_{}", u.torque);
+        let key_neg = format!("fc_neg_{}", u.torque);
+        check_keys(f, table, &["side", &key, &key_neg])?;
+        let fc = f.f64(&key, Range::NonNegative)?;
+        let fc_neg = f.f64_or(&key_neg, Range::NonNegative, fc)?;
+        Ok(Self { side, fc, fc_neg })
+    }
+
+    /// The model-file table (`fc_neg_*` only where it differs).
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let u = ctx.units(self.side);
+        let mut t = toml::Table::new();
+        put(&mut t, format!("fc_{}", u.torque), self.fc);
+        if self.fc_neg != self.fc {
+            put(&mut t, format!("fc_neg_{}", u.torque), self.fc_neg);
+        }
+        put_side(&mut t, self.side, ctx);
+        t
+    }
+
+    /// In motor units.
+    pub(crate) fn motor(&self, ctx: &Ctx) -> DryFriction {
+        let t = ctx.units(self.side).torque_to_motor;
         DryFriction {
-            fc: [fc * t, fc_neg * t],
-            fs: [fc * t, fc_neg * t],
+            fc: [self.fc * t, self.fc_neg * t],
+            fs: [self.fc * t, self.fc_neg * t],
             vs: f64::INFINITY,
             exponent: 2.0,
-        },
-    ))
+        }
+    }
 }

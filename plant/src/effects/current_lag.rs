@@ -16,7 +16,7 @@
 use feedloop_model::params::{ConfigError, Fields, Range};
 use nalgebra::DMatrix;
 
-use super::check_keys;
+use super::{check_keys, put};
 
 /// Mean over a period of the share of the distance to the held command still left:
 /// `tau / period (1 - exp(-period / tau))` (the applied torque is its [`relax`] by this).
@@ -39,8 +39,25 @@ pub(crate) fn stamp(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>, il: usize, tau: 
     b[(il, 0)] = 1.0 / tau;
 }
 
-/// Parses `[effects.current_lag]`.
-pub(crate) fn parse(f: &mut Fields<'_>, table: &toml::Table) -> Result<f64, ConfigError> {
-    check_keys(f, table, &["tau_s"])?;
-    f.f64("tau_s", Range::Within(1e-9, 10.0))
+/// `[effects.current_lag]`: the current loop's time constant, s (`tau_s`, 1 ns .. 10 s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurrentLagParams {
+    /// Time constant, s.
+    pub tau_s: f64,
+}
+
+impl CurrentLagParams {
+    /// Reads `[effects.current_lag]`.
+    pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
+        check_keys(f, table, &["tau_s"])?;
+        let tau_s = f.f64("tau_s", Range::Within(1e-9, 10.0))?;
+        Ok(Self { tau_s })
+    }
+
+    /// The model-file table.
+    pub fn to_table(&self) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, "tau_s", self.tau_s);
+        t
+    }
 }

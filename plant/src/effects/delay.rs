@@ -84,14 +84,35 @@ impl DelayLine {
     }
 }
 
-/// Parses `[effects.delay]`.
-pub(crate) fn parse(f: &mut Fields<'_>, table: &toml::Table) -> Result<usize, ConfigError> {
-    check_keys(f, table, &["delay_cycles"])?;
-    let n = f.opt_i64("delay_cycles", 0, 10_000)?.ok_or_else(|| {
-        f.error(
-            "delay_cycles",
-            "is required but missing (a whole number of cycles)",
-        )
-    })?;
-    Ok(n as usize)
+/// `[effects.delay]`: whole control periods (`delay_cycles`, 0 .. 10,000).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DelayParams {
+    /// Periods of delay.
+    pub cycles: i64,
+}
+
+impl DelayParams {
+    /// Reads `[effects.delay]`.
+    pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
+        check_keys(f, table, &["delay_cycles"])?;
+        let n = f.opt_i64("delay_cycles", 0, 10_000)?.ok_or_else(|| {
+            f.error(
+                "delay_cycles",
+                "is required but missing (a whole number of cycles)",
+            )
+        })?;
+        Ok(Self { cycles: n })
+    }
+
+    /// The model-file table.
+    pub fn to_table(&self) -> toml::Table {
+        let mut t = toml::Table::new();
+        t.insert("delay_cycles".into(), toml::Value::Integer(self.cycles));
+        t
+    }
+
+    /// The delay line's length in periods (a negative count is no delay).
+    pub(crate) fn motor(&self) -> usize {
+        self.cycles.max(0) as usize
+    }
 }

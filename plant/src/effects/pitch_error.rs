@@ -23,7 +23,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, table_error, Ctx};
+use super::{check_keys, put, table_error, Ctx};
 
 /// Pitch error parameters (load units, m).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,40 +61,75 @@ impl PitchError {
     }
 }
 
-/// Parses `[effects.pitch_error]`.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<PitchError, ConfigError> {
-    let (AxisKind::BallScrew, Some(lead_m)) = (ctx.kind, ctx.lead_m) else {
-        return Err(table_error(
+/// `[effects.pitch_error]` as the model file gives it (m, rad, um per m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PitchErrorParams {
+    /// Periodic amplitude, m (`amplitude_m`).
+    pub amplitude_m: f64,
+    /// Period, m (`period_m`; the screw's lead when not given).
+    pub period_m: f64,
+    /// Phase, rad (`phase_rad`, default 0).
+    pub phase_rad: f64,
+    /// Cumulative lead error, um per m of travel (`slope_um_per_m`, default 0).
+    pub slope_um_per_m: f64,
+}
+
+impl PitchErrorParams {
+    /// The model-file table.
+    pub fn to_table(&self) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, "amplitude_m", self.amplitude_m);
+        put(&mut t, "period_m", self.period_m);
+        put(&mut t, "phase_rad", self.phase_rad);
+        put(&mut t, "slope_um_per_m", self.slope_um_per_m);
+        t
+    }
+
+    /// The law's parameters.
+    pub(crate) fn motor(&self) -> PitchError {
+        PitchError {
+            amplitude_m: self.amplitude_m,
+            period_m: self.period_m,
+            phase_rad: self.phase_rad,
+            slope: self.slope_um_per_m * 1e-6,
+        }
+    }
+
+    /// Reads `[effects.pitch_error]`.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let (AxisKind::BallScrew, Some(lead_m)) = (ctx.kind, ctx.lead_m) else {
+            return Err(table_error(
             f,
             "pitch_error needs a screw (kind = \"ballscrew\"); use cogging for angle-periodic torque",
         ));
-    };
-    check_keys(
-        f,
-        table,
-        &["amplitude_m", "period_m", "phase_rad", "slope_um_per_m"],
-    )?;
-    let amplitude_m = f.f64("amplitude_m", Range::NonNegative)?;
-    let period_m = f.f64_or("period_m", Range::Positive, lead_m)?;
-    let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
-    let slope_um = f.f64_or("slope_um_per_m", Range::Within(-1e4, 1e4), 0.0)?;
-    if amplitude_m * 2.0 * std::f64::consts::PI / period_m >= 0.5 {
-        return Err(f.error(
-            "amplitude_m",
-            format!(
+        };
+        check_keys(
+            f,
+            table,
+            &["amplitude_m", "period_m", "phase_rad", "slope_um_per_m"],
+        )?;
+        let amplitude_m = f.f64("amplitude_m", Range::NonNegative)?;
+        let period_m = f.f64_or("period_m", Range::Positive, lead_m)?;
+        let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+        let slope_um = f.f64_or("slope_um_per_m", Range::Within(-1e4, 1e4), 0.0)?;
+        if amplitude_m * 2.0 * std::f64::consts::PI / period_m >= 0.5 {
+            return Err(f.error(
+                "amplitude_m",
+                format!(
                 "an error of {amplitude_m} m over a period of {period_m} m is not a pitch error \
                  (slope 2 pi amplitude / period must stay below 0.5)"
             ),
-        ));
+            ));
+        }
+        Ok(Self {
+            amplitude_m,
+            period_m,
+            phase_rad,
+            slope_um_per_m: slope_um,
+        })
     }
-    Ok(PitchError {
-        amplitude_m,
-        period_m,
-        phase_rad,
-        slope: slope_um * 1e-6,
-    })
 }

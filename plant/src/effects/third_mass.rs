@@ -21,7 +21,7 @@ use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 use nalgebra::DMatrix;
 
-use super::{check_keys, Ctx};
+use super::{check_keys, put, Ctx};
 
 /// The third mass in motor units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,13 +56,21 @@ pub(crate) fn stamp(
     a[(v3, v3)] -= c3 / j3;
 }
 
-/// Parses `[effects.third_mass]`.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<ThirdMass, ConfigError> {
-    let (km, kk, kc) = if ctx.kind == AxisKind::Rotary {
+/// `[effects.third_mass]` in load units: kg, N/m and N s/m on a linear axis, kg m^2, N m/rad and
+/// N m s/rad on a rotary one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ThirdMassParams {
+    /// Mass or inertia, > 0.
+    pub mass: f64,
+    /// Stiffness of its spring, > 0.
+    pub stiffness: f64,
+    /// Damping of its spring (default 0).
+    pub damping: f64,
+}
+
+/// Keys (mass, stiffness, damping) on an axis of `kind`.
+fn keys(kind: AxisKind) -> (&'static str, &'static str, &'static str) {
+    if kind == AxisKind::Rotary {
         (
             "inertia_kgm2",
             "stiffness_nm_per_rad",
@@ -70,15 +78,45 @@ pub(crate) fn parse(
         )
     } else {
         ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m")
-    };
-    check_keys(f, table, &[km, kk, kc])?;
-    let m = f.f64(km, Range::Positive)?;
-    let k = f.f64(kk, Range::Positive)?;
-    let c = f.f64_or(kc, Range::NonNegative, 0.0)?;
-    let r2 = ctx.load_units().vel_to_motor.powi(2);
-    Ok(ThirdMass {
-        inertia: m / r2,
-        stiffness: k / r2,
-        damping: c / r2,
-    })
+    }
+}
+
+impl ThirdMassParams {
+    /// Reads `[effects.third_mass]`.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let (km, kk, kc) = keys(ctx.kind);
+        check_keys(f, table, &[km, kk, kc])?;
+        let mass = f.f64(km, Range::Positive)?;
+        let stiffness = f.f64(kk, Range::Positive)?;
+        let damping = f.f64_or(kc, Range::NonNegative, 0.0)?;
+        Ok(Self {
+            mass,
+            stiffness,
+            damping,
+        })
+    }
+
+    /// The model-file table.
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let (km, kk, kc) = keys(ctx.kind);
+        let mut t = toml::Table::new();
+        put(&mut t, km, self.mass);
+        put(&mut t, kk, self.stiffness);
+        put(&mut t, kc, self.damping);
+        t
+    }
+
+    /// In motor units.
+    pub(crate) fn motor(&self, ctx: &Ctx) -> ThirdMass {
+        let r2 = ctx.load_units().vel_to_motor.powi(2);
+        ThirdMass {
+            inertia: self.mass / r2,
+            stiffness: self.stiffness / r2,
+            damping: self.damping / r2,
+        }
+    }
 }

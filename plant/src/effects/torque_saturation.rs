@@ -15,7 +15,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, Ctx};
+use super::{check_keys, put, Ctx};
 
 /// The applied command: `u` clamped to `+-limit`.
 #[inline]
@@ -23,17 +23,40 @@ pub(crate) fn clamp(u: f64, limit: f64) -> f64 {
     u.clamp(-limit, limit)
 }
 
-/// Parses `[effects.torque_saturation]`.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<f64, ConfigError> {
-    let key = if ctx.kind == AxisKind::Rigid {
+/// `[effects.torque_saturation]`: the drive's torque limit, N m (`limit_nm`), or its force limit
+/// on a rigid axis, N (`limit_n`), in motor units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TorqueSaturationParams {
+    /// The limit, > 0.
+    pub limit: f64,
+}
+
+/// The key of the limit on an axis of `kind`.
+fn key(kind: AxisKind) -> &'static str {
+    if kind == AxisKind::Rigid {
         "limit_n"
     } else {
         "limit_nm"
-    };
-    check_keys(f, table, &[key])?;
-    f.f64(key, Range::Positive)
+    }
+}
+
+impl TorqueSaturationParams {
+    /// Reads `[effects.torque_saturation]`.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let key = key(ctx.kind);
+        check_keys(f, table, &[key])?;
+        let limit = f.f64(key, Range::Positive)?;
+        Ok(Self { limit })
+    }
+
+    /// The model-file table.
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, key(ctx.kind), self.limit);
+        t
+    }
 }

@@ -21,7 +21,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, read_side, Ctx, Side};
+use super::{check_keys, put, put_side, read_side, Ctx, Side};
 
 /// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,23 +48,51 @@ pub(crate) fn asymmetric_torque(c_half: f64, av: f64) -> f64 {
     -c_half * av
 }
 
-/// Parses one `[effects.viscous_friction]` table.
-pub(crate) fn parse(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    ctx: &Ctx,
-) -> Result<(Side, Viscous), ConfigError> {
-    let (side, u) = read_side(f, ctx)?;
-    let key = format!("c_{}", u.visc);
-    let key_neg = format!("c_neg_{}", u.visc);
-    check_keys(f, table, &["side", &key, &key_neg])?;
-    let scale = u.torque_to_motor / u.vel_to_motor;
-    let c = f.f64(&key, Range::NonNegative)?;
-    let c_neg = f.f64_or(&key_neg, Range::NonNegative, c)?;
-    Ok((
-        side,
+/// `[effects.viscous_friction]` in the units of its body (N m s/rad or N s/m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViscousFrictionParams {
+    /// Body it acts on (`side`).
+    pub side: Side,
+    /// Coefficient for positive velocity (`c_nms_per_rad` / `c_ns_per_m`).
+    pub c: f64,
+    /// Coefficient for negative velocity (`c_neg_*`; `c` when not given).
+    pub c_neg: f64,
+}
+
+impl ViscousFrictionParams {
+    /// Reads one `[effects.viscous_friction]` table.
+    pub(crate) fn read(
+        f: &mut Fields<'_>,
+        table: &toml::Table,
+        ctx: &Ctx,
+    ) -> Result<Self, ConfigError> {
+        let (side, u) = read_side(f, ctx)?;
+        let key = format!("c_{}", u.visc);
+        let key_neg = format!("c_neg_{}", u.visc);
+        check_keys(f, table, &["side", &key, &key_neg])?;
+        let c = f.f64(&key, Range::NonNegative)?;
+        let c_neg = f.f64_or(&key_neg, Range::NonNegative, c)?;
+        Ok(Self { side, c, c_neg })
+    }
+
+    /// The model-file table (`c_neg_*` only where it differs).
+    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let u = ctx.units(self.side);
+        let mut t = toml::Table::new();
+        put(&mut t, format!("c_{}", u.visc), self.c);
+        if self.c_neg != self.c {
+            put(&mut t, format!("c_neg_{}", u.visc), self.c_neg);
+        }
+        put_side(&mut t, self.side, ctx);
+        t
+    }
+
+    /// In motor units.
+    pub(crate) fn motor(&self, ctx: &Ctx) -> Viscous {
+        let u = ctx.units(self.side);
+        let scale = u.torque_to_motor / u.vel_to_motor;
         Viscous {
-            c: [c * scale, c_neg * scale],
-        },
-    ))
+            c: [self.c * scale, self.c_neg * scale],
+        }
+    }
 }
