@@ -619,7 +619,7 @@ fn a_long_trace_is_searched_on_a_decimated_copy_and_named_the_same() {
     let (trace, model, _) =
         generate(&dir, "long", &Axis::default(), &h, &noise(0.02, 141), &mv).unwrap();
     let tr = Trace::read(&trace).unwrap();
-    assert!(tr.len() >= feedloop_analysis::workbench::diagnose::LONG_TRACE);
+    assert!(tr.len() >= feedloop_analysis::workbench::refit::LONG_TRACE);
     let m = WbModel::load(&model).unwrap();
     let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
     let dg = diagnose(&m, &d, &DiagOptions::default());

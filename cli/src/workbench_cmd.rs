@@ -11,10 +11,11 @@ use feedloop_analysis::workbench::{
     auto::{auto, diagnosis_html},
     compare::compare,
     data::{held_block, load_axis, load_axis_held, pick_axis, AxisData, Prep},
-    diagnose::{diagnose, DiagOptions, LONG_TRACE},
+    diagnose::{diagnose, DiagOptions},
     effects::WbModel,
     fit::{fit, parse_effects},
     import::{import, model_init, parse_map},
+    refit::LONG_TRACE,
     report, WorkbenchError,
 };
 use feedloop_model::units::{si, sig};
@@ -626,9 +627,13 @@ fn fit_cmd(
     let add = parse_effects(add)?;
     let r = fit(&m, &d, &add, free, common.window_s)?;
     r.model.write(out)?;
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
     if common.json {
         let mut j = r.to_json();
-        j["warnings"] = serde_json::json!(warnings);
+        let all: Vec<&String> = warnings.iter().chain(&r.warnings).collect();
+        j["warnings"] = serde_json::json!(all);
         return print_json(&j);
     }
     for (k, v) in &r.params {

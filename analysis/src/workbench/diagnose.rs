@@ -20,23 +20,23 @@
 
 use std::collections::BTreeMap;
 
-use rayon::prelude::*;
-
 use serde_json::{json, Value};
 
-use super::base::{BaseClass, BaseParam};
+use super::base::BaseParam;
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
 use super::effects::{
     channel, class_of, constant_force_value, constant_force_words, evidence, fmt, round_sig,
     Channel, Effect, EffectId, Side, WbModel,
 };
-use super::lsq::{blocks, cross_validate, normals_masked, Cv};
+use super::lsq::{blocks, Cv};
+use super::refit::{
+    backlash_hyper, best_effect, cv_cols, cv_cols_masked, default_side, deflection, flat,
+    inertias_now, moving_mask, Refit, Untestable, FOLDS,
+};
 use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_model::model::AxisKind;
 
-/// Folds of the blocked cross-validation.
-pub const FOLDS: usize = 5;
 /// Smallest cross-validated error reduction that counts, % of the model's error.
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
@@ -46,10 +46,6 @@ pub const MIN_FOLD_WINS: usize = 4;
 /// and on an exact or noise-free record the remaining misfit is the numerics of the
 /// derivatives, which a parameter refit can always shave).
 pub const MATERIAL_FRACTION: f64 = 1e-3;
-
-/// Samples from which a trace counts as long: the grids of column effects are then searched on
-/// a decimated copy (see [`best_effect`]).
-pub const LONG_TRACE: usize = 500_000;
 
 /// Smallest deflection effect that counts, m at the load (the finest linear scales of feed
 /// drives resolve about 1 nm).
@@ -132,304 +128,12 @@ fn corr(a: &[f64], b: &[f64]) -> f64 {
     sab / (saa * sbb).sqrt()
 }
 
-/// Cross-validates `extra` columns together with `base` columns on target `y`.
-pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize)]) -> Cv {
-    cv_cols_masked(base, extra, y, bl, None)
-}
-
-/// [`cv_cols`] over the rows where `mask` (when given) is not 0.
-pub fn cv_cols_masked(
-    base: &[&[f64]],
-    extra: &[&[f64]],
-    y: &[f64],
-    bl: &[(usize, usize)],
-    mask: Option<&[f64]>,
-) -> Cv {
-    let mut cols: Vec<&[f64]> = base.to_vec();
-    cols.extend_from_slice(extra);
-    cross_validate(&normals_masked(&cols, y, bl, mask))
-}
-
-/// Rows of the torque channel that carry information about the candidates: all but the
-/// standstills (below 2 % of the top speed for more than 20 ms, as `compare` classifies them).
-/// At a standstill dry friction takes whatever torque the loop applies below its breakaway level
-/// (a hunting velocity loop moves it about while nothing moves), which no velocity-driven law
-/// describes and a torque clamp would wrongly claim. `None` when fewer than a fifth of the rows
-/// move (or all do).
-pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
-    let kinds = super::compare::classify(d);
-    let (a, b) = d.range;
-    let mask: Vec<f64> = kinds
-        .iter()
-        .map(|k| {
-            if *k == super::compare::SegKind::Standstill {
-                0.0
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    let moving = mask[a..b].iter().filter(|w| **w != 0.0).count();
-    (moving < b - a && 5 * moving >= b - a).then_some(mask)
-}
-
 fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
     a.fold_mse
         .iter()
         .zip(reference)
         .filter(|(x, r)| **x < **r * 0.999)
         .count()
-}
-
-/// The grid of nonlinear parameters tried for effect `id`.
-pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
-    let (a, b) = d.range;
-    let vmax = quantile(
-        &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
-        0.99,
-    )
-    .max(1e-12);
-    let fs = 1.0 / d.dt;
-    let logspace = |lo: f64, hi: f64, n: usize| -> Vec<f64> {
-        (0..n)
-            .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
-            .collect()
-    };
-    match id {
-        EffectId::StribeckFriction => {
-            let mut g = Vec::new();
-            for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
-                for e in [1.0, 2.0] {
-                    g.push(vec![vs, e]);
-                }
-            }
-            g
-        }
-        EffectId::Cogging => match d.kind {
-            AxisKind::Rigid => logspace(1e-3, 0.1, 120)
-                .into_iter()
-                .map(|p| vec![p])
-                .collect(),
-            AxisKind::BallScrew | AxisKind::Rotary => (1..=120)
-                .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
-                .collect(),
-        },
-        EffectId::ThirdMass => {
-            let mut g = Vec::new();
-            for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
-                for z in [0.02, 0.1, 0.3] {
-                    g.push(vec![f, z]);
-                }
-            }
-            g
-        }
-        EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
-        // time constants of the recording's period (that of the samples held on a long trace
-        // held in block means)
-        EffectId::CurrentLag => logspace(d.dt / d.sub as f64 * 0.3, d.dt / d.sub as f64 * 20.0, 16)
-            .into_iter()
-            .map(|t| vec![t])
-            .collect(),
-        EffectId::TorqueSaturation => {
-            let Some(y) = &d.torque_raw else {
-                return vec![];
-            };
-            let ay: Vec<f64> = y[a..b].iter().map(|x| x.abs()).collect();
-            let (lo, hi) = (quantile(&ay, 0.3), quantile(&ay, 1.0));
-            (0..40)
-                .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
-                .collect()
-        }
-        EffectId::PitchError => {
-            let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
-            vec![vec![lead]]
-        }
-        // linear in their coefficients: nothing to search (backlash takes its dead band from
-        // the model where it is fitted)
-        EffectId::ViscousFriction
-        | EffectId::CoulombFriction
-        | EffectId::ConstantForce
-        | EffectId::Backlash => vec![vec![]],
-    }
-}
-
-fn default_side(kind: AxisKind) -> Side {
-    if kind == AxisKind::BallScrew {
-        Side::Load
-    } else {
-        Side::Motor
-    }
-}
-
-/// Nonlinear parameters of the backlash column: the model's `JM`, `DM` (to form the torque the
-/// screw transmits) and a dead band of 5 % of that torque's range, inside which the flank in
-/// contact is undetermined. `None` without a 2-mass model or a torque column.
-pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
-    let t = model.file.plant.two_mass()?;
-    let y = d.torque.as_ref()?;
-    let (a, b) = d.range;
-    let tr: Vec<f64> = (a..b)
-        .map(|k| (y[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k]).abs())
-        .collect();
-    Some(vec![
-        t.jm_kgm2,
-        t.dm_nms_per_rad,
-        0.05 * quantile(&tr, 0.99),
-    ])
-}
-
-/// The current values of the inertias (and the mass) among `keys`, 0 for the other keys: what
-/// [`best_effect`] keeps physical.
-pub fn inertias_now(model: &WbModel, keys: &[BaseParam]) -> Vec<f64> {
-    keys.iter()
-        .map(|k| match k.class() {
-            BaseClass::Inertia => model.base_value(*k),
-            BaseClass::Damping => 0.0,
-        })
-        .collect()
-}
-
-/// Best-scoring variant of effect `id` on `y` with `base` columns free: (effect with fitted
-/// coefficients, cross-validation). `None` when the effect cannot be tested on this trace.
-/// `base_now` holds the current values of the base parameters whose columns are `base` (0 for
-/// those not checked, empty when those columns are not base parameters; see [`inertias_now`]):
-/// a variant that would take one of them to less than a tenth of its value (an inertia or a
-/// mass that the effect makes vanish) is not physical and is not considered.
-#[allow(clippy::too_many_arguments)]
-pub fn best_effect(
-    id: EffectId,
-    model: &WbModel,
-    d: &AxisData,
-    base: &[&[f64]],
-    base_now: &[f64],
-    y: &[f64],
-    bl: &[(usize, usize)],
-    mask: Option<&[f64]>,
-) -> Option<(Effect, Cv)> {
-    let side = default_side(d.kind);
-    let mut grid = hyper_grid(id, d);
-    if id == EffectId::Backlash {
-        if let Some(h) = backlash_hyper(model, d) {
-            grid = vec![h];
-        }
-    }
-    // on a long trace, the grid of an effect with regressor columns is searched on a decimated
-    // copy (the filtered signals are band-limited to the cut-off) and only its best point is
-    // scored on all samples
-    let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
-    if channel(id) == Channel::Torque && grid.len() > 1 && q > 1 && d.len() >= LONG_TRACE {
-        let dd = d.decimated(q);
-        let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
-        let base_d: Vec<Vec<f64>> = base.iter().map(|c| dec(c)).collect();
-        let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
-        let y_d = dec(y);
-        let mask_d = mask.map(dec);
-        let bl_d = blocks(dd.range, bl.len());
-        if let Some((e, _)) = best_effect(
-            id,
-            model,
-            &dd,
-            &base_r,
-            base_now,
-            &y_d,
-            &bl_d,
-            mask_d.as_deref(),
-        ) {
-            grid = vec![e.hyper];
-        }
-    }
-    let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
-    let eval = |h: Vec<f64>| -> Option<(Effect, Cv)> {
-        let e = Effect::new(id, side, h);
-        let cv = match &needed {
-            Some(needed) => {
-                let mut with = model.clone();
-                with.effects.push(e.clone());
-                let t = with.applied(d)?;
-                let r: Vec<f64> = t.iter().zip(needed).map(|(a, b)| a - b).collect();
-                cv_cols_masked(base, &[], &r, bl, mask)
-            }
-            None => {
-                let cols = e.columns(d);
-                let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-                cv_cols_masked(base, &refs, y, bl, mask)
-            }
-        };
-        let nb = base.len();
-        let unphysical = base_now
-            .iter()
-            .enumerate()
-            .any(|(i, v)| *v > 0.0 && v + cv.theta.get(i).copied().unwrap_or(0.0) < 0.1 * v);
-        if unphysical {
-            return None;
-        }
-        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
-        if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
-            return None;
-        }
-        // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
-        if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
-            return None;
-        }
-        let mut e = e;
-        for (i, c) in e.coef.iter_mut().enumerate() {
-            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
-        }
-        Some((e, cv))
-    };
-    // the grid's points are independent: scored in parallel, the best kept (the first on a tie,
-    // so the result does not depend on the thread count)
-    let scored: Vec<Option<(Effect, Cv)>> = grid.par_iter().map(|h| eval(h.clone())).collect();
-    let mut best: Option<(Effect, Cv)> = None;
-    let mut best_i = 0;
-    for (i, r) in scored.into_iter().enumerate() {
-        if let Some((e, cv)) = r {
-            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
-                best = Some((e, cv));
-                best_i = i;
-            }
-        }
-    }
-    // a continuous time constant or limit: refine between the grid's neighbours of the best
-    // point (golden-section search on its logarithm)
-    if matches!(id, EffectId::CurrentLag | EffectId::TorqueSaturation)
-        && best.is_some()
-        && grid.len() >= 3
-        && grid[0][0] > 0.0
-    {
-        let lo = grid[best_i.saturating_sub(1)][0].ln();
-        let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
-        let g = 0.5 * (5f64.sqrt() - 1.0);
-        let (mut a, mut b) = (lo, hi);
-        let score = |x: f64| {
-            eval(vec![x.exp()])
-                .map(|r| r.1.rms)
-                .unwrap_or(f64::INFINITY)
-        };
-        let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
-        let (mut fc, mut fd) = (score(c), score(dd));
-        for _ in 0..12 {
-            if fc < fd {
-                b = dd;
-                dd = c;
-                fd = fc;
-                c = b - g * (b - a);
-                fc = score(c);
-            } else {
-                a = c;
-                c = dd;
-                fc = fd;
-                dd = a + g * (b - a);
-                fd = score(dd);
-            }
-        }
-        if let Some((e, cv)) = eval(vec![(0.5 * (a + b)).exp()]) {
-            if best.as_ref().map(|(_, b)| cv.rms < b.rms).unwrap_or(true) {
-                best = Some((e, cv));
-            }
-        }
-    }
-    best
 }
 
 fn decimate(x: &[f64], a: usize, b: usize) -> Vec<f64> {
@@ -636,7 +340,12 @@ fn effect_candidates(
                 ));
                 continue;
             };
-            cands.extend(deflection_candidate(id, model, d, rd, dcols, &ch.bl));
+            keep(
+                deflection_candidate(id, model, d, rd, dcols, &ch.bl),
+                id,
+                cands,
+                &mut untested,
+            );
             continue;
         }
         if id == EffectId::ViscousFriction {
@@ -644,12 +353,48 @@ fn effect_candidates(
             continue;
         }
         if id == EffectId::ThirdMass {
-            cands.extend(mode_candidate(model, d, ch));
+            keep(mode_candidate(model, d, ch), id, cands, &mut untested);
             continue;
         }
-        cands.extend(torque_effect_candidate(id, model, d, ch));
+        keep(
+            torque_effect_candidate(id, model, d, ch),
+            id,
+            cands,
+            &mut untested,
+        );
     }
     untested
+}
+
+/// A candidate goes to the list, or its effect to `untested` with the reason it could not be
+/// refitted: no effect disappears from a diagnosis.
+fn keep(
+    c: Result<Candidate, Untestable>,
+    id: EffectId,
+    cands: &mut Vec<Candidate>,
+    untested: &mut Vec<(String, String)>,
+) {
+    match c {
+        Ok(c) => cands.push(c),
+        Err(why) => untested.push((id.to_string(), why)),
+    }
+}
+
+/// `jm_kgm2 held at its value (the data cannot tell it apart from this effect: its joint refit
+/// fell below a tenth of its value)`, for the base parameters `held` (indices into `keys`).
+pub fn held_words(held: &[usize], keys: &[BaseParam]) -> String {
+    let names: Vec<&str> = held
+        .iter()
+        .filter_map(|i| keys.get(*i).map(|k| k.key()))
+        .collect();
+    format!(
+        "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit took {} below a tenth of {} value)",
+        names.join(", "),
+        if names.len() == 1 { "its" } else { "their" },
+        if names.len() == 1 { "it" } else { "them" },
+        if names.len() == 1 { "it" } else { "them" },
+        if names.len() == 1 { "its" } else { "their" },
+    )
 }
 
 /// `backlash` or `pitch_error` scored on the deflection channel (residual `rd`, base columns
@@ -661,7 +406,7 @@ fn deflection_candidate(
     rd: &[f64],
     dcols: &[Vec<f64>],
     bl: &[(usize, usize)],
-) -> Option<Candidate> {
+) -> Result<Candidate, Untestable> {
     let (a, b) = d.range;
     let kind = d.kind;
     // backlash says where the deflection is only while a flank transmits torque:
@@ -686,7 +431,7 @@ fn deflection_candidate(
     let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
     let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
     let dbase = cv_cols(&dref, &[], rd, bl);
-    let (e, cv) = best_effect(id, model, d, &dref, &[], rd, bl, None)?;
+    let Refit { effect: e, cv, .. } = best_effect(id, model, d, &dref, &[], rd, bl, None)?;
     // % of the deflection's misfit after its base refit (compliance, zero offset)
     let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
     let wins = fold_wins(&cv, &dbase.fold_mse);
@@ -695,7 +440,7 @@ fn deflection_candidate(
     let resolvable = rms(&e.contribution(d)[a..b]) >= DEFLECTION_FLOOR_M * load_to_motor(d);
     let params = flat(&e.to_table(kind, d.r));
     let contribution = decimate(&e.contribution(d), a, b);
-    Some(Candidate {
+    Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
@@ -753,7 +498,11 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
 /// fitted on the torque channel with the
 /// frequency and damping found in the wide band, and credited with everything it achieves
 /// there. Without a wider band it is an ordinary torque-channel candidate.
-fn mode_candidate(model: &WbModel, d: &AxisData, ch: &TorqueChannel<'_>) -> Option<Candidate> {
+fn mode_candidate(
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+) -> Result<Candidate, Untestable> {
     let id = EffectId::ThirdMass;
     let wide_hz = (0.1 / d.dt).min(1000.0);
     if wide_hz < 1.5 * d.cutoff_hz {
@@ -799,7 +548,7 @@ fn mode_candidate(model: &WbModel, d: &AxisData, ch: &TorqueChannel<'_>) -> Opti
     let params = flat(&e.to_table(d.kind, d.r));
     let (a, b) = d.range;
     let red = (100.0 * (ch.e0 - cv.rms) / ch.e0).max(100.0 * (ch.cvb.rms - cv.rms) / ch.e0);
-    Some(Candidate {
+    Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
@@ -828,15 +577,22 @@ fn torque_effect_candidate(
     model: &WbModel,
     d: &AxisData,
     ch: &TorqueChannel<'_>,
-) -> Option<Candidate> {
+) -> Result<Candidate, Untestable> {
     let (a, b) = d.range;
     let mk = ch.mask.as_deref();
     let now = inertias_now(model, &ch.free_keys);
-    let (e, cv) = best_effect(id, model, d, &ch.base_cols, &now, &ch.res, &ch.bl, mk)?;
+    let Refit {
+        effect: e,
+        cv,
+        held,
+    } = best_effect(id, model, d, &ch.base_cols, &now, &ch.res, &ch.bl, mk)?;
     let mut add = vec![e.clone()];
     let mut cv = cv;
     let mut params = flat(&e.to_table(d.kind, d.r));
     let mut ev = evidence(&e, d);
+    if !held.is_empty() {
+        ev = format!("{ev}; {}", held_words(&held, &ch.free_keys));
+    }
     if id == EffectId::CoulombFriction {
         if let Some(with_offset) = coulomb_with_offset(&e, &cv, d, ch) {
             (add, cv, params, ev) = with_offset;
@@ -889,7 +645,7 @@ fn torque_effect_candidate(
             }
         }
     }
-    Some(Candidate {
+    Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
@@ -1158,10 +914,10 @@ fn condition_on_top(
             channel(*id) != Channel::Deflection
                 && (id.repeatable() || !top_add.iter().any(|t| t.id == *id))
         });
-        let rescored =
-            single.and_then(|id| best_effect(id, &with_top, d, &cols, &now_ext, &t_ref, bl, mk));
+        let rescored = single
+            .and_then(|id| best_effect(id, &with_top, d, &cols, &now_ext, &t_ref, bl, mk).ok());
         let cv = match &rescored {
-            Some((_, cv)) => cv.clone(),
+            Some(r) => r.cv.clone(),
             None => {
                 let mut with = with_top.clone();
                 let mut extra_cols: Vec<Vec<f64>> = Vec::new();
@@ -1184,13 +940,13 @@ fn condition_on_top(
         let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
         let nb = cols.len();
-        let inside_ci = rescored.as_ref().is_some_and(|(e, cv)| {
-            channel(e.id) == Channel::Torque
-                && cv.theta.len() > nb
-                && cv.theta[nb].abs() <= CI_SIGMAS * cv.theta_se[nb]
+        let inside_ci = rescored.as_ref().is_some_and(|r| {
+            channel(r.effect.id) == Channel::Torque
+                && r.cv.theta.len() > nb
+                && r.cv.theta[nb].abs() <= CI_SIGMAS * r.cv.theta_se[nb]
         });
         if extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci {
-            if let Some((e, _)) = rescored {
+            if let Some(Refit { effect: e, .. }) = rescored {
                 c.params = flat(&e.to_table(d.kind, d.r));
                 c.evidence = evidence(&e, d);
                 c.add = vec![e];
@@ -1221,57 +977,6 @@ fn condition_on_top(
     }
     cands[0].same_as.extend(included);
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-}
-
-/// Deflection channel: (residual, base columns) when both positions are measured.
-///
-/// The spring transmits what the motor does not keep: `KL (thM - thL) = T - JM aM - DM vM`
-/// (motor-side effects included), with `T` the applied torque when recorded (so load-side
-/// friction, which also deflects the spring, is not mistaken for a gap), else the load's
-/// model torque `JL aL + DL vL`. The residual is the measured deflection minus that over `KL`;
-/// the base columns (the transmitted torque and a constant) correct `1 / KL` and a zero offset.
-pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
-    let t = model.file.plant.two_mass()?;
-    let _m = d.motor_raw.as_ref()?;
-    let transmitted: Vec<f64> = match &d.torque {
-        Some(y) => {
-            let _ = y;
-            let ya = model.applied(d).unwrap_or_default();
-            let mut motor_side = vec![0.0; d.len()];
-            for e in model
-                .effects
-                .iter()
-                .filter(|e| channel(e.id) == Channel::Torque && e.side == Side::Motor)
-            {
-                for (x, c) in motor_side.iter_mut().zip(e.contribution(d)) {
-                    *x += c;
-                }
-            }
-            (0..d.len())
-                .map(|k| ya[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k] - motor_side[k])
-                .collect()
-        }
-        None => {
-            d.al.iter()
-                .zip(&d.vl)
-                .map(|(a, v)| t.jl_kgm2 * a + t.dl_nms_per_rad * v)
-                .collect()
-        }
-    };
-    let mut rd: Vec<f64> = (0..d.len())
-        .map(|k| (d.qm[k] - d.ql[k]) - transmitted[k] / t.kl_nm_per_rad)
-        .collect();
-    for e in model
-        .effects
-        .iter()
-        .filter(|e| channel(e.id) == Channel::Deflection)
-    {
-        for (x, c) in rd.iter_mut().zip(e.contribution(d)) {
-            *x -= c;
-        }
-    }
-    let one = vec![1.0; d.len()];
-    Some((rd, vec![transmitted, one]))
 }
 
 /// The frequency below which 99 % of the commanded acceleration's energy lies, Hz: what the
@@ -1468,17 +1173,6 @@ fn controller_candidates(
         add: vec![],
         channel: "controller",
     });
-}
-
-/// Numeric entries of an effect table, flat.
-pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
-    t.iter()
-        .filter_map(|(k, v)| match v {
-            toml::Value::Float(f) => Some((k.clone(), *f)),
-            toml::Value::Integer(i) => Some((k.clone(), *i as f64)),
-            _ => None,
-        })
-        .collect()
 }
 
 impl Diagnosis {

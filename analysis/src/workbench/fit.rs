@@ -13,9 +13,10 @@ use super::base::{BaseClass, BaseParam};
 use super::compare::equation_error;
 use super::controller::ControllerChannel;
 use super::data::AxisData;
-use super::diagnose::{best_effect, deflection, flat, inertias_now, moving_mask, FOLDS};
+use super::diagnose::held_words;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
+use super::refit::{best_effect, deflection, flat, inertias_now, moving_mask, Refit, FOLDS};
 use super::window::window_sim;
 use super::WorkbenchError;
 
@@ -70,6 +71,8 @@ pub struct FitResult {
     pub before: Errors,
     /// Errors of the new model.
     pub after: Errors,
+    /// What the fit held, clamped or could not determine (each a sentence).
+    pub warnings: Vec<String>,
 }
 
 impl FitResult {
@@ -80,6 +83,7 @@ impl FitResult {
             "params": self.params,
             "error_before": self.before.to_json(),
             "error_after": self.after.to_json(),
+            "warnings": self.warnings,
         })
     }
 }
@@ -123,6 +127,7 @@ pub fn fit(
     window_s: f64,
 ) -> Result<FitResult, WorkbenchError> {
     let kind = d.kind;
+    let mut warnings: Vec<String> = Vec::new();
     let free_keys = free_keys(model, d, free)?;
     let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     let bl = blocks(d.range, FOLDS);
@@ -141,9 +146,9 @@ pub fn fit(
                         present: d.columns_present().join(", "),
                     })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                if let Some((e, _)) = best_effect(id, model, d, &dref, &[], &rd, &bl, None) {
-                    effects.push(e);
-                }
+                let r = best_effect(id, model, d, &dref, &[], &rd, &bl, None)
+                    .map_err(|why| refused(id, why))?;
+                effects.push(r.effect);
             }
             Channel::Torque | Channel::TorquePath => {
                 let y = d
@@ -166,19 +171,27 @@ pub fn fit(
                 }
                 let res = residual(model, d, y);
                 let now = inertias_now(model, &free_keys);
-                if let Some((mut e, _)) =
-                    best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
-                {
-                    if e.id == EffectId::CoulombFriction {
-                        e.coef[1] = 0.0;
-                    }
-                    effects.push(e);
+                let Refit {
+                    effect: mut e,
+                    held,
+                    ..
+                } = best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
+                    .map_err(|why| refused(id, why))?;
+                if e.id == EffectId::CoulombFriction {
+                    e.coef[1] = 0.0;
                 }
+                if !held.is_empty() {
+                    warnings.push(format!("{id}: {}", held_words(&held, &free_keys)));
+                }
+                effects.push(e);
             }
         }
     }
     let _ = kind;
-    fit_with(model, d, effects, free, window_s)
+    let mut r = fit_with(model, d, effects, free, window_s)?;
+    warnings.append(&mut r.warnings);
+    r.warnings = warnings;
+    Ok(r)
 }
 
 /// The drive's torque limit as the controller channel shows it: when the record departs from
@@ -363,7 +376,21 @@ pub fn fit_with(
         params,
         before,
         after,
+        warnings: Vec::new(),
     })
+}
+
+/// The error of `fit --add ID` when the effect cannot be fitted.
+fn refused(id: EffectId, why: String) -> WorkbenchError {
+    WorkbenchError::EffectRefused {
+        effect: id.to_string(),
+        reason: why,
+        advice: format!(
+            "nothing was written; run `feedloop diagnose` to see what these data show, record \
+             moves that excite `{id}` (reversals for friction, a range of speeds, travel for \
+             position-dependent effects), or leave it out"
+        ),
+    }
 }
 
 fn update_plant(m: &mut WbModel) {

@@ -21,6 +21,7 @@ pub mod effects;
 pub mod fit;
 pub mod import;
 pub mod lsq;
+pub mod refit;
 pub mod report;
 pub mod signal;
 pub mod window;
@@ -76,6 +77,16 @@ pub enum WorkbenchError {
         path: PathBuf,
         /// The error.
         source: std::io::Error,
+    },
+    /// An effect asked for with `fit --add` could not be fitted on this trace.
+    #[error("cannot add `{effect}`: {reason}; {advice}")]
+    EffectRefused {
+        /// The effect id.
+        effect: String,
+        /// Why its fit was refused.
+        reason: String,
+        /// What to do.
+        advice: String,
     },
     /// The data does not allow the requested computation (too short, no motion, singular fit).
     #[error("{}: {reason}", path.display())]

@@ -1,0 +1,468 @@
+//! The refit of one candidate: an effect's best variant fitted together with the base
+//! parameters, shared by `diagnose` (which ranks candidates by it) and `fit` (which adds what was
+//! asked for), so that the cut a diagnosis announces is the cut a fit delivers.
+
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+
+use feedloop_model::model::AxisKind;
+
+use super::base::{BaseClass, BaseParam};
+use super::data::AxisData;
+use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
+use super::lsq::{blocks, cross_validate, normals_masked, Cv};
+use super::signal::quantile;
+
+/// Folds of the blocked cross-validation.
+pub const FOLDS: usize = 5;
+
+/// Samples from which a trace counts as long: the grids of column effects are then searched on
+/// a decimated copy (see [`best_effect`]).
+pub const LONG_TRACE: usize = 500_000;
+
+/// Cross-validates `extra` columns together with `base` columns on target `y`.
+pub fn cv_cols(base: &[&[f64]], extra: &[&[f64]], y: &[f64], bl: &[(usize, usize)]) -> Cv {
+    cv_cols_masked(base, extra, y, bl, None)
+}
+
+/// [`cv_cols`] over the rows where `mask` (when given) is not 0.
+pub fn cv_cols_masked(
+    base: &[&[f64]],
+    extra: &[&[f64]],
+    y: &[f64],
+    bl: &[(usize, usize)],
+    mask: Option<&[f64]>,
+) -> Cv {
+    let mut cols: Vec<&[f64]> = base.to_vec();
+    cols.extend_from_slice(extra);
+    cross_validate(&normals_masked(&cols, y, bl, mask))
+}
+
+/// Rows of the torque channel that carry information about the candidates: all but the
+/// standstills (below 2 % of the top speed for more than 20 ms, as `compare` classifies them).
+/// At a standstill dry friction takes whatever torque the loop applies below its breakaway level
+/// (a hunting velocity loop moves it about while nothing moves), which no velocity-driven law
+/// describes and a torque clamp would wrongly claim. `None` when fewer than a fifth of the rows
+/// move (or all do).
+pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
+    let kinds = super::compare::classify(d);
+    let (a, b) = d.range;
+    let mask: Vec<f64> = kinds
+        .iter()
+        .map(|k| {
+            if *k == super::compare::SegKind::Standstill {
+                0.0
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let moving = mask[a..b].iter().filter(|w| **w != 0.0).count();
+    (moving < b - a && 5 * moving >= b - a).then_some(mask)
+}
+
+/// The grid of nonlinear parameters tried for effect `id`.
+pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
+    let (a, b) = d.range;
+    let vmax = quantile(
+        &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
+        0.99,
+    )
+    .max(1e-12);
+    let fs = 1.0 / d.dt;
+    let logspace = |lo: f64, hi: f64, n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+            .collect()
+    };
+    match id {
+        EffectId::StribeckFriction => {
+            let mut g = Vec::new();
+            for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
+                for e in [1.0, 2.0] {
+                    g.push(vec![vs, e]);
+                }
+            }
+            g
+        }
+        EffectId::Cogging => match d.kind {
+            AxisKind::Rigid => logspace(1e-3, 0.1, 120)
+                .into_iter()
+                .map(|p| vec![p])
+                .collect(),
+            AxisKind::BallScrew | AxisKind::Rotary => (1..=120)
+                .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
+                .collect(),
+        },
+        EffectId::ThirdMass => {
+            let mut g = Vec::new();
+            for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
+                for z in [0.02, 0.1, 0.3] {
+                    g.push(vec![f, z]);
+                }
+            }
+            g
+        }
+        EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
+        // time constants of the recording's period (that of the samples held on a long trace
+        // held in block means)
+        EffectId::CurrentLag => logspace(d.dt / d.sub as f64 * 0.3, d.dt / d.sub as f64 * 20.0, 16)
+            .into_iter()
+            .map(|t| vec![t])
+            .collect(),
+        EffectId::TorqueSaturation => {
+            let Some(y) = &d.torque_raw else {
+                return vec![];
+            };
+            let ay: Vec<f64> = y[a..b].iter().map(|x| x.abs()).collect();
+            let (lo, hi) = (quantile(&ay, 0.3), quantile(&ay, 1.0));
+            (0..40)
+                .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
+                .collect()
+        }
+        EffectId::PitchError => {
+            let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
+            vec![vec![lead]]
+        }
+        // linear in their coefficients: nothing to search (backlash takes its dead band from
+        // the model where it is fitted)
+        EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::ConstantForce
+        | EffectId::Backlash => vec![vec![]],
+    }
+}
+
+pub(crate) fn default_side(kind: AxisKind) -> Side {
+    if kind == AxisKind::BallScrew {
+        Side::Load
+    } else {
+        Side::Motor
+    }
+}
+
+/// Nonlinear parameters of the backlash column: the model's `JM`, `DM` (to form the torque the
+/// screw transmits) and a dead band of 5 % of that torque's range, inside which the flank in
+/// contact is undetermined. `None` without a 2-mass model or a torque column.
+pub fn backlash_hyper(model: &WbModel, d: &AxisData) -> Option<Vec<f64>> {
+    let t = model.file.plant.two_mass()?;
+    let y = d.torque.as_ref()?;
+    let (a, b) = d.range;
+    let tr: Vec<f64> = (a..b)
+        .map(|k| (y[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k]).abs())
+        .collect();
+    Some(vec![
+        t.jm_kgm2,
+        t.dm_nms_per_rad,
+        0.05 * quantile(&tr, 0.99),
+    ])
+}
+
+/// The current values of the inertias (and the mass) among `keys`, 0 for the other keys: what
+/// [`best_effect`] keeps physical.
+pub fn inertias_now(model: &WbModel, keys: &[BaseParam]) -> Vec<f64> {
+    keys.iter()
+        .map(|k| match k.class() {
+            BaseClass::Inertia => model.base_value(*k),
+            BaseClass::Damping => 0.0,
+        })
+        .collect()
+}
+
+/// The best variant of one effect refitted with the base parameters: the effect with its
+/// fitted coefficients, the cross-validation of the joint fit, and the base parameters held at
+/// their values because the data cannot determine them together with the effect.
+#[derive(Debug, Clone)]
+pub struct Refit {
+    /// The effect, coefficients fitted.
+    pub effect: Effect,
+    /// Cross-validation of the joint fit; `theta` and `theta_se` list every base column (0 for a
+    /// held one) followed by the effect's coefficients.
+    pub cv: Cv,
+    /// Indices of the base columns held at their values.
+    pub held: Vec<usize>,
+}
+
+/// Why an effect could not be refitted on a trace (a sentence for `untested` and for the error
+/// of `fit --add`).
+pub type Untestable = String;
+
+/// Best-scoring variant of effect `id` on `y` with `base` columns free (see [`Refit`]).
+/// `base_now` holds the current values of the base parameters whose columns are `base` (0 for
+/// those not checked, empty when those columns are not base parameters; see [`inertias_now`]):
+/// a joint fit that would take one of them to less than a tenth of its value (an inertia or a
+/// mass that the effect makes vanish) cannot tell the two apart, so that parameter is held at
+/// its value and the effect refitted without it. An effect that no variant fits physically is
+/// [`Untestable`], with the reason.
+/// Kept whole: the grid, its decimated pre-search on long traces, the hold of undetermined base
+/// parameters and the golden-section refinement share one scoring closure.
+#[allow(clippy::too_many_arguments)]
+pub fn best_effect(
+    id: EffectId,
+    model: &WbModel,
+    d: &AxisData,
+    base: &[&[f64]],
+    base_now: &[f64],
+    y: &[f64],
+    bl: &[(usize, usize)],
+    mask: Option<&[f64]>,
+) -> Result<Refit, Untestable> {
+    let side = default_side(d.kind);
+    let mut grid = hyper_grid(id, d);
+    if id == EffectId::Backlash {
+        if let Some(h) = backlash_hyper(model, d) {
+            grid = vec![h];
+        }
+    }
+    if grid.is_empty() {
+        return Err(match channel(id) {
+            Channel::TorquePath => format!(
+                "needs the recorded torque `{}.torque` (it changes the applied torque)",
+                d.axis
+            ),
+            Channel::Torque | Channel::Deflection => "nothing to search on this trace".into(),
+        });
+    }
+    // on a long trace, the grid of an effect with regressor columns is searched on a decimated
+    // copy (the filtered signals are band-limited to the cut-off) and only its best point is
+    // scored on all samples
+    let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
+    if channel(id) == Channel::Torque && grid.len() > 1 && q > 1 && d.len() >= LONG_TRACE {
+        let dd = d.decimated(q);
+        let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
+        let base_d: Vec<Vec<f64>> = base.iter().map(|c| dec(c)).collect();
+        let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
+        let y_d = dec(y);
+        let mask_d = mask.map(dec);
+        let bl_d = blocks(dd.range, bl.len());
+        if let Ok(r) = best_effect(
+            id,
+            model,
+            &dd,
+            &base_r,
+            base_now,
+            &y_d,
+            &bl_d,
+            mask_d.as_deref(),
+        ) {
+            grid = vec![r.effect.hyper];
+        }
+    }
+    let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
+    let nb = base.len();
+    let eval = |h: Vec<f64>| -> Result<Refit, Untestable> {
+        let e = Effect::new(id, side, h);
+        let target: Option<Vec<f64>> = match &needed {
+            Some(needed) => {
+                let mut with = model.clone();
+                with.effects.push(e.clone());
+                let t = with
+                    .applied(d)
+                    .ok_or_else(|| format!("needs the recorded torque `{}.torque`", d.axis))?;
+                Some(t.iter().zip(needed).map(|(a, b)| a - b).collect())
+            }
+            None => None,
+        };
+        let cols = match &needed {
+            Some(_) => vec![],
+            None => e.columns(d),
+        };
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let y = target.as_deref().unwrap_or(y);
+        // base columns held at their values where the joint fit would make them vanish
+        let mut held: Vec<usize> = Vec::new();
+        let cv = loop {
+            let free: Vec<&[f64]> = (0..nb)
+                .filter(|i| !held.contains(i))
+                .map(|i| base[i])
+                .collect();
+            let cv = expand(cv_cols_masked(&free, &refs, y, bl, mask), nb, &held);
+            let vanishing: Vec<usize> = base_now
+                .iter()
+                .enumerate()
+                .filter(|(i, v)| {
+                    !held.contains(i)
+                        && **v > 0.0
+                        && *v + cv.theta.get(*i).copied().unwrap_or(0.0) < 0.1 * *v
+                })
+                .map(|(i, _)| i)
+                .collect();
+            if vanishing.is_empty() {
+                break cv;
+            }
+            held.extend(vanishing);
+            held.sort_unstable();
+        };
+        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
+        if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
+            return Err(
+                "its breakaway level fits below its sliding level (fs < fc) at every \
+                        Stribeck velocity searched: these data show no rise of friction at low \
+                        speed"
+                    .into(),
+            );
+        }
+        // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
+        if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
+            return Err(
+                "its mass fits negative at every frequency searched (coloured noise, \
+                        not a mass on a spring)"
+                    .into(),
+            );
+        }
+        let mut e = e;
+        for (i, c) in e.coef.iter_mut().enumerate() {
+            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        }
+        Ok(Refit {
+            effect: e,
+            cv,
+            held,
+        })
+    };
+    // the grid's points are independent: scored in parallel, the best kept (the first on a tie,
+    // so the result does not depend on the thread count)
+    let scored: Vec<Result<Refit, Untestable>> = grid.par_iter().map(|h| eval(h.clone())).collect();
+    let mut best: Option<Refit> = None;
+    let mut reason: Option<Untestable> = None;
+    let mut best_i = 0;
+    for (i, r) in scored.into_iter().enumerate() {
+        match r {
+            Ok(r) => {
+                if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
+                    best = Some(r);
+                    best_i = i;
+                }
+            }
+            Err(why) => {
+                reason.get_or_insert(why);
+            }
+        }
+    }
+    // a continuous time constant or limit: refine between the grid's neighbours of the best
+    // point (golden-section search on its logarithm)
+    if matches!(id, EffectId::CurrentLag | EffectId::TorqueSaturation)
+        && best.is_some()
+        && grid.len() >= 3
+        && grid[0][0] > 0.0
+    {
+        let lo = grid[best_i.saturating_sub(1)][0].ln();
+        let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let (mut a, mut b) = (lo, hi);
+        let score = |x: f64| {
+            eval(vec![x.exp()])
+                .map(|r| r.cv.rms)
+                .unwrap_or(f64::INFINITY)
+        };
+        let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
+        let (mut fc, mut fd) = (score(c), score(dd));
+        for _ in 0..12 {
+            if fc < fd {
+                b = dd;
+                dd = c;
+                fd = fc;
+                c = b - g * (b - a);
+                fc = score(c);
+            } else {
+                a = c;
+                c = dd;
+                fc = fd;
+                dd = a + g * (b - a);
+                fd = score(dd);
+            }
+        }
+        if let Ok(r) = eval(vec![(0.5 * (a + b)).exp()]) {
+            if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
+                best = Some(r);
+            }
+        }
+    }
+    best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))
+}
+
+/// `cv` of a fit without the base columns `held` (sorted), with a 0 coefficient (and standard
+/// error) inserted for each of them so that it lists all `nb` base columns.
+fn expand(mut cv: Cv, nb: usize, held: &[usize]) -> Cv {
+    if held.is_empty() {
+        return cv;
+    }
+    let widen = |v: &nalgebra::DVector<f64>| {
+        let mut out = Vec::with_capacity(v.len() + held.len());
+        let mut src = v.iter();
+        for i in 0..v.len() + held.len() {
+            if i < nb && held.contains(&i) {
+                out.push(0.0);
+            } else {
+                out.push(src.next().copied().unwrap_or(0.0));
+            }
+        }
+        nalgebra::DVector::from_vec(out)
+    };
+    cv.theta = widen(&cv.theta);
+    cv.theta_se = widen(&cv.theta_se);
+    cv
+}
+
+/// Deflection channel: (residual, base columns) when both positions are measured.
+///
+/// The spring transmits what the motor does not keep: `KL (thM - thL) = T - JM aM - DM vM`
+/// (motor-side effects included), with `T` the applied torque when recorded (so load-side
+/// friction, which also deflects the spring, is not mistaken for a gap), else the load's
+/// model torque `JL aL + DL vL`. The residual is the measured deflection minus that over `KL`;
+/// the base columns (the transmitted torque and a constant) correct `1 / KL` and a zero offset.
+pub fn deflection(model: &WbModel, d: &AxisData) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+    let t = model.file.plant.two_mass()?;
+    let _m = d.motor_raw.as_ref()?;
+    let transmitted: Vec<f64> = match &d.torque {
+        Some(y) => {
+            let _ = y;
+            let ya = model.applied(d).unwrap_or_default();
+            let mut motor_side = vec![0.0; d.len()];
+            for e in model
+                .effects
+                .iter()
+                .filter(|e| channel(e.id) == Channel::Torque && e.side == Side::Motor)
+            {
+                for (x, c) in motor_side.iter_mut().zip(e.contribution(d)) {
+                    *x += c;
+                }
+            }
+            (0..d.len())
+                .map(|k| ya[k] - t.jm_kgm2 * d.am[k] - t.dm_nms_per_rad * d.vm[k] - motor_side[k])
+                .collect()
+        }
+        None => {
+            d.al.iter()
+                .zip(&d.vl)
+                .map(|(a, v)| t.jl_kgm2 * a + t.dl_nms_per_rad * v)
+                .collect()
+        }
+    };
+    let mut rd: Vec<f64> = (0..d.len())
+        .map(|k| (d.qm[k] - d.ql[k]) - transmitted[k] / t.kl_nm_per_rad)
+        .collect();
+    for e in model
+        .effects
+        .iter()
+        .filter(|e| channel(e.id) == Channel::Deflection)
+    {
+        for (x, c) in rd.iter_mut().zip(e.contribution(d)) {
+            *x -= c;
+        }
+    }
+    let one = vec![1.0; d.len()];
+    Some((rd, vec![transmitted, one]))
+}
+
+/// Numeric entries of an effect table, flat.
+pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
+    t.iter()
+        .filter_map(|(k, v)| match v {
+            toml::Value::Float(f) => Some((k.clone(), *f)),
+            toml::Value::Integer(i) => Some((k.clone(), *i as f64)),
+            _ => None,
+        })
+        .collect()
+}
