@@ -48,7 +48,17 @@ fn an_imported_foreign_export_gets_a_nominal_model_close_to_the_truth_and_a_repo
     assert_eq!(tr.len(), 4000);
     assert!((tr.period_s() - 1e-3).abs() < 1e-12);
     let tr = Trace::read(&d.join("t.csv")).unwrap();
-    let m = model_init(&tr, "rigid", None, None, &d.join("m.toml")).unwrap();
+    let m = model_init(
+        &tr,
+        &feedloop_analysis::workbench::import::InitSpec {
+            kind: feedloop_model::model::AxisKind::Rigid,
+            lead_m: None,
+            gear_ratio: None,
+        },
+        None,
+        &d.join("m.toml"),
+    )
+    .unwrap();
     // without Coulomb friction the viscous term absorbs it; the mass is close
     assert!(
         (m.base_value(feedloop_analysis::workbench::base::BaseParam::MassKg) - 50.0).abs() < 2.5,

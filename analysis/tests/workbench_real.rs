@@ -72,3 +72,83 @@ fn no_effect_disappears_from_a_diagnosis_of_the_emps_record() {
     let Some((m, d)) = emps() else { return };
     assert_no_effect_disappears(&m, &d, "EMPS estimation record");
 }
+
+/// Joint `j` of the KUKA record and a nominal rotary model of it from `model init`.
+fn kuka(j: usize, dir: &Path) -> Option<(WbModel, AxisData)> {
+    use feedloop_analysis::workbench::import::{model_init, InitSpec};
+    use feedloop_model::model::AxisKind;
+    let tr = Trace::read(&shared(&format!("kuka/kuka_b_j{j}.csv"))?).unwrap();
+    let spec = InitSpec {
+        kind: AxisKind::Rotary,
+        lead_m: None,
+        gear_ratio: None,
+    };
+    let m = model_init(&tr, &spec, None, &dir.join(format!("j{j}.toml"))).unwrap();
+    let d = load_axis(&tr, &m.file, &format!("j{j}"), &Prep::default()).unwrap();
+    Some((m, d))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("feedloop-real-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn kuka_joint_1_names_friction_first_and_its_fit_matches_the_published_level() {
+    let dir = scratch("j1");
+    let Some((m, d)) = kuka(1, &dir) else { return };
+    assert_eq!(m.file.plant.kind().id(), "rotary");
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert_eq!(top.class, "friction", "{}", dg.verdict);
+    let r = fit(&m, &d, &[EffectId::CoulombFriction], None, 0.05).unwrap();
+    let (b, a) = (
+        r.before.equation_nrmse_pct.unwrap(),
+        r.after.equation_nrmse_pct.unwrap(),
+    );
+    assert!(a < 0.6 * b, "equation error {b:.1} % -> {a:.1} %");
+    // Weigand et al.: Coulomb about 1.36 N m referred to the motor
+    let fc = r.params["fc_nm"];
+    assert!((fc / 1.36 - 1.0).abs() < 0.15, "fc {fc} N m");
+    assert_no_effect_disappears(&m, &d, "KUKA joint 1");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn a_fit_that_would_write_a_negative_friction_level_is_refused() {
+    // a rigid mass with viscous friction only, driven open loop; the model overstates its
+    // viscous friction and holds it (only the mass is free), so a Coulomb level fitted to the
+    // residual comes out negative: no model the plant refuses may be written
+    let (dt, m, c) = (1e-3, 20.0, 60.0);
+    let (mut x, mut v) = (0.0f64, 0.0f64);
+    let mut text = String::from("# feedloop-trace v1\n# period_s=0.001\nt,x.cmd,x.load,x.torque\n");
+    for k in 0..6000 {
+        let t = k as f64 * dt;
+        let f = 400.0 * (2.0 * std::f64::consts::PI * 0.7 * t).sin();
+        text.push_str(&format!("{t},{x},{x},{f}\n"));
+        let a = (f - c * v) / m;
+        v += a * dt;
+        x += v * dt;
+    }
+    let dir = scratch("negative");
+    let path = dir.join("t.csv");
+    std::fs::write(&path, text).unwrap();
+    let tr = Trace::read(&path).unwrap();
+    let table: toml::Table = "kind = \"rigid\"\nmass_kg = 20.0\nviscous_ns_per_m = 200.0\n"
+        .parse()
+        .unwrap();
+    let file = feedloop_model::model::ModelFile::from_table(&table, &dir.join("m.toml")).unwrap();
+    let model = WbModel::from_parts(file, table).unwrap();
+    let d = load_axis(&tr, &model.file, "x", &Prep::default()).unwrap();
+    let free = ["mass_kg".to_string()];
+    match fit(&model, &d, &[EffectId::CoulombFriction], Some(&free), 0.05) {
+        Err(WorkbenchError::EffectRefused { effect, reason, .. }) => {
+            assert_eq!(effect, "coulomb_friction");
+            assert!(reason.contains("fc_n"), "{reason}");
+        }
+        Err(e) => panic!("refused for another reason: {e}"),
+        Ok(r) => panic!("wrote a model with {:?}", r.params),
+    }
+    std::fs::remove_dir_all(dir).ok();
+}

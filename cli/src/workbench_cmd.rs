@@ -14,10 +14,11 @@ use feedloop_analysis::workbench::{
     diagnose::{diagnose, DiagOptions},
     effects::WbModel,
     fit::{fit, parse_effects},
-    import::{import, model_init, parse_map},
+    import::{import, model_init, parse_map, InitSpec},
     refit::LONG_TRACE,
     report, WorkbenchError,
 };
+use feedloop_model::model::AxisKind;
 use feedloop_model::units::{si, sig};
 use feedloop_trace::Trace;
 
@@ -142,6 +143,27 @@ pub enum TraceCmd {
     },
 }
 
+/// `model init --kind`: the structures a nominal model can have.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InitKind {
+    /// Rotary motor, ball screw, table (2-mass, load in m).
+    Ballscrew,
+    /// One rigid mass driven by a force (load in m).
+    Rigid,
+    /// Rotary motor, gear or shaft, rotary load (2-mass, load in rad; one encoder: rigid).
+    Rotary,
+}
+
+impl InitKind {
+    fn axis_kind(self) -> AxisKind {
+        match self {
+            InitKind::Ballscrew => AxisKind::BallScrew,
+            InitKind::Rigid => AxisKind::Rigid,
+            InitKind::Rotary => AxisKind::Rotary,
+        }
+    }
+}
+
 /// `feedloop model ...`
 #[derive(clap::Subcommand, Debug)]
 pub enum ModelCmd {
@@ -150,15 +172,19 @@ pub enum ModelCmd {
         /// Trace (format v1) with a torque column.
         #[arg(long)]
         trace: PathBuf,
-        /// ballscrew | rigid.
-        #[arg(long)]
-        kind: String,
+        /// The axis' structure.
+        #[arg(long, value_enum)]
+        kind: InitKind,
         /// Axis (default: the only axis).
         #[arg(long)]
         axis: Option<String>,
         /// Screw lead for a ball screw, m (default: from the motor/load travel ratio).
         #[arg(long)]
         lead_m: Option<f64>,
+        /// Gear ratio of a rotary axis, motor revolutions per load revolution (default: from the
+        /// motor/load travel ratio; 1 with one encoder).
+        #[arg(long)]
+        gear_ratio: Option<f64>,
         /// Output model file.
         #[arg(long)]
         out: PathBuf,
@@ -359,10 +385,18 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
                     kind,
                     axis,
                     lead_m,
+                    gear_ratio,
                     out,
                     json,
                 },
-        } => init_model(&trace, &kind, axis.as_deref(), lead_m, &out, json)?,
+        } => {
+            let spec = InitSpec {
+                kind: kind.axis_kind(),
+                lead_m,
+                gear_ratio,
+            };
+            init_model(&trace, &spec, axis.as_deref(), &out, json)?
+        }
         WorkbenchCmd::Compare {
             trace,
             model,
@@ -435,14 +469,14 @@ fn trace_import(
 /// `feedloop model init`.
 fn init_model(
     trace: &Path,
-    kind: &str,
+    spec: &InitSpec,
     axis: Option<&str>,
-    lead_m: Option<f64>,
     out: &Path,
     json: bool,
 ) -> anyhow::Result<()> {
+    let kind = spec.kind.id();
     let tr = Trace::read(trace)?;
-    let m = model_init(&tr, kind, axis, lead_m, out)?;
+    let m = model_init(&tr, spec, axis, out)?;
     let params: serde_json::Map<String, serde_json::Value> = m
         .base
         .iter()

@@ -104,7 +104,8 @@ pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Op
                 1.0 / (r.mass_kg * s + r.viscous_ns_per_m),
                 Complex64::new(1.0, 0.0),
             ),
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
+            PlantParams::BallScrew { two_mass: t, .. }
+            | PlantParams::Rotary { two_mass: t, .. } => {
                 let ks = t.kl_nm_per_rad + t.cl_nms_per_rad * s;
                 let a = t.jm_kgm2 * s * s + t.dm_nms_per_rad * s + ks;
                 let b = t.jl_kgm2 * s * s + t.dl_nms_per_rad * s + ks;
@@ -221,7 +222,8 @@ impl Sampled {
                     0,
                 )
             }
-            PlantParams::BallScrew { two_mass: p, .. } | PlantParams::Rotary { two_mass: p } => {
+            PlantParams::BallScrew { two_mass: p, .. }
+            | PlantParams::Rotary { two_mass: p, .. } => {
                 let (jm, dm, kl, cl, jl, dl) = (
                     p.jm_kgm2,
                     p.dm_nms_per_rad,

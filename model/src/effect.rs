@@ -34,11 +34,13 @@ pub enum EffectId {
     CurrentLag,
     /// `torque_saturation`: the drive's torque clamp.
     TorqueSaturation,
+    /// `unbalance`: a load torque of the axis' own angle (gravity on a rotary load).
+    Unbalance,
 }
 
 impl EffectId {
     /// Every effect, in the order error messages list them.
-    pub const ALL: [EffectId; 11] = [
+    pub const ALL: [EffectId; 12] = [
         EffectId::ViscousFriction,
         EffectId::CoulombFriction,
         EffectId::StribeckFriction,
@@ -50,6 +52,7 @@ impl EffectId {
         EffectId::Delay,
         EffectId::CurrentLag,
         EffectId::TorqueSaturation,
+        EffectId::Unbalance,
     ];
 
     /// Name used in model files (`[effects.<id>]`) and on the command line.
@@ -66,6 +69,7 @@ impl EffectId {
             EffectId::Delay => "delay",
             EffectId::CurrentLag => "current_lag",
             EffectId::TorqueSaturation => "torque_saturation",
+            EffectId::Unbalance => "unbalance",
         }
     }
 

@@ -90,6 +90,8 @@ pub enum PlantParams {
     Rotary {
         /// The 2-mass parameters.
         two_mass: TwoMassParams,
+        /// Motor revolutions per load revolution (1 for a direct drive).
+        gear_ratio: f64,
     },
     /// `kind = "rigid"`.
     Rigid(RigidParams),
@@ -105,20 +107,22 @@ impl PlantParams {
         }
     }
 
-    /// Motor units per load unit: rad per m for a ball screw (2 pi gear / lead), else 1.
+    /// Motor units per load unit: rad per m for a ball screw (2 pi gear / lead), the gear ratio
+    /// (motor rad per load rad) for a rotary axis, 1 for a rigid one.
     pub fn motor_per_load(&self) -> f64 {
         match self {
             PlantParams::BallScrew {
                 lead_m, gear_ratio, ..
             } => 2.0 * PI * gear_ratio / lead_m,
-            _ => 1.0,
+            PlantParams::Rotary { gear_ratio, .. } => *gear_ratio,
+            PlantParams::Rigid(_) => 1.0,
         }
     }
 
     /// The 2-mass parameters, if the axis has them.
     pub fn two_mass(&self) -> Option<&TwoMassParams> {
         match self {
-            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
+            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass, .. } => {
                 Some(two_mass)
             }
             PlantParams::Rigid(_) => None,
@@ -128,7 +132,7 @@ impl PlantParams {
     /// Total inertia (kg m^2) or mass (kg) that the motor accelerates, in motor units.
     pub fn total_inertia(&self) -> f64 {
         match self {
-            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
+            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass, .. } => {
                 two_mass.jm_kgm2 + two_mass.jl_kgm2
             }
             PlantParams::Rigid(r) => r.mass_kg,
@@ -185,6 +189,7 @@ impl ModelFile {
             },
             "rotary" => PlantParams::Rotary {
                 two_mass: two_mass(&mut f)?,
+                gear_ratio: f.f64_or("gear_ratio", Range::Positive, 1.0)?,
             },
             "rigid" => PlantParams::Rigid(RigidParams {
                 mass_kg: f.f64("mass_kg", Range::Positive)?,

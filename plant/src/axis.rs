@@ -20,7 +20,7 @@ use crate::effects::coulomb_friction::DryLaw;
 use crate::effects::delay::DelayLine;
 use crate::effects::{
     self, backlash, current_lag, third_mass, torque_saturation, viscous_friction, CoggingHarmonic,
-    PitchError, Side, Viscous, MAX_COGGING_HARMONICS,
+    PitchError, Side, Unbalance, Viscous, MAX_COGGING_HARMONICS,
 };
 use crate::linear::{dot8, Bank, State, MAX_N, NU};
 use crate::sensor::{self, Sensor};
@@ -216,6 +216,8 @@ pub struct AxisPlant {
     cogging: [CoggingHarmonic; MAX_COGGING_HARMONICS],
     ncog: usize,
     load_torque: f64,
+    /// Load torque of the load angle (`unbalance`), if any.
+    unbalance: Option<Unbalance>,
     lag_mean: f64,
     delay: DelayLine,
     limit: f64,
@@ -259,7 +261,7 @@ impl AxisPlant {
         let kind = model.plant.kind();
         let motor_per_load = model.plant.motor_per_load();
         let mut st = match model.plant {
-            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
+            PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass, .. } => {
                 Structure {
                     two_mass: true,
                     n: 4,
@@ -384,6 +386,7 @@ impl AxisPlant {
             cogging,
             ncog,
             load_torque: fx.load_torque.unwrap_or(0.0),
+            unbalance: fx.unbalance,
             lag_mean,
             delay: DelayLine::new(fx.delay_cycles),
             limit: fx.limit.unwrap_or(TORQUE_BOUND),
@@ -722,8 +725,9 @@ impl AxisPlant {
             .measure([mp, mv, lp, self.applied], self.period_s);
     }
 
-    /// Cogging torque on the motor, constant load torque, and the pitch-error spring torque,
-    /// evaluated at the predicted mid-period motor position and held over the period.
+    /// Cogging torque on the motor, the load torque (constant and of the load angle), and the
+    /// pitch-error spring torque, evaluated at the predicted mid-period position and held over
+    /// the period.
     #[inline]
     fn held_torques(&mut self) -> (f64, f64, f64) {
         let th_mid = self.x[0] + 0.5 * self.period_s * self.x[1];
@@ -740,7 +744,13 @@ impl AxisPlant {
                 (self.st.kl, self.st.cl),
             );
         }
-        (tm, self.load_torque, pt)
+        let mut lt = self.load_torque;
+        if let Some(u) = &self.unbalance {
+            let (lp, lv) = self.st.load_idx();
+            let th_l_mid = self.x[lp] + 0.5 * self.period_s * self.x[lv];
+            lt += u.torque(th_l_mid * self.load_per_motor);
+        }
+        (tm, lt, pt)
     }
 
     #[inline]

@@ -79,16 +79,15 @@ impl TwoMassModel {
     /// The model of an axis' plant parameters.
     pub fn of_plant(p: &PlantParams) -> Self {
         match p {
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-                Self {
-                    jm: t.jm_kgm2,
-                    dm: t.dm_nms_per_rad,
-                    kl: t.kl_nm_per_rad,
-                    cl: t.cl_nms_per_rad,
-                    jl: t.jl_kgm2,
-                    dl: t.dl_nms_per_rad,
-                }
-            }
+            PlantParams::BallScrew { two_mass: t, .. }
+            | PlantParams::Rotary { two_mass: t, .. } => Self {
+                jm: t.jm_kgm2,
+                dm: t.dm_nms_per_rad,
+                kl: t.kl_nm_per_rad,
+                cl: t.cl_nms_per_rad,
+                jl: t.jl_kgm2,
+                dl: t.dl_nms_per_rad,
+            },
             PlantParams::Rigid(r) => Self {
                 jm: r.mass_kg,
                 dm: r.viscous_ns_per_m,

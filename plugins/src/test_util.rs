@@ -60,6 +60,7 @@ pub fn rotary_c_axis(kl_nm_per_rad: f64, period_s: f64) -> AxisContext {
                 jl_kgm2: 0.1,
                 dl_nms_per_rad: 0.0,
             },
+            gear_ratio: 1.0,
         },
         defaults: ControllerParams::default(),
         period_s,

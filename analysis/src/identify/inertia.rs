@@ -279,7 +279,7 @@ pub fn job_with_jl(job: &Job, i: usize, plant_jl: f64, ff_jl: f64) -> Result<Job
     // two inertias a quantum apart.
     j.axes[i].model.sensor = toml::Table::new();
     match &mut j.axes[i].model.plant {
-        PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } => {
+        PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass, .. } => {
             two_mass.jl_kgm2 = plant_jl;
         }
         PlantParams::Rigid(_) => {
@@ -566,7 +566,9 @@ pub fn applied_model(job: &Job, i: usize, jl: f64) -> Result<(String, [f64; 5]),
         .map_err(|e| IdentifyError::Invalid(format!("{}: {e}", m.path.display())))?;
     t.insert("jl_kgm2".into(), toml::Value::Float(jl));
     let mut plant = m.plant;
-    if let PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass } = &mut plant {
+    if let PlantParams::BallScrew { two_mass, .. } | PlantParams::Rotary { two_mass, .. } =
+        &mut plant
+    {
         two_mass.jl_kgm2 = jl;
     }
     let kv = m.controller.kv.unwrap_or(5.0);

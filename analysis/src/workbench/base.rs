@@ -125,15 +125,14 @@ impl BaseParam {
                 | BaseParam::DmNmsPerRad
                 | BaseParam::DlNmsPerRad => None,
             },
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-                match self {
-                    BaseParam::JmKgm2 => Some(t.jm_kgm2),
-                    BaseParam::JlKgm2 => Some(t.jl_kgm2),
-                    BaseParam::DmNmsPerRad => Some(t.dm_nms_per_rad),
-                    BaseParam::DlNmsPerRad => Some(t.dl_nms_per_rad),
-                    BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
-                }
-            }
+            PlantParams::BallScrew { two_mass: t, .. }
+            | PlantParams::Rotary { two_mass: t, .. } => match self {
+                BaseParam::JmKgm2 => Some(t.jm_kgm2),
+                BaseParam::JlKgm2 => Some(t.jl_kgm2),
+                BaseParam::DmNmsPerRad => Some(t.dm_nms_per_rad),
+                BaseParam::DlNmsPerRad => Some(t.dl_nms_per_rad),
+                BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
+            },
         }
     }
 
@@ -148,15 +147,14 @@ impl BaseParam {
                 | BaseParam::DmNmsPerRad
                 | BaseParam::DlNmsPerRad => None,
             },
-            PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t } => {
-                match self {
-                    BaseParam::JmKgm2 => Some(&mut t.jm_kgm2),
-                    BaseParam::JlKgm2 => Some(&mut t.jl_kgm2),
-                    BaseParam::DmNmsPerRad => Some(&mut t.dm_nms_per_rad),
-                    BaseParam::DlNmsPerRad => Some(&mut t.dl_nms_per_rad),
-                    BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
-                }
-            }
+            PlantParams::BallScrew { two_mass: t, .. }
+            | PlantParams::Rotary { two_mass: t, .. } => match self {
+                BaseParam::JmKgm2 => Some(&mut t.jm_kgm2),
+                BaseParam::JlKgm2 => Some(&mut t.jl_kgm2),
+                BaseParam::DmNmsPerRad => Some(&mut t.dm_nms_per_rad),
+                BaseParam::DlNmsPerRad => Some(&mut t.dl_nms_per_rad),
+                BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
+            },
         };
         if let Some(s) = slot {
             *s = v;

@@ -324,6 +324,13 @@ fn effect_candidates(
             ));
             continue;
         }
+        if id == EffectId::Unbalance && kind != AxisKind::Rotary {
+            untested.push((
+                id.to_string(),
+                "rotary axes only (a load torque of the load angle; on a linear axis gravity is a constant_force)".to_string(),
+            ));
+            continue;
+        }
         if matches!(id, EffectId::Backlash | EffectId::PitchError) {
             if kind == AxisKind::Rigid {
                 untested.push((id.to_string(), "not defined on a rigid axis".to_string()));

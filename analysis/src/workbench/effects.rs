@@ -18,7 +18,8 @@ use feedloop_model::params::read_toml_file;
 use feedloop_plant::effects::{
     read_effects, BacklashParams, CoggingParams, CoggingPeriod, ConstantForceParams,
     CoulombFrictionParams, Ctx, CurrentLagParams, DelayParams, EffectParams, PitchErrorParams,
-    StribeckFrictionParams, ThirdMassParams, TorqueSaturationParams, ViscousFrictionParams,
+    StribeckFrictionParams, ThirdMassParams, TorqueSaturationParams, UnbalanceParams,
+    ViscousFrictionParams,
 };
 
 use super::base::BaseParam;
@@ -62,7 +63,8 @@ pub fn channel(id: EffectId) -> Channel {
         | EffectId::StribeckFriction
         | EffectId::Cogging
         | EffectId::ConstantForce
-        | EffectId::ThirdMass => Channel::Torque,
+        | EffectId::ThirdMass
+        | EffectId::Unbalance => Channel::Torque,
     }
 }
 
@@ -121,7 +123,7 @@ impl Effect {
             | EffectId::ThirdMass
             | EffectId::Backlash => 1,
             EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging => 2,
-            EffectId::PitchError => 3,
+            EffectId::PitchError | EffectId::Unbalance => 3,
             EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => 0,
         };
         Self {
@@ -222,6 +224,15 @@ impl Effect {
                     d.qm.clone(),
                 ]
             }
+            EffectId::Unbalance => {
+                let w = 2.0 * PI / self.hyper[0];
+                let th = |q: &f64| w * q / d.r;
+                vec![
+                    d.ql.iter().map(|q| th(q).sin()).collect(),
+                    d.ql.iter().map(|q| th(q).cos()).collect(),
+                    vec![1.0; d.len()],
+                ]
+            }
             // the torque-path effects transform the recorded torque instead
             EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => vec![],
         }
@@ -265,7 +276,8 @@ impl Effect {
             | EffectId::PitchError
             | EffectId::Delay
             | EffectId::CurrentLag
-            | EffectId::TorqueSaturation => return None,
+            | EffectId::TorqueSaturation
+            | EffectId::Unbalance => return None,
         })
     }
 
@@ -328,7 +340,8 @@ impl Effect {
             | EffectId::PitchError
             | EffectId::Cogging
             | EffectId::ConstantForce
-            | EffectId::ThirdMass => y.to_vec(),
+            | EffectId::ThirdMass
+            | EffectId::Unbalance => y.to_vec(),
         }
     }
 
@@ -402,6 +415,20 @@ impl Effect {
             }),
             EffectId::Backlash => EffectParams::Backlash(self.backlash_params(kind, r)),
             EffectId::PitchError => EffectParams::PitchError(self.pitch_params(r)),
+            EffectId::Unbalance => EffectParams::Unbalance(self.unbalance_params(r)),
+        }
+    }
+
+    /// The model file's form of an `unbalance` effect: the needed torque `a sin + b cos + k`
+    /// (motor units) is minus the load's torque `constant - mgr sin(thL - zero)` through the gear.
+    fn unbalance_params(&self, r: f64) -> UnbalanceParams {
+        let (a, b, k) = (self.coef[0], self.coef[1], self.coef[2]);
+        let period = self.hyper[0];
+        UnbalanceParams {
+            mgr_nm: r * a.hypot(b),
+            zero_angle_rad: (-b).atan2(a) * period / (2.0 * PI),
+            constant_nm: -r * k,
+            period_rad: period,
         }
     }
 
@@ -409,8 +436,8 @@ impl Effect {
     fn backlash_params(&self, kind: AxisKind, r: f64) -> BacklashParams {
         BacklashParams {
             gap: match kind {
-                AxisKind::BallScrew => (2.0 * self.coef[0] / r).max(0.0),
-                AxisKind::Rotary | AxisKind::Rigid => (2.0 * self.coef[0]).max(0.0),
+                AxisKind::BallScrew | AxisKind::Rotary => (2.0 * self.coef[0] / r).max(0.0),
+                AxisKind::Rigid => (2.0 * self.coef[0]).max(0.0),
             },
         }
     }
@@ -460,8 +487,8 @@ impl Effect {
             }
             EffectParams::ConstantForce(p) => {
                 e.coef = vec![match kind {
-                    AxisKind::BallScrew => -p.value / r,
-                    AxisKind::Rotary | AxisKind::Rigid => -p.value,
+                    AxisKind::BallScrew | AxisKind::Rotary => -p.value / r,
+                    AxisKind::Rigid => -p.value,
                 }];
             }
             EffectParams::Cogging(p) => {
@@ -484,9 +511,14 @@ impl Effect {
             EffectParams::TorqueSaturation(p) => e.hyper = vec![p.limit],
             EffectParams::Backlash(p) => {
                 e.coef = vec![match kind {
-                    AxisKind::BallScrew => 0.5 * p.gap * r,
-                    AxisKind::Rotary | AxisKind::Rigid => 0.5 * p.gap,
+                    AxisKind::BallScrew | AxisKind::Rotary => 0.5 * p.gap * r,
+                    AxisKind::Rigid => 0.5 * p.gap,
                 }];
+            }
+            EffectParams::Unbalance(p) => {
+                e.hyper = vec![p.period_rad];
+                let (s, c) = (2.0 * PI * p.zero_angle_rad / p.period_rad).sin_cos();
+                e.coef = vec![p.mgr_nm * c / r, -p.mgr_nm * s / r, -p.constant_nm / r];
             }
             EffectParams::PitchError(p) => {
                 let a = p.amplitude_m * r;
@@ -502,8 +534,11 @@ impl Effect {
 /// Factors from motor-unit torque and velocity to the units of the keys of a friction table on
 /// `side` (N and m/s on a linear body, else N m and rad/s).
 fn side_factors(kind: AxisKind, side: Side, r: f64) -> (f64, f64) {
-    let load_lin = kind != AxisKind::Rotary && (side == Side::Load || kind == AxisKind::Rigid);
-    if load_lin {
+    let through_r = match kind {
+        AxisKind::Rigid => true,
+        AxisKind::BallScrew | AxisKind::Rotary => side == Side::Load,
+    };
+    if through_r {
         let rr = if kind == AxisKind::Rigid { 1.0 } else { r };
         (rr, 1.0 / rr)
     } else {
@@ -515,16 +550,16 @@ fn side_factors(kind: AxisKind, side: Side, r: f64) -> (f64, f64) {
 /// N m; positive along +x) of a torque-balance coefficient `coef` (motor units): minus it.
 pub fn constant_force_value(coef: f64, kind: AxisKind, r: f64) -> f64 {
     match kind {
-        AxisKind::BallScrew => -coef * r,
-        AxisKind::Rotary | AxisKind::Rigid => -coef,
+        AxisKind::BallScrew | AxisKind::Rotary => -coef * r,
+        AxisKind::Rigid => -coef,
     }
 }
 
 /// Factor from a third mass in motor units to the model file's (`r^2` on a ball screw).
 fn third_mass_factor(kind: AxisKind, r: f64) -> f64 {
     match kind {
-        AxisKind::BallScrew => r * r,
-        AxisKind::Rotary | AxisKind::Rigid => 1.0,
+        AxisKind::BallScrew | AxisKind::Rotary => r * r,
+        AxisKind::Rigid => 1.0,
     }
 }
 
@@ -877,7 +912,8 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
             "motor minus load position steps by about {} at each of {} reversals",
             match kind {
                 AxisKind::BallScrew => format!("{} m", fmt(round_sig(e.backlash_params(kind, d.r).gap))),
-                AxisKind::Rotary | AxisKind::Rigid => format!("{} rad", fmt(2.0 * e.coef[0])),
+                AxisKind::Rotary => format!("{} rad", fmt(round_sig(e.backlash_params(kind, d.r).gap))),
+                AxisKind::Rigid => format!("{} rad", fmt(2.0 * e.coef[0])),
             },
             reversals(d)
         ),
@@ -886,6 +922,16 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
             fmt(e.hyper[0]),
             fmt(round_sig(e.pitch_params(d.r).amplitude_m))
         ),
+        EffectId::Unbalance => {
+            let p = e.unbalance_params(d.r);
+            format!(
+                "the residual follows the load angle, the same in both directions of travel: an unbalance of m g r = {} N m at the load returning it to {} rad (period {} rad of the load column), plus a constant {} N m (unbalance.mgr_nm, zero_angle_rad, period_rad, constant_nm)",
+                fmt(p.mgr_nm),
+                fmt(p.zero_angle_rad),
+                fmt(p.period_rad),
+                fmt(p.constant_nm)
+            )
+        }
     }
 }
 
@@ -918,6 +964,7 @@ pub fn class_of(id: EffectId) -> &'static str {
         EffectId::TorqueSaturation => "saturation",
         EffectId::Backlash => "backlash",
         EffectId::PitchError => "pitch",
+        EffectId::Unbalance => "gravity",
     }
 }
 

@@ -9,13 +9,15 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
+use feedloop_plant::effects::read_effects;
+
 use super::base::{BaseClass, BaseParam};
 use super::compare::equation_error;
 use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::diagnose::held_words;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::lsq::{blocks, cross_validate, normals};
+use super::lsq::{blocks, normals};
 use super::refit::{best_effect, deflection, flat, inertias_now, moving_mask, Refit, FOLDS};
 use super::window::window_sim;
 use super::WorkbenchError;
@@ -134,6 +136,15 @@ pub fn fit(
     let moving = moving_mask(d);
     let mut effects = Vec::new();
     for &id in add {
+        if !id.repeatable() && model.effects.iter().any(|e| e.id == id) {
+            return Err(WorkbenchError::EffectRefused {
+                effect: id.to_string(),
+                reason: "it is already in the model, and a model gives it only once".into(),
+                advice: format!(
+                    "nothing was written; remove [effects.{id}] from the model to fit it anew, or leave it out of --add"
+                ),
+            });
+        }
         match channel(id) {
             Channel::Deflection => {
                 let (rd, dcols) =
@@ -259,6 +270,7 @@ pub fn fit_with(
 ) -> Result<FitResult, WorkbenchError> {
     let before = Errors::of(model, d, window_s);
     let free_keys = free_keys(model, d, free)?;
+    let mut warnings: Vec<String> = Vec::new();
     let mut new = model.clone();
     // torque-path effects first: they change the target
     for e in effects
@@ -295,26 +307,59 @@ pub fn fit_with(
                 ecols.push(col);
             }
         }
-        // active set: a base parameter whose refit leaves its valid range is held at its value
-        let mut keys = free_keys.clone();
-        let th = loop {
-            let mut refs: Vec<&[f64]> = keys.iter().map(|k| k.column(d)).collect();
-            refs.extend(ecols.iter().map(|c| c.as_slice()));
-            let th = cross_validate(&normals(&refs, &target, &blocks(d.range, 1))).theta;
-            let bad = keys.iter().enumerate().find(|(k, key)| {
-                let v = model.base_value(**key) + th[*k];
-                match key.class() {
-                    BaseClass::Damping => v < 0.0,
-                    BaseClass::Inertia => v <= 0.0,
-                }
-            });
-            match bad {
-                Some((k, _)) => {
-                    keys.remove(k);
-                }
-                None => break th,
+        // a constrained least squares over the base parameters: every subset of them is held at
+        // its values in turn, and the fit that keeps the free ones in range (no inertia below a
+        // tenth of its value, no negative damping) with the fewest held, then the smallest
+        // residual, wins. Two nearly collinear columns (the motor's and the load's damping on an
+        // axis whose encoders travel together) swing to opposite extremes; holding whichever is
+        // found first could hold the wrong one.
+        let mut refs: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+        refs.extend(ecols.iter().map(|c| c.as_slice()));
+        let all = normals(&refs, &target, &blocks(d.range, 1))
+            .into_iter()
+            .next()
+            .expect("one block");
+        let nk = free_keys.len();
+        let in_range = |key: &BaseParam, delta: f64| {
+            let now = model.base_value(*key);
+            let v = now + delta;
+            match key.class() {
+                BaseClass::Damping => v >= 0.0,
+                BaseClass::Inertia => v > 0.1 * now.max(0.0),
             }
         };
+        let mut best: Option<(u32, f64, Vec<BaseParam>, nalgebra::DVector<f64>)> = None;
+        for mask in 0u32..(1 << nk) {
+            let keep: Vec<usize> = (0..nk).filter(|i| mask & (1 << i) == 0).collect();
+            let idx: Vec<usize> = keep.iter().copied().chain(nk..refs.len()).collect();
+            let sub = all.select(&idx);
+            let th = sub.solve();
+            if !keep
+                .iter()
+                .enumerate()
+                .all(|(k, i)| in_range(&free_keys[*i], th[k]))
+            {
+                continue;
+            }
+            let sse = sub.sse(&th);
+            let better = best
+                .as_ref()
+                .is_none_or(|b| (mask.count_ones(), sse) < (b.0, b.1));
+            if better {
+                best = Some((
+                    mask.count_ones(),
+                    sse,
+                    keep.iter().map(|i| free_keys[*i]).collect(),
+                    th,
+                ));
+            }
+        }
+        let (_, _, keys, th) = best.expect("holding every base parameter is always in range");
+        let held: Vec<BaseParam> = free_keys
+            .iter()
+            .copied()
+            .filter(|k| !keys.contains(k))
+            .collect();
         for (k, key) in keys.iter().enumerate() {
             let v = model.base_value(*key) + th[k];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
@@ -323,6 +368,15 @@ pub fn fit_with(
         }
         for key in &free_keys {
             params.insert(key.key().to_string(), new.base_value(*key));
+        }
+        if !held.is_empty() {
+            warnings.push(format!(
+                "{} held at {} value: the joint refit took {} out of {} range (an inertia below a tenth of its value, or a negative damping), which these data cannot determine together with the added effects",
+                held.iter().map(|k| k.key()).collect::<Vec<_>>().join(", "),
+                if held.len() == 1 { "its" } else { "their" },
+                if held.len() == 1 { "it" } else { "them" },
+                if held.len() == 1 { "its" } else { "their" },
+            ));
         }
         let mut fitted = effects.clone();
         for (s, (i, j)) in slots.iter().enumerate() {
@@ -369,6 +423,24 @@ pub fn fit_with(
     }
     // the parsed model file must reflect the new base values for the simulation
     update_plant(&mut new);
+    // what is written must be a model the plant accepts: a fitted parameter outside its
+    // physical range (a negative friction level, say) refuses the effect it belongs to
+    if let Err(e) = read_effects(&new.sim_file()) {
+        let effect = effects
+            .iter()
+            .map(|e| e.id)
+            .find(|id| e.key.contains(id.id()))
+            .map(|id| id.to_string())
+            .unwrap_or_else(|| added.join(", "));
+        return Err(WorkbenchError::EffectRefused {
+            effect,
+            reason: format!(
+                "the model it would write is one the plant refuses (`{}`: {}): a fitted level of the wrong sign means these data do not show the effect",
+                e.key, e.reason
+            ),
+            advice: "nothing was written; run `feedloop diagnose`, refit with other base parameters free (--free), or leave it out".into(),
+        });
+    }
     let after = Errors::of(&new, d, window_s);
     Ok(FitResult {
         model: new,
@@ -376,7 +448,7 @@ pub fn fit_with(
         params,
         before,
         after,
-        warnings: Vec::new(),
+        warnings,
     })
 }
 

@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use feedloop_model::model::{AxisKind, ModelFile};
+use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_trace::{check_column_name, Trace};
 
-use super::data::{load_axis, pick_axis, Prep};
+use super::data::{load_axis, pick_axis, AxisData, Prep};
 use super::effects::{round_sig, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
 use super::WorkbenchError;
@@ -235,62 +235,77 @@ pub fn import(
     Ok(trace)
 }
 
-/// Builds a nominal model of `kind` for axis `axis` of `trace` by least squares on its torque
-/// (no effects, no controller), and writes it to `out`. For a ball screw the lead comes from
-/// `lead_m`, else from the motor/load travel ratio when the trace has a motor column.
-/// Kept as one function (about 105 lines): the provisional model, the least squares for the
-/// axis kind and the written file share the kind's keys and units.
+/// Builds a nominal model of `spec.kind` for axis `axis` of `trace` by least squares on its
+/// torque (no effects, no controller), and writes it to `out`. A ball screw's lead and a rotary
+/// axis's gear ratio come from `spec`, else from the motor/load travel ratio when the trace has a
+/// motor column. Kept whole: the provisional model, the least squares for the axis kind and the
+/// written file share the kind's keys and units.
 pub fn model_init(
     trace: &Trace,
-    kind: &str,
+    spec: &InitSpec,
     axis: Option<&str>,
-    lead_m: Option<f64>,
     out: &Path,
 ) -> Result<WbModel, WorkbenchError> {
     let axis = pick_axis(trace, out, axis)?;
-    let bad_kind = || WorkbenchError::BadArgument {
-        arg: format!("--kind {kind}"),
-        reason: "expected ballscrew or rigid".into(),
+    let kind = spec.kind;
+    // motor units per load unit from the motor/load travel ratio (when the trace has a motor
+    // column): a lead for a ball screw, a gear ratio for a rotary axis
+    let span = |x: &[f64]| {
+        x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - x.iter().cloned().fold(f64::INFINITY, f64::min)
     };
-    let lead = match kind {
-        "ballscrew" => Some(match lead_m {
-            Some(l) => l,
-            None => {
-                let m = trace.column(&format!("{axis}.motor")).ok_or_else(|| WorkbenchError::BadArgument {
-                    arg: "--lead-m".into(),
-                    reason: format!(
-                        "{}: a ball-screw model needs the screw lead: give --lead-m, or a trace with `{axis}.motor` to estimate it",
-                        trace.path.display()
-                    ),
-                })?;
-                let l = trace.require(&format!("{axis}.load"))?;
-                let span = |x: &[f64]| {
-                    x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-                        - x.iter().cloned().fold(f64::INFINITY, f64::min)
-                };
-                2.0 * std::f64::consts::PI * span(l) / span(m).max(1e-300)
-            }
-        }),
-        "rigid" => None,
-        _ => return Err(bad_kind()),
+    let travels = |flag: &str, what: &str| -> Result<(f64, f64), WorkbenchError> {
+        let m = trace.column(&format!("{axis}.motor")).ok_or_else(|| WorkbenchError::BadArgument {
+            arg: flag.into(),
+            reason: format!(
+                "{}: a {} model needs the {what}: give {flag}, or a trace with `{axis}.motor` to estimate it",
+                trace.path.display(),
+                kind.id()
+            ),
+        })?;
+        let l = trace.require(&format!("{axis}.load"))?;
+        Ok((span(m), span(l)))
     };
-    // a provisional model to get units and derivatives
-    let text = match lead {
-        Some(l) => format!("kind = \"ballscrew\"\njm_kgm2 = 1.0\nkl_nm_per_rad = 1.0\njl_kgm2 = 1.0\nlead_m = {l}\n"),
-        None => "kind = \"rigid\"\nmass_kg = 1.0\n".to_string(),
+    let provisional = match kind {
+        AxisKind::BallScrew => {
+            let lead = match spec.lead_m {
+                Some(l) => l,
+                None => {
+                    let (m, l) = travels("--lead-m", "screw lead")?;
+                    2.0 * std::f64::consts::PI * l / m.max(1e-300)
+                }
+            };
+            format!("kind = \"ballscrew\"\njm_kgm2 = 1.0\nkl_nm_per_rad = 1.0\njl_kgm2 = 1.0\nlead_m = {lead}\n")
+        }
+        AxisKind::Rotary => {
+            let gear = match (spec.gear_ratio, trace.column(&format!("{axis}.motor"))) {
+                (Some(g), _) => g,
+                (None, Some(_)) => {
+                    let (m, l) = travels("--gear-ratio", "gear ratio")?;
+                    gear_of_travel(m / l.max(1e-300))
+                }
+                // one encoder: the load column is the motor's, expressed at the load
+                (None, None) => 1.0,
+            };
+            format!("kind = \"rotary\"\njm_kgm2 = 1.0\nkl_nm_per_rad = 1.0\njl_kgm2 = 1.0\ngear_ratio = {gear}\n")
+        }
+        AxisKind::Rigid => "kind = \"rigid\"\nmass_kg = 1.0\n".to_string(),
     };
-    let table: toml::Table = text.parse().map_err(|e| WorkbenchError::BadArgument {
-        arg: "--lead-m".into(),
-        reason: format!("{e}"),
-    })?;
+    let table: toml::Table = provisional
+        .parse()
+        .map_err(|e| WorkbenchError::BadArgument {
+            arg: "--lead-m / --gear-ratio".into(),
+            reason: format!("{e}"),
+        })?;
     let file = ModelFile::from_table(&table, out)?;
     let d = load_axis(trace, &file, &axis, &Prep::default())?;
     let y = d.require_torque("model init (least squares on the torque)", trace)?;
     let bl = blocks(d.range, 1);
     let mut t = toml::Table::new();
-    t.insert("kind".into(), toml::Value::String(kind.into()));
+    t.insert("kind".into(), toml::Value::String(kind.id().into()));
     let pos = |v: f64, floor: f64| round_sig(v.max(floor));
-    match file.plant.kind() {
+    let mut notes = Vec::new();
+    match kind {
         AxisKind::Rigid => {
             let th = cross_validate(&normals(&[&d.am, &d.vm], y, &bl)).theta;
             t.insert("mass_kg".into(), toml::Value::Float(pos(th[0], 1e-6)));
@@ -299,7 +314,7 @@ pub fn model_init(
                 toml::Value::Float(pos(th[1], 0.0)),
             );
         }
-        _ => {
+        AxisKind::BallScrew | AxisKind::Rotary => {
             let (j, dmp) = if d.has_motor() {
                 let th = cross_validate(&normals(&[&d.am, &d.al, &d.vm, &d.vl], y, &bl)).theta;
                 ((th[0], th[1]), (th[2], th[3]))
@@ -309,43 +324,136 @@ pub fn model_init(
             };
             let jm = pos(j.0, 1e-9);
             let jl = pos(j.1, 1e-9);
-            // stiffness from the deflection when both positions are measured, else a mode at 150 Hz
-            let mut kl = jl * (2.0 * std::f64::consts::PI * 150.0f64).powi(2) * (jm / (jm + jl));
-            if d.has_motor() {
-                let lt: Vec<f64> =
-                    d.al.iter()
-                        .zip(&d.vl)
-                        .map(|(a, v)| jl * a + dmp.1.max(0.0) * v)
-                        .collect();
-                let defl: Vec<f64> = d.qm.iter().zip(&d.ql).map(|(m, l)| m - l).collect();
-                let one = vec![1.0; d.len()];
-                let th = cross_validate(&normals(&[&defl, &one], &lt, &bl)).theta;
-                if th[0] > 0.0 && th[0].is_finite() {
-                    kl = th[0];
-                }
-            }
+            let kl = if kind == AxisKind::Rotary {
+                rotary_stiffness(&d, y, jm, &bl, &mut notes)
+            } else {
+                ballscrew_stiffness(&d, jm, jl, dmp.1.max(0.0), &bl)
+            };
             t.insert("jm_kgm2".into(), toml::Value::Float(jm));
             t.insert("dm_nms_per_rad".into(), toml::Value::Float(pos(dmp.0, 0.0)));
             t.insert("kl_nm_per_rad".into(), toml::Value::Float(round_sig(kl)));
             t.insert("cl_nms_per_rad".into(), toml::Value::Float(0.0));
             t.insert("jl_kgm2".into(), toml::Value::Float(jl));
             t.insert("dl_nms_per_rad".into(), toml::Value::Float(pos(dmp.1, 0.0)));
-            t.insert(
-                "lead_m".into(),
-                toml::Value::Float(round_sig(lead.unwrap_or(0.01))),
-            );
-            t.insert("gear_ratio".into(), toml::Value::Float(1.0));
+            match &file.plant {
+                PlantParams::BallScrew { lead_m, .. } => {
+                    t.insert("lead_m".into(), toml::Value::Float(round_sig(*lead_m)));
+                    t.insert("gear_ratio".into(), toml::Value::Float(1.0));
+                }
+                PlantParams::Rotary { gear_ratio, .. } => {
+                    t.insert(
+                        "gear_ratio".into(),
+                        toml::Value::Float(round_sig(*gear_ratio)),
+                    );
+                }
+                PlantParams::Rigid(_) => {}
+            }
         }
     }
     let file = ModelFile::from_table(&t, out)?;
     let m = WbModel::from_parts(file, t.clone())?;
     let text = format!(
-        "# nominal model from `feedloop model init` on {} (axis {axis}): base parameters by least squares, no effects\n{}",
+        "# nominal model from `feedloop model init` on {} (axis {axis}): base parameters by least squares, no effects\n{}{}",
         trace.path.display(),
+        notes.iter().map(|n| format!("# {n}\n")).collect::<String>(),
         toml::to_string_pretty(&t).unwrap_or_default()
     );
     std::fs::write(out, text).map_err(|e| WorkbenchError::io(out, e))?;
     Ok(m)
+}
+
+/// What `model init` builds: the axis kind and, where the trace cannot tell, the ratio between
+/// motor and load units.
+#[derive(Debug, Clone, Copy)]
+pub struct InitSpec {
+    /// Axis kind.
+    pub kind: AxisKind,
+    /// Screw lead of a ball screw, m (default: from the motor/load travel ratio).
+    pub lead_m: Option<f64>,
+    /// Gear ratio of a rotary axis, motor rad per load rad (default: from the motor/load travel
+    /// ratio, 1 with one encoder).
+    pub gear_ratio: Option<f64>,
+}
+
+/// The gear ratio of a rotary axis from its motor/load travel ratio: 1 when the two columns
+/// travel alike within 1 % (the load column is already on the motor side, as a recorder that
+/// refers the load encoder through the gear writes it), else the ratio to 6 significant digits.
+fn gear_of_travel(ratio: f64) -> f64 {
+    if (ratio - 1.0).abs() < 0.01 {
+        1.0
+    } else {
+        round_sig(ratio)
+    }
+}
+
+/// A ball screw's stiffness from the deflection when both positions are measured (the load's
+/// torque against motor minus load position), else a mode at 150 Hz.
+fn ballscrew_stiffness(d: &AxisData, jm: f64, jl: f64, dl: f64, bl: &[(usize, usize)]) -> f64 {
+    let mut kl = jl * (2.0 * std::f64::consts::PI * 150.0f64).powi(2) * (jm / (jm + jl));
+    if d.has_motor() {
+        let lt: Vec<f64> =
+            d.al.iter()
+                .zip(&d.vl)
+                .map(|(a, v)| jl * a + dl * v)
+                .collect();
+        let defl: Vec<f64> = d.qm.iter().zip(&d.ql).map(|(m, l)| m - l).collect();
+        let one = vec![1.0; d.len()];
+        let th = cross_validate(&normals(&[&defl, &one], &lt, bl)).theta;
+        if th[0] > 0.0 && th[0].is_finite() {
+            kl = th[0];
+        }
+    }
+    kl
+}
+
+/// A geared rotary axis's stiffness, motor side: with both encoders, the deflection (motor minus
+/// load position) against the motor's torque, with the
+/// encoders' zero offset and a lost motion that follows the direction of travel as columns of
+/// their own; with one encoder, a stiff coupling (mode at twice the sampling rate: the model is
+/// rigid in the band the trace sees).
+fn rotary_stiffness(
+    d: &AxisData,
+    y: &[f64],
+    jm: f64,
+    bl: &[(usize, usize)],
+    notes: &mut Vec<String>,
+) -> f64 {
+    let rigid = {
+        let w = 2.0 * std::f64::consts::PI * 2.0 / d.dt;
+        jm * w * w
+    };
+    if !d.has_motor() {
+        notes.push(
+            "one encoder: the coupling is stiff (its mode at twice the sampling rate), a rigid \
+             rotary model"
+                .into(),
+        );
+        return rigid;
+    }
+    // the torque the gear transmits, taken as the motor's torque: with two encoders that
+    // travel together the least squares cannot split the inertia between motor and load, and
+    // the rotor's share is small beside a geared load's
+    let trans = y;
+    let defl: Vec<f64> = d.qm.iter().zip(&d.ql).map(|(m, l)| m - l).collect();
+    let one = vec![1.0; d.len()];
+    let eps = 0.02 * d.vm.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let dir: Vec<f64> =
+        d.vm.iter()
+            .map(|v| if v.abs() > eps { v.signum() } else { 0.0 })
+            .collect();
+    let th = cross_validate(&normals(&[trans, &one, &dir], &defl, bl)).theta;
+    notes.push(format!(
+        "encoders' zero offset {:.4e} rad (motor side), lost motion {:.4e} rad between the \
+         directions of travel: both left out of the stiffness",
+        th[1],
+        2.0 * th[2]
+    ));
+    if th[0] > 0.0 && th[0].is_finite() {
+        1.0 / th[0]
+    } else {
+        notes.push("the deflection does not follow the transmitted torque: stiff coupling".into());
+        rigid
+    }
 }
 
 #[cfg(test)]

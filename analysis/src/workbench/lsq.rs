@@ -37,6 +37,17 @@ impl Normal {
         self.n += o.n;
     }
 
+    /// The normal equations of the columns `idx` alone (in that order).
+    pub fn select(&self, idx: &[usize]) -> Normal {
+        let p = idx.len();
+        Normal {
+            xtx: DMatrix::from_fn(p, p, |i, j| self.xtx[(idx[i], idx[j])]),
+            xty: DVector::from_fn(p, |i, _| self.xty[idx[i]]),
+            yty: self.yty,
+            n: self.n,
+        }
+    }
+
     /// Sum of squared residuals of `theta` on the samples of this block.
     pub fn sse(&self, theta: &DVector<f64>) -> f64 {
         if theta.is_empty() {

@@ -131,6 +131,24 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
         | EffectId::CoulombFriction
         | EffectId::ConstantForce
         | EffectId::Backlash => vec![vec![]],
+        // one load revolution first (a tie keeps it), then the periods a load column referred
+        // through a gear shows: from half the travel to a thousand times it
+        EffectId::Unbalance => {
+            let travel = {
+                let q = &d.ql[a..b];
+                q.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                    - q.iter().cloned().fold(f64::INFINITY, f64::min)
+            } / d.r;
+            let mut g = vec![vec![2.0 * std::f64::consts::PI]];
+            if travel > 0.0 {
+                g.extend(
+                    logspace(0.5 * travel, 1000.0 * travel, 40)
+                        .into_iter()
+                        .map(|p| vec![p]),
+                );
+            }
+            g
+        }
     }
 }
 

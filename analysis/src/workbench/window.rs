@@ -82,6 +82,9 @@ struct Body {
     ex: f64,
     offset: f64,
     cog: Vec<(f64, f64, f64)>,
+    /// unbalance: coefficients of sin and cos of the load angle, and the load's motor units per
+    /// radian of that angle
+    unb: (f64, f64, f64),
     eps: f64,
     limit: f64,
 }
@@ -98,6 +101,7 @@ impl Body {
             ex: 2.0,
             offset: 0.0,
             cog: vec![],
+            unb: (0.0, 0.0, d.r),
             eps: dead_band(d, &d.vm),
             limit: f64::INFINITY,
         };
@@ -127,6 +131,12 @@ impl Body {
                     e.coef[1],
                 )),
                 EffectId::ThirdMass => b.inertia += e.coef[0].max(0.0),
+                EffectId::Unbalance => {
+                    b.unb.2 = d.r * e.hyper[0] / (2.0 * std::f64::consts::PI);
+                    b.unb.0 += e.coef[0];
+                    b.unb.1 += e.coef[1];
+                    b.offset += e.coef[2];
+                }
                 EffectId::TorqueSaturation => b.limit = b.limit.min(e.hyper[0]),
                 // in the transmission or on the torque path: not part of the load balance
                 EffectId::Backlash
@@ -144,6 +154,10 @@ impl Body {
         let mut t = self.damping * v + self.offset;
         for (w, a, c) in &self.cog {
             t += a * (w * q).sin() + c * (w * q).cos();
+        }
+        let (a, c, r) = self.unb;
+        if a != 0.0 || c != 0.0 {
+            t += a * (q / r).sin() + c * (q / r).cos();
         }
         t
     }

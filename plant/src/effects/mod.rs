@@ -21,6 +21,7 @@ pub mod pitch_error;
 pub mod stribeck_friction;
 pub mod third_mass;
 pub mod torque_saturation;
+pub mod unbalance;
 pub mod viscous_friction;
 
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
@@ -37,12 +38,14 @@ pub use pitch_error::PitchErrorParams;
 pub use stribeck_friction::StribeckFrictionParams;
 pub use third_mass::ThirdMassParams;
 pub use torque_saturation::TorqueSaturationParams;
+pub use unbalance::UnbalanceParams;
 pub use viscous_friction::ViscousFrictionParams;
 
 pub(crate) use cogging::CoggingHarmonic;
 pub(crate) use coulomb_friction::DryFriction;
 pub(crate) use pitch_error::PitchError;
 pub(crate) use third_mass::ThirdMass;
+pub(crate) use unbalance::Unbalance;
 pub(crate) use viscous_friction::Viscous;
 
 /// The unit family of one body: suffixes of its keys and the factors to motor units.
@@ -72,6 +75,15 @@ impl Units {
         vel_to_motor: 1.0,
     };
 
+    /// The load of a geared rotary axis: rotary keys, converted through the gear.
+    fn geared(gear_ratio: f64) -> Units {
+        Units {
+            torque_to_motor: 1.0 / gear_ratio,
+            vel_to_motor: gear_ratio,
+            ..Units::ROTARY
+        }
+    }
+
     fn linear(motor_per_load: f64) -> Units {
         Units {
             torque: "n",
@@ -99,10 +111,11 @@ pub struct Ctx {
 impl Ctx {
     /// The context of the axis a model file describes.
     pub fn of(model: &ModelFile) -> Self {
-        let (motor_per_load, lead_m) = match model.plant {
-            PlantParams::BallScrew { lead_m, .. } => (model.plant.motor_per_load(), Some(lead_m)),
-            _ => (1.0, None),
+        let lead_m = match model.plant {
+            PlantParams::BallScrew { lead_m, .. } => Some(lead_m),
+            PlantParams::Rotary { .. } | PlantParams::Rigid(_) => None,
         };
+        let motor_per_load = model.plant.motor_per_load();
         Ctx {
             kind: model.plant.kind(),
             motor_per_load,
@@ -115,6 +128,7 @@ impl Ctx {
         match (self.kind, side) {
             (AxisKind::Rigid, _) => Units::linear(1.0),
             (AxisKind::BallScrew, Side::Load) => Units::linear(self.motor_per_load),
+            (AxisKind::Rotary, Side::Load) => Units::geared(self.motor_per_load),
             _ => Units::ROTARY,
         }
     }
@@ -223,6 +237,8 @@ pub enum EffectParams {
     CurrentLag(CurrentLagParams),
     /// `torque_saturation`.
     TorqueSaturation(TorqueSaturationParams),
+    /// `unbalance`.
+    Unbalance(UnbalanceParams),
 }
 
 impl EffectParams {
@@ -240,6 +256,7 @@ impl EffectParams {
             EffectParams::Delay(_) => EffectId::Delay,
             EffectParams::CurrentLag(_) => EffectId::CurrentLag,
             EffectParams::TorqueSaturation(_) => EffectId::TorqueSaturation,
+            EffectParams::Unbalance(_) => EffectId::Unbalance,
         }
     }
 
@@ -256,7 +273,8 @@ impl EffectParams {
             | EffectParams::ThirdMass(_)
             | EffectParams::Delay(_)
             | EffectParams::CurrentLag(_)
-            | EffectParams::TorqueSaturation(_) => None,
+            | EffectParams::TorqueSaturation(_)
+            | EffectParams::Unbalance(_) => None,
         }
     }
 
@@ -291,6 +309,7 @@ impl EffectParams {
             EffectId::TorqueSaturation => {
                 EffectParams::TorqueSaturation(TorqueSaturationParams::read(f, table, ctx)?)
             }
+            EffectId::Unbalance => EffectParams::Unbalance(UnbalanceParams::read(f, table, ctx)?),
         })
     }
 
@@ -308,6 +327,7 @@ impl EffectParams {
             EffectParams::Delay(p) => p.to_table(),
             EffectParams::CurrentLag(p) => p.to_table(),
             EffectParams::TorqueSaturation(p) => p.to_table(ctx),
+            EffectParams::Unbalance(p) => p.to_table(),
         }
     }
 }
@@ -335,6 +355,8 @@ pub(crate) struct EffectSet {
     pub lag_tau_s: Option<f64>,
     /// Torque limit, motor units.
     pub limit: Option<f64>,
+    /// Load torque of the load angle.
+    pub unbalance: Option<Unbalance>,
 }
 
 impl EffectSet {
@@ -359,6 +381,7 @@ impl EffectSet {
             EffectParams::Delay(p) => self.delay_cycles = p.motor(),
             EffectParams::CurrentLag(p) => self.lag_tau_s = Some(p.tau_s),
             EffectParams::TorqueSaturation(p) => self.limit = Some(p.limit),
+            EffectParams::Unbalance(p) => self.unbalance = Some(p.motor(ctx)),
         }
     }
 }
@@ -459,7 +482,8 @@ pub fn read_effects(model: &ModelFile) -> Result<Vec<EffectParams>, ConfigError>
                 | EffectId::ThirdMass
                 | EffectId::Delay
                 | EffectId::CurrentLag
-                | EffectId::TorqueSaturation => None,
+                | EffectId::TorqueSaturation
+                | EffectId::Unbalance => None,
             };
             if let (Some(seen), Some(side)) = (seen, p.side()) {
                 let b = side.body(ctx.kind);
@@ -517,7 +541,7 @@ mod tests {
         let two_mass = "jm_kgm2 = 2e-3\nkl_nm_per_rad = 3000.0\njl_kgm2 = 3e-3\n";
         let heads = [
             format!("kind = \"ballscrew\"\n{two_mass}lead_m = 0.01\n"),
-            format!("kind = \"rotary\"\n{two_mass}"),
+            format!("kind = \"rotary\"\n{two_mass}gear_ratio = 120.0\n"),
             "kind = \"rigid\"\nmass_kg = 50.0\n".to_string(),
         ];
         for head in &heads {
@@ -567,6 +591,14 @@ mod tests {
                     fc_neg: 30.0,
                 }));
                 all.push(EffectParams::Backlash(BacklashParams { gap: 1e-5 }));
+            }
+            if ctx.kind == AxisKind::Rotary {
+                all.push(EffectParams::Unbalance(UnbalanceParams {
+                    mgr_nm: 98.0,
+                    zero_angle_rad: -0.2,
+                    constant_nm: 3.5,
+                    period_rad: 1680.0,
+                }));
             }
             if ctx.kind == AxisKind::BallScrew {
                 all.push(EffectParams::PitchError(PitchErrorParams {
