@@ -152,3 +152,13 @@ fn a_fit_that_would_write_a_negative_friction_level_is_refused() {
     }
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn the_kuka_encoders_zero_offset_is_found_and_removed_before_any_fit() {
+    // README of the data: `j1.motor - j1.load` carries a constant offset of about 0.35 rad
+    let dir = scratch("offset");
+    let Some((_, d)) = kuka(1, &dir) else { return };
+    let c = d.encoder_offset.expect("an offset found");
+    assert!((c - 0.35).abs() < 0.03, "offset {c} rad");
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -247,7 +247,19 @@ fn load(
         }
         d
     };
-    let warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
+    let mut warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
+    if let Some(c) = d.encoder_offset {
+        let at_load = match m.kind() {
+            AxisKind::BallScrew => si(c / d.r, "m"),
+            AxisKind::Rotary | AxisKind::Rigid => format!("{} rad", sig(c / d.r)),
+        };
+        warnings.push(format!(
+            "{}: the motor and load encoders' zeros differ by {} rad on the motor side ({at_load} at the load); removed from `{}.motor` before every fit and simulation",
+            trace.display(),
+            sig(c),
+            d.axis
+        ));
+    }
     for w in &warnings {
         eprintln!("warning: {w}");
     }

@@ -13,6 +13,7 @@ use feedloop_trace::Trace;
 
 use super::controller::{best_law, HeldLaw, Law};
 use super::effects::WbModel;
+use super::lsq::{blocks, cross_validate, normals};
 use super::signal::{
     block_centres, block_means, derivative, derivative_fine, filtfilt_butter4, zoh_mid,
 };
@@ -62,8 +63,12 @@ pub struct AxisData {
     pub cmd: Vec<f64>,
     /// Measured load position, load units (as in the trace).
     pub load_raw: Vec<f64>,
-    /// Measured motor position, motor units, when the trace has `A.motor`.
+    /// Measured motor position, motor units, when the trace has `A.motor` (less the encoders'
+    /// zero offset when one was found).
     pub motor_raw: Option<Vec<f64>>,
+    /// The zero offset found between the motor and the load encoder and removed from
+    /// `motor_raw`, motor units (see [`encoder_offset`]).
+    pub encoder_offset: Option<f64>,
     /// Torque (force) column, motor units, when present (filtered when `torque_filtered`).
     pub torque: Option<Vec<f64>>,
     /// The torque column as recorded.
@@ -127,6 +132,7 @@ impl AxisData {
             cmd: self.cmd.clone(),
             load_raw: self.load_raw.clone(),
             motor_raw: self.motor_raw.clone(),
+            encoder_offset: self.encoder_offset,
             torque: None,
             torque_raw: self.torque_raw.clone(),
             motor_vel_raw: self.motor_vel_raw.clone(),
@@ -192,6 +198,7 @@ impl AxisData {
             cmd: dec(&self.cmd),
             load_raw: dec(&self.load_raw),
             motor_raw: opt(&self.motor_raw),
+            encoder_offset: self.encoder_offset,
             torque: opt(&self.torque),
             torque_raw: opt(&self.torque_raw),
             motor_vel_raw: opt(&self.motor_vel_raw),
@@ -351,6 +358,14 @@ pub fn load_axis(
     if let Some(m) = &motor_raw {
         check_travel(trace, model, axis, m, &load_raw)?;
     }
+    let mut motor_raw = motor_raw;
+    let offset = motor_raw.as_deref().and_then(|m| {
+        let l: Vec<f64> = load_raw.iter().map(|x| x * r).collect();
+        encoder_offset(m, &l, torque.as_deref(), dt)
+    });
+    if let (Some(m), Some(c)) = (motor_raw.as_mut(), offset) {
+        m.iter_mut().for_each(|x| *x -= c);
+    }
     let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
     Ok(AxisData {
         path: trace.path.clone(),
@@ -362,6 +377,7 @@ pub fn load_axis(
         cmd: cmd_raw.iter().map(|x| x * r).collect(),
         load_raw,
         motor_raw,
+        encoder_offset: offset,
         torque: None,
         torque_raw: torque,
         motor_vel_raw,
@@ -380,6 +396,66 @@ pub fn load_axis(
     }
     .prepared(cutoff))
 }
+
+/// The zero offset between a motor and a load encoder (`motor` and `load`, both motor units),
+/// `None` when there is none to speak of. The deflection `motor - load` is regressed on a
+/// constant, the torque (what the transmission's compliance follows) and the direction of travel
+/// (what a lost motion follows); the constant is an offset of the encoders' zeros, which no
+/// physics of the transmission makes. It counts when it lies outside its own confidence
+/// interval (3 standard errors over 5 blocks), exceeds half the RMS of the deflection the
+/// other columns explain, and is larger than 1e-9 of the travel; a trace with no reversal
+/// cannot tell it from a lost motion and gives `None`.
+pub fn encoder_offset(motor: &[f64], load: &[f64], torque: Option<&[f64]>, dt: f64) -> Option<f64> {
+    let n = motor.len().min(load.len());
+    if n < 50 {
+        return None;
+    }
+    let defl: Vec<f64> = (0..n).map(|k| motor[k] - load[k]).collect();
+    let vel: Vec<f64> = (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
+            (motor[b] - motor[a]) / ((b - a).max(1) as f64 * dt)
+        })
+        .collect();
+    let vmax = vel.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    let dir: Vec<f64> = vel
+        .iter()
+        .map(|v| {
+            if v.abs() > 0.02 * vmax {
+                v.signum()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    if !(dir.contains(&1.0) && dir.contains(&-1.0)) {
+        return None;
+    }
+    let one = vec![1.0; n];
+    let mut cols: Vec<&[f64]> = vec![&one, &dir];
+    if let Some(y) = torque {
+        cols.push(&y[..n]);
+    }
+    let cv = cross_validate(&normals(&cols, &defl, &blocks((0, n), 5)));
+    let (c0, se) = (cv.theta[0], cv.theta_se[0]);
+    let explained: Vec<f64> = (0..n)
+        .map(|k| {
+            (1..cols.len())
+                .map(|j| cv.theta[j] * cols[j][k])
+                .sum::<f64>()
+        })
+        .collect();
+    let m = explained.iter().sum::<f64>() / n as f64;
+    let spread = (explained.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n as f64).sqrt();
+    let travel = motor.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        - motor.iter().cloned().fold(f64::INFINITY, f64::min);
+    let counts =
+        c0.abs() > CI_OFFSET_SIGMAS * se && c0.abs() > 0.5 * spread && c0.abs() > 1e-9 * travel;
+    counts.then_some(c0)
+}
+
+/// Standard errors outside which an encoder offset counts (see [`encoder_offset`]).
+const CI_OFFSET_SIGMAS: f64 = 3.0;
 
 /// Units check: with a motor column the ratio of motor to load travel must match the model.
 fn check_travel(
@@ -493,6 +569,13 @@ pub fn load_axis_held(
     let load_raw = block_means(&x, q);
     cmd.iter_mut().for_each(|v| *v *= r);
     x.iter_mut().for_each(|v| *v *= r);
+    let mut motor = motor;
+    let offset = motor
+        .as_deref()
+        .and_then(|m| encoder_offset(m, &x, torque.as_deref(), dt));
+    if let (Some(m), Some(c)) = (motor.as_mut(), offset) {
+        m.iter_mut().for_each(|v| *v -= c);
+    }
     let held_law = match (Law::of(model), &torque) {
         (Some(law_p), Some(rec)) => best_law(
             &law_p,
@@ -530,6 +613,7 @@ pub fn load_axis_held(
         t,
         cmd: block_means(&cmd, q),
         load_raw,
+        encoder_offset: offset,
         motor_raw: motor.map(|m| block_means(&m, q)),
         torque: None,
         torque_raw,
