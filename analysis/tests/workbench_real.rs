@@ -162,3 +162,55 @@ fn the_kuka_encoders_zero_offset_is_found_and_removed_before_any_fit() {
     assert!((c - 0.35).abs() < 0.03, "offset {c} rad");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// What a diagnosis recommends, fitted as `fit` does, lowers the error of its channel, and the
+/// verdict quotes the figures that fit measured.
+fn assert_recommendation_holds(m: &WbModel, d: &AxisData, what: &str) -> Option<WbModel> {
+    use feedloop_analysis::workbench::fit::fit_with;
+    let dg = diagnose(m, d, &DiagOptions::default());
+    let top = dg
+        .candidates
+        .iter()
+        .find(|c| c.significant && !c.is_param && !c.add.is_empty())?;
+    if !dg.verdict.contains(&format!("fit --add")) {
+        return None;
+    }
+    let r = fit_with(m, d, top.add.clone(), None, 0.05).unwrap();
+    let (b, a) = match top.channel {
+        "deflection" => (r.before.window_sim_nrmse_pct, r.after.window_sim_nrmse_pct),
+        "controller" => (r.before.controller_nrmse_pct, r.after.controller_nrmse_pct),
+        _ => (r.before.equation_nrmse_pct, r.after.equation_nrmse_pct),
+    };
+    let (b, a) = (b.unwrap(), a.unwrap());
+    assert!(
+        a < b,
+        "{what}: {} recommended but its fit takes {b} % to {a} %",
+        top.effect
+    );
+    assert!(
+        dg.verdict.contains(&feedloop_model::units::sig(a)),
+        "{what}: the verdict does not quote the measured {a} %: {}",
+        dg.verdict
+    );
+    Some(r.model)
+}
+
+#[test]
+fn what_a_diagnosis_recommends_lowers_the_error_when_fitted_on_real_records() {
+    if let Some((m, d)) = emps() {
+        assert_recommendation_holds(&m, &d, "EMPS");
+    }
+    let dir = scratch("recommend");
+    for j in 1..=3 {
+        let Some((m, d)) = kuka(j, &dir) else { return };
+        // two rounds: the recommendation on the nominal model, then on the model with it
+        let mut m = m;
+        for round in 0..2 {
+            match assert_recommendation_holds(&m, &d, &format!("KUKA joint {j}, round {round}")) {
+                Some(next) => m = next,
+                None => break,
+            }
+        }
+    }
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -29,13 +29,15 @@ use super::effects::{
     channel, class_of, constant_force_value, constant_force_words, evidence, fmt, round_sig,
     Channel, Effect, EffectId, Side, WbModel,
 };
+use super::fit::{fit_with, FitResult};
 use super::lsq::{blocks, Cv};
 use super::refit::{
     backlash_hyper, best_effect, cv_cols, cv_cols_masked, default_side, deflection, flat,
-    inertias_now, moving_mask, Refit, Untestable, FOLDS,
+    held_words, inertias_now, moving_mask, Refit, Untestable, FOLDS,
 };
 use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_model::model::AxisKind;
+use feedloop_model::units::sig;
 
 /// Smallest cross-validated error reduction that counts, % of the model's error.
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
@@ -142,11 +144,25 @@ fn decimate(x: &[f64], a: usize, b: usize) -> Vec<f64> {
 }
 
 /// Options of [`diagnose`].
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct DiagOptions {
     /// Effect ids to leave out (e.g. those already in the model are still tested).
     pub skip: Vec<String>,
+    /// Length of the simulation windows of the fit that confirms a recommendation, s.
+    pub window_s: f64,
 }
+
+impl Default for DiagOptions {
+    fn default() -> Self {
+        Self {
+            skip: Vec::new(),
+            window_s: 0.05,
+        }
+    }
+}
+
+/// Significant candidates whose fit is tried before one is recommended (see [`confirm`]).
+pub const MAX_CONFIRM: usize = 3;
 
 /// Diagnoses `model` on `d` (which must carry torque), in named steps: the torque channel's
 /// residual and its reference fits ([`TorqueChannel::new`]), a candidate per base parameter
@@ -154,7 +170,7 @@ pub struct DiagOptions {
 /// it shows ([`effect_candidates`]), forward selection beyond the first ([`condition_on_top`]),
 /// candidates the data cannot tell apart ([`mark_indistinguishable`]), and the verdict with the
 /// whiteness of what is left ([`residual_whiteness`], [`verdict`]).
-pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis {
+pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis {
     let ch = TorqueChannel::new(model, d);
     let mut cands = base_parameter_candidates(model, d, &ch);
     let untested = effect_candidates(model, d, &ch, &mut cands);
@@ -174,8 +190,9 @@ pub fn diagnose(model: &WbModel, d: &AxisData, _opts: &DiagOptions) -> Diagnosis
     };
     condition_on_top(&mut cands, model, d, &tf, ch.e0);
     mark_indistinguishable(&mut cands);
+    let fitted = confirm(&mut cands, model, d, opts.window_s);
     let (white, ac) = residual_whiteness(d, &ch);
-    let verdict = verdict(&cands, white, &ac, cc.as_ref(), d);
+    let verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
     Diagnosis {
         candidates: cands,
         verdict,
@@ -385,23 +402,6 @@ fn keep(
         Ok(c) => cands.push(c),
         Err(why) => untested.push((id.to_string(), why)),
     }
-}
-
-/// `jm_kgm2 held at its value (the data cannot tell it apart from this effect: its joint refit
-/// fell below a tenth of its value)`, for the base parameters `held` (indices into `keys`).
-pub fn held_words(held: &[usize], keys: &[BaseParam]) -> String {
-    let names: Vec<&str> = held
-        .iter()
-        .filter_map(|i| keys.get(*i).map(|k| k.key()))
-        .collect();
-    format!(
-        "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit took {} below a tenth of {} value)",
-        names.join(", "),
-        if names.len() == 1 { "its" } else { "their" },
-        if names.len() == 1 { "it" } else { "them" },
-        if names.len() == 1 { "it" } else { "them" },
-        if names.len() == 1 { "its" } else { "their" },
-    )
 }
 
 /// `backlash` or `pitch_error` scored on the deflection channel (residual `rd`, base columns
@@ -781,12 +781,109 @@ fn residual_whiteness(d: &AxisData, ch: &TorqueChannel<'_>) -> (bool, Vec<f64>) 
 
 /// The one-sentence verdict: the first significant candidate with what to do about it, or why
 /// nothing was found.
+/// What the fit of the recommended candidate delivers, measured.
+#[derive(Debug, Clone)]
+pub struct Confirmed {
+    /// The candidate's name.
+    pub effect: String,
+    /// The error in its channel before the fit, %.
+    pub before_pct: f64,
+    /// The error in its channel after the fit, %.
+    pub after_pct: f64,
+    /// The sentence the verdict ends with.
+    pub words: String,
+}
+
+/// The error of `f` in the channel `channel` before and after, %, and the channel's words.
+fn channel_errors(f: &FitResult, channel: &str) -> Option<(f64, f64, &'static str)> {
+    let (b, a, name) = match channel {
+        "deflection" => (
+            f.before.window_sim_nrmse_pct,
+            f.after.window_sim_nrmse_pct,
+            "windowed simulation error",
+        ),
+        "controller" => (
+            f.before.controller_nrmse_pct,
+            f.after.controller_nrmse_pct,
+            "controller channel's error",
+        ),
+        _ => (
+            f.before.equation_nrmse_pct,
+            f.after.equation_nrmse_pct,
+            "equation error",
+        ),
+    };
+    Some((b?, a?, name))
+}
+
+/// Fits the significant candidates in rank order, as `fit` would, until one lowers the error of
+/// the channel it was scored on: a candidate whose fit is refused or raises that error loses
+/// its significance (with the measured figures in its evidence), so it is never recommended.
+/// At most [`MAX_CONFIRM`] are tried; what the recommended one's fit delivers is returned.
+fn confirm(
+    cands: &mut [Candidate],
+    model: &WbModel,
+    d: &AxisData,
+    window_s: f64,
+) -> Option<Confirmed> {
+    let mut tried = 0;
+    for c in cands.iter_mut() {
+        if !c.significant || (!c.is_param && c.add.is_empty()) {
+            continue;
+        }
+        if tried >= MAX_CONFIRM {
+            break;
+        }
+        tried += 1;
+        let res = if c.is_param {
+            let free = [c.effect.clone()];
+            fit_with(model, d, vec![], Some(&free), window_s)
+        } else {
+            fit_with(model, d, c.add.clone(), None, window_s)
+        };
+        match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
+            Some((b, a, name)) if a < b => {
+                return Some(Confirmed {
+                    effect: c.effect.clone(),
+                    before_pct: b,
+                    after_pct: a,
+                    words: format!(
+                        "fitting it takes the {name} from {} % to {} % (a cut of {:.0} %)",
+                        sig(b),
+                        sig(a),
+                        100.0 * (b - a) / b.max(1e-300)
+                    ),
+                });
+            }
+            Some((b, a, name)) => {
+                c.significant = false;
+                c.evidence = format!(
+                    "{}; fitting it raises the {name} from {} % to {} %: not recommended",
+                    c.evidence,
+                    sig(b),
+                    sig(a)
+                );
+            }
+            None => {
+                c.significant = false;
+                let why = match res {
+                    Err(e) => e.to_string(),
+                    Ok(_) => "its channel's error cannot be measured on this trace".into(),
+                };
+                c.evidence = format!("{}; its fit is refused ({why})", c.evidence);
+            }
+        }
+    }
+    None
+}
+
 fn verdict(
     cands: &[Candidate],
     white: bool,
     ac: &[f64],
     cc: Option<&ControllerChannel>,
     d: &AxisData,
+    fitted: Option<&Confirmed>,
 ) -> String {
     let sig: Vec<&Candidate> = cands.iter().filter(|c| c.significant).collect();
     let cc_fails = cc.filter(|c| c.fails());
@@ -826,11 +923,19 @@ fn verdict(
             } else {
                 "of the error"
             };
+            // the figure is what fitting it delivers where that was measured, else the
+            // cross-validated estimate, said as such
+            let explains = match fitted.filter(|f| f.effect == top.effect) {
+                Some(f) => f.words.clone(),
+                None => format!(
+                    "lowers the cross-validated error by {:.0} % {of}",
+                    top.error_reduction_pct
+                ),
+            };
             format!(
-                "{what}: {} (class {}) explains {:.0} % {of} ({}); {}",
+                "{what}: {} (class {}): {explains} ({}); {}",
                 names.join(" / "),
                 top.class,
-                top.error_reduction_pct,
                 top.evidence,
                 if top.is_param && top.class == "inertia" {
                     format!(

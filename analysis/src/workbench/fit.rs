@@ -15,10 +15,11 @@ use super::base::{BaseClass, BaseParam};
 use super::compare::equation_error;
 use super::controller::ControllerChannel;
 use super::data::AxisData;
-use super::diagnose::held_words;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, normals};
-use super::refit::{best_effect, deflection, flat, inertias_now, moving_mask, Refit, FOLDS};
+use super::refit::{
+    best_effect, deflection, flat, held_words, inertias_now, moving_mask, Refit, FOLDS,
+};
 use super::window::window_sim;
 use super::WorkbenchError;
 

@@ -484,3 +484,20 @@ pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
         })
         .collect()
 }
+
+/// `jm_kgm2 held at its value (the data cannot tell it apart from this effect: its joint refit
+/// fell below a tenth of its value)`, for the base parameters `held` (indices into `keys`).
+pub fn held_words(held: &[usize], keys: &[BaseParam]) -> String {
+    let names: Vec<&str> = held
+        .iter()
+        .filter_map(|i| keys.get(*i).map(|k| k.key()))
+        .collect();
+    format!(
+        "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit took {} below a tenth of {} value)",
+        names.join(", "),
+        if names.len() == 1 { "its" } else { "their" },
+        if names.len() == 1 { "it" } else { "them" },
+        if names.len() == 1 { "it" } else { "them" },
+        if names.len() == 1 { "its" } else { "their" },
+    )
+}
