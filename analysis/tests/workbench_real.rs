@@ -172,7 +172,7 @@ fn assert_recommendation_holds(m: &WbModel, d: &AxisData, what: &str) -> Option<
         .candidates
         .iter()
         .find(|c| c.significant && !c.is_param && !c.add.is_empty())?;
-    if !dg.verdict.contains(&format!("fit --add")) {
+    if !dg.verdict.contains("fit --add") {
         return None;
     }
     let r = fit_with(m, d, top.add.clone(), None, 0.05).unwrap();
