@@ -214,3 +214,22 @@ fn what_a_diagnosis_recommends_lowers_the_error_when_fitted_on_real_records() {
     }
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn an_estimate_at_the_edge_of_its_search_is_doubtful_not_significant() {
+    // KUKA joint 1: a torque clamp at the lowest limit searched, a lag and a delay at the
+    // longest: each is said to be at the edge and none is significant
+    let dir = scratch("edge");
+    let Some((m, d)) = kuka(1, &dir) else { return };
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    let mut edges = 0;
+    for c in &dg.candidates {
+        if c.evidence.contains("edge of the range searched") {
+            edges += 1;
+            assert!(!c.significant, "{}: {}", c.effect, c.evidence);
+            assert!(c.evidence.contains("doubtful"), "{}", c.evidence);
+        }
+    }
+    assert!(edges >= 2, "{}", dg.verdict);
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -438,7 +438,12 @@ fn deflection_candidate(
     let dcols: Vec<Vec<f64>> = dcols.iter().map(|c| masked(c)).collect();
     let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
     let dbase = cv_cols(&dref, &[], rd, bl);
-    let Refit { effect: e, cv, .. } = best_effect(id, model, d, &dref, &[], rd, bl, None)?;
+    let Refit {
+        effect: e,
+        cv,
+        doubtful,
+        ..
+    } = best_effect(id, model, d, &dref, &[], rd, bl, None)?;
     // % of the deflection's misfit after its base refit (compliance, zero offset)
     let red = 100.0 * (dbase.rms - cv.rms) / dbase.rms.max(1e-300);
     let wins = fold_wins(&cv, &dbase.fold_mse);
@@ -447,20 +452,27 @@ fn deflection_candidate(
     let resolvable = rms(&e.contribution(d)[a..b]) >= DEFLECTION_FLOOR_M * load_to_motor(d);
     let params = flat(&e.to_table(kind, d.r));
     let contribution = decimate(&e.contribution(d), a, b);
+    let mut ev = if resolvable {
+        evidence(&e, d)
+    } else {
+        format!(
+            "{}; below the 1 nm any feed-drive encoder resolves: not significant",
+            evidence(&e, d)
+        )
+    };
+    if let Some(why) = &doubtful {
+        ev = format!("{ev}; {why}: doubtful, not significant");
+    }
     Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
-        significant: red >= MIN_REDUCTION_PCT && wins >= MIN_FOLD_WINS && resolvable,
+        significant: red >= MIN_REDUCTION_PCT
+            && wins >= MIN_FOLD_WINS
+            && resolvable
+            && doubtful.is_none(),
         error_reduction_pct: red.min(100.0),
-        evidence: if resolvable {
-            evidence(&e, d)
-        } else {
-            format!(
-                "{}; below the 1 nm any feed-drive encoder resolves: not significant",
-                evidence(&e, d)
-            )
-        },
+        evidence: ev,
         params,
         same_as: vec![],
         add: vec![e],
@@ -592,6 +604,7 @@ fn torque_effect_candidate(
         effect: e,
         cv,
         held,
+        doubtful,
     } = best_effect(id, model, d, &ch.base_cols, &now, &ch.res, &ch.bl, mk)?;
     let mut add = vec![e.clone()];
     let mut cv = cv;
@@ -631,6 +644,10 @@ fn torque_effect_candidate(
                 "{ev}; beyond a constant force it lowers the cross-validated error by only {beyond:.1} %: there is no friction step at the reversals"
             );
         }
+    }
+    if let Some(why) = &doubtful {
+        significant = false;
+        ev = format!("{ev}; {why}: doubtful, not significant");
     }
     let red = if significant {
         (100.0 * (ch.e0 - cv.rms) / ch.e0).max(extra)

@@ -160,6 +160,9 @@ pub fn fit(
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
                 let r = best_effect(id, model, d, &dref, &[], &rd, &bl, None)
                     .map_err(|why| refused(id, why))?;
+                if let Some(why) = &r.doubtful {
+                    warnings.push(format!("{id}: {why} (doubtful)"));
+                }
                 effects.push(r.effect);
             }
             Channel::Torque | Channel::TorquePath => {
@@ -186,6 +189,7 @@ pub fn fit(
                 let Refit {
                     effect: mut e,
                     held,
+                    doubtful,
                     ..
                 } = best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
                     .map_err(|why| refused(id, why))?;
@@ -194,6 +198,9 @@ pub fn fit(
                 }
                 if !held.is_empty() {
                     warnings.push(format!("{id}: {}", held_words(&held, &free_keys)));
+                }
+                if let Some(why) = &doubtful {
+                    warnings.push(format!("{id}: {why} (doubtful)"));
                 }
                 effects.push(e);
             }

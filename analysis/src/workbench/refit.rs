@@ -13,6 +13,7 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::quantile;
+use feedloop_model::units::sig;
 
 /// Folds of the blocked cross-validation.
 pub const FOLDS: usize = 5;
@@ -200,6 +201,9 @@ pub struct Refit {
     pub cv: Cv,
     /// Indices of the base columns held at their values.
     pub held: Vec<usize>,
+    /// Why its nonlinear parameter is doubtful: it lies at an edge of the range searched that is
+    /// no physical bound, so the best value may lie beyond (`None`: inside the range).
+    pub doubtful: Option<String>,
 }
 
 /// Why an effect could not be refitted on a trace (a sentence for `untested` and for the error
@@ -233,6 +237,7 @@ pub fn best_effect(
             grid = vec![h];
         }
     }
+    let searched = grid.clone();
     if grid.is_empty() {
         return Err(match channel(id) {
             Channel::TorquePath => format!(
@@ -337,6 +342,7 @@ pub fn best_effect(
             effect: e,
             cv,
             held,
+            doubtful: None,
         })
     };
     // the grid's points are independent: scored in parallel, the best kept (the first on a tie,
@@ -397,7 +403,64 @@ pub fn best_effect(
             }
         }
     }
-    best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))
+    let mut best =
+        best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))?;
+    best.doubtful = at_edge(id, &searched, &best.effect.hyper);
+    Ok(best)
+}
+
+/// The words for a nonlinear parameter `hyper` of effect `id` that lies at an edge of the range
+/// `grid` searched (within 2 %, the refinement of a continuous parameter included), when that
+/// edge is no physical bound: the shortest delay (one period) and one cogging period per
+/// revolution are bounds; a mode's damping ratio and a Stribeck exponent are shapes, not
+/// searched ranges; an unbalance's one-revolution period is the physical default, not an edge.
+fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
+    let (dim, name, low_is_bound, high_is_bound, skip_first): (usize, &str, bool, bool, bool) =
+        match id {
+            EffectId::StribeckFriction => (0, "Stribeck velocity", false, false, false),
+            EffectId::Cogging => (0, "period", false, false, false),
+            EffectId::ThirdMass => (0, "frequency", false, false, false),
+            EffectId::Delay => (0, "delay", true, false, false),
+            EffectId::CurrentLag => (0, "time constant", false, false, false),
+            EffectId::TorqueSaturation => (0, "limit", false, false, false),
+            EffectId::Unbalance => (0, "period", false, false, true),
+            EffectId::ViscousFriction
+            | EffectId::CoulombFriction
+            | EffectId::ConstantForce
+            | EffectId::Backlash
+            | EffectId::PitchError => return None,
+        };
+    let values: Vec<f64> = grid
+        .iter()
+        .skip(usize::from(skip_first))
+        .filter_map(|h| h.get(dim).copied())
+        .collect();
+    let v = *hyper.get(dim)?;
+    let lo = values.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = values.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let mut distinct = values.clone();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup();
+    if distinct.len() < 3 || !(lo < hi) {
+        return None;
+    }
+    // a cogging period on a rotary motor is 2 pi / n: its largest value (n = 1) is the bound
+    let high_is_bound =
+        high_is_bound || (id == EffectId::Cogging && (hi - std::f64::consts::TAU).abs() < 1e-12);
+    let near = |edge: f64| (v - edge).abs() <= 0.02 * edge.abs().max(1e-300);
+    let edge = if near(lo) && !low_is_bound {
+        "lower"
+    } else if near(hi) && !high_is_bound {
+        "upper"
+    } else {
+        return None;
+    };
+    Some(format!(
+        "its {name} ({}) is at the {edge} edge of the range searched ({} to {}): the best value may lie beyond",
+        sig(v),
+        sig(lo),
+        sig(hi)
+    ))
 }
 
 /// `cv` of a fit without the base columns `held` (sorted), with a 0 coefficient (and standard
