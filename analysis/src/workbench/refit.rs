@@ -441,7 +441,7 @@ fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
     let mut distinct = values.clone();
     distinct.sort_by(f64::total_cmp);
     distinct.dedup();
-    if distinct.len() < 3 || !(lo < hi) {
+    if distinct.len() < 3 || lo >= hi {
         return None;
     }
     // a cogging period on a rotary motor is 2 pi / n: its largest value (n = 1) is the bound
