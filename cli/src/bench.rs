@@ -17,6 +17,7 @@ use feedloop_model::job::{Mode, WaitKind};
 use feedloop_model::units::{si, sig};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
+use crate::choice::{Choice, WaitArg};
 use crate::processes::{read_json, spawn, write_json};
 use feedloop_runtime::shared::pingpong::{echo, ping, EchoStamp, Pacing, PingPong};
 use feedloop_runtime::shared::rt::{apply, RtRequest};
@@ -33,9 +34,9 @@ pub enum BenchCmd {
         /// Control period, s.
         #[arg(long, default_value_t = 1.0e-4)]
         period_s: f64,
-        /// busy | block | hybrid.
-        #[arg(long, default_value = "busy")]
-        wait: String,
+        /// How each process waits for the next message.
+        #[arg(long, value_enum, default_value = "busy")]
+        wait: WaitArg,
         /// CPUs for the plant and the scheduler, e.g. `0,1`.
         #[arg(long)]
         pin: Option<String>,
@@ -264,7 +265,7 @@ pub(crate) fn bench_job(
 struct LatencyOpts {
     cycles: u64,
     period_s: f64,
-    wait: String,
+    wait: WaitArg,
     pin: Option<String>,
     fifo: Option<i32>,
     out: PathBuf,
@@ -278,7 +279,7 @@ fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     let (cycles, period_s, wait, pin, fifo, out, reference_s, pingpong_cycles) = (
         o.cycles,
         o.period_s,
-        o.wait.as_str(),
+        o.wait.id(),
         o.pin.as_deref(),
         o.fifo,
         o.out.as_path(),

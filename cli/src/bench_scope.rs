@@ -16,6 +16,8 @@ use serde_json::{json, Value};
 
 use feedloop_analysis::latency::{attribute_misses, RunFigures};
 use feedloop_model::job::WaitKind;
+
+use crate::choice::{Choice, WaitArg};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
 /// Options of `feedloop bench scope`.
@@ -27,9 +29,9 @@ pub struct ScopeBenchArgs {
     /// Control period, s.
     #[arg(long, default_value_t = 1.0e-4)]
     pub period_s: f64,
-    /// busy | block | hybrid.
-    #[arg(long, default_value = "busy")]
-    pub wait: String,
+    /// How each process waits for the next message.
+    #[arg(long, value_enum, default_value = "busy")]
+    pub wait: WaitArg,
     /// CPUs for the plant and the scheduler, e.g. `0,1`.
     #[arg(long)]
     pub pin: Option<String>,
@@ -155,8 +157,8 @@ fn figures(dir: &Path, period_ns: u64) -> Result<Value> {
 
 /// `feedloop bench scope`.
 pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
-    let wait = WaitKind::parse(&a.wait)
-        .with_context(|| format!("--wait `{}`: expected busy, block or hybrid", a.wait))?;
+    let wait = WaitKind::parse(a.wait.id())
+        .with_context(|| format!("--wait `{}`: expected busy, block or hybrid", a.wait.id()))?;
     if !(a.period_s > 1e-6 && a.period_s <= 0.1) {
         bail!("--period-s {}: must be within (1e-6, 0.1] s", a.period_s);
     }

@@ -8,6 +8,8 @@ use anyhow::{Context, Result};
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, SwapRequest};
 use feedloop_runtime::scheduler::control::request;
 
+use crate::choice::{Choice, StageArg};
+
 /// Options of `feedloop swap`.
 #[derive(clap::Args, Debug)]
 pub struct SwapArgs {
@@ -17,9 +19,9 @@ pub struct SwapArgs {
     /// Axis name.
     #[arg(long)]
     pub axis: String,
-    /// position | feedforward | compensator | velocity.
-    #[arg(long)]
-    pub stage: String,
+    /// The stage of the axis' chain.
+    #[arg(long, value_enum)]
+    pub stage: StageArg,
     /// Plugin id (the same id with --params is a retune).
     #[arg(long)]
     pub plugin: String,
@@ -62,7 +64,7 @@ pub fn swap(a: &SwapArgs) -> Result<ExitCode> {
     };
     let req = Request::Swap(SwapRequest {
         axis: a.axis.clone(),
-        stage: a.stage.clone(),
+        stage: a.stage.id().to_string(),
         plugin: a.plugin.clone(),
         params: params_text,
         lib: lib_path,

@@ -4,6 +4,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{bail, Context};
+
+use crate::choice::{Choice, DeviationArg, EstimatorArg, ExciteKind, FrfArg, MethodArg};
 use feedloop_analysis::identify::inertia::{self, Probe};
 use feedloop_analysis::identify::stiffness::{
     identify_stiffness, Estimator, FrfKind, StiffnessOptions,
@@ -27,9 +29,9 @@ pub enum IdentifyCmd {
 /// `feedloop identify inertia`.
 #[derive(clap::Args, Debug)]
 pub struct InertiaArgs {
-    /// sim-match (method 1) | linear (method 2).
-    #[arg(long, default_value = "sim-match")]
-    pub method: String,
+    /// sim-match (method 1) or linear (method 2).
+    #[arg(long, value_enum, default_value = "sim-match")]
+    pub method: MethodArg,
     /// The measured trace (columns A.load and A.cmd, or A.motor with --deviation motor-load).
     #[arg(long)]
     pub trace: PathBuf,
@@ -57,8 +59,8 @@ pub struct InertiaArgs {
     pub window: f64,
     /// command-load (the patent's th - thL, command minus load position) | motor-load (the
     /// screw's twist, motor position in load units minus load position).
-    #[arg(long, default_value = "command-load")]
-    pub deviation: String,
+    #[arg(long, value_enum, default_value = "command-load")]
+    pub deviation: DeviationArg,
     /// Axis (default: the first).
     #[arg(long)]
     pub axis: Option<String>,
@@ -98,12 +100,12 @@ pub struct StiffnessArgs {
     /// Time cut after each reversal (and before the next) from the one-direction windows, s.
     #[arg(long, default_value_t = 0.2)]
     pub settle_s: f64,
-    /// auto | h1 | instrument.
-    #[arg(long, default_value = "auto")]
-    pub estimator: String,
-    /// torque-velocity | command-table (the latter is refused, with the reason).
-    #[arg(long, default_value = "torque-velocity")]
-    pub frf: String,
+    /// The FRF estimator.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub estimator: EstimatorArg,
+    /// The FRF measured (command-table is refused, with the reason).
+    #[arg(long, value_enum, default_value = "torque-velocity")]
+    pub frf: FrfArg,
     /// Bode plot (SVG) with the picked points.
     #[arg(long)]
     pub svg: Option<PathBuf>,
@@ -119,9 +121,9 @@ pub struct StiffnessArgs {
 /// `feedloop excite`.
 #[derive(clap::Args, Debug)]
 pub struct ExciteArgs {
-    /// random-segments | prbs | multisine.
-    #[arg(long)]
-    pub kind: String,
+    /// The excitation signal.
+    #[arg(long, value_enum)]
+    pub kind: ExciteKind,
     /// Axis name.
     #[arg(long, default_value = "x")]
     pub axis: String,
@@ -230,7 +232,7 @@ fn inertia_input(a: &InertiaArgs) -> anyhow::Result<InertiaInput> {
     let probe = Probe {
         at: a.at,
         half_window: a.window,
-        kind: inertia::DeviationKind::parse(&a.deviation)?,
+        kind: inertia::DeviationKind::parse(a.deviation.id())?,
     };
     let job = match &a.model {
         Some(p) => Some(Job::load(p)?),
@@ -259,7 +261,7 @@ fn inertia_input(a: &InertiaArgs) -> anyhow::Result<InertiaInput> {
 fn inertia_cmd(a: InertiaArgs) -> anyhow::Result<ExitCode> {
     let inp = inertia_input(&a)?;
     let mut curves: Vec<Curve> = vec![];
-    let est = match a.method.as_str() {
+    let est = match a.method.id() {
         "sim-match" => sim_match_estimate(&a, &inp, &mut curves)?,
         "linear" => linear_estimate(&a, &inp, &mut curves)?,
         other => bail!("unknown method `{other}` (expected sim-match or linear)"),
@@ -440,16 +442,14 @@ fn stiffness_cmd(a: StiffnessArgs) -> anyhow::Result<ExitCode> {
     opts.f_max_hz = a.f_max_hz;
     opts.resolution_hz = a.resolution_hz;
     opts.settle_s = a.settle_s;
-    opts.estimator = match a.estimator.as_str() {
-        "auto" => Estimator::Auto,
-        "h1" => Estimator::H1,
-        "instrument" => Estimator::Instrument,
-        o => bail!("unknown estimator `{o}` (expected auto, h1 or instrument)"),
+    opts.estimator = match a.estimator {
+        EstimatorArg::Auto => Estimator::Auto,
+        EstimatorArg::H1 => Estimator::H1,
+        EstimatorArg::Instrument => Estimator::Instrument,
     };
-    opts.frf = match a.frf.as_str() {
-        "torque-velocity" => FrfKind::TorqueToVelocity,
-        "command-table" => FrfKind::CommandToTable,
-        o => bail!("unknown FRF `{o}` (expected torque-velocity or command-table)"),
+    opts.frf = match a.frf {
+        FrfArg::TorqueVelocity => FrfKind::TorqueToVelocity,
+        FrfArg::CommandTable => FrfKind::CommandToTable,
     };
     let trace = read_trace(&a.trace)?;
     let axis = trace_axis(&trace, a.axis.as_deref())?;
@@ -567,7 +567,7 @@ fn quantity_stem(key: &str) -> Option<&str> {
 /// Runs `feedloop excite`.
 pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
     let ax = &a.axis;
-    let defaults: &[(&str, &str)] = match a.kind.as_str() {
+    let defaults: &[(&str, &str)] = match a.kind.id() {
         "random-segments" => &[
             ("kind", "\"random_segments\""),
             ("velocity_m_per_s", "0.02"),
@@ -637,13 +637,13 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
     if a.json {
         println!(
             "{}",
-            serde_json::json!({"out": a.out.display().to_string(), "kind": a.kind, "duration_s": traj.duration_s(), "rows": rows})
+            serde_json::json!({"out": a.out.display().to_string(), "kind": a.kind.id(), "duration_s": traj.duration_s(), "rows": rows})
         );
     } else {
         println!(
             "wrote {} ({} excitation, {}, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
             a.out.display(),
-            a.kind,
+            a.kind.id(),
             si(traj.duration_s(), "s"),
             a.out.display()
         );

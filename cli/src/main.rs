@@ -6,6 +6,7 @@
 
 mod bench;
 mod bench_scope;
+mod choice;
 mod control;
 mod identify_cmd;
 mod learn;
@@ -36,12 +37,12 @@ enum Command {
         /// Output folder (trace.csv, summary.json, process logs).
         #[arg(long)]
         out: PathBuf,
-        /// realtime | lockstep (default: the job's [run] mode).
-        #[arg(long)]
-        mode: Option<String>,
-        /// busy | block | hybrid (default: the job's [run] wait).
-        #[arg(long)]
-        wait: Option<String>,
+        /// How the processes keep time (default: the job's [run] mode).
+        #[arg(long, value_enum)]
+        mode: Option<choice::ModeArg>,
+        /// How a process waits for the next message (default: the job's [run] wait).
+        #[arg(long, value_enum)]
+        wait: Option<choice::WaitArg>,
         /// Instance name (services are named per instance); default: unique per run.
         #[arg(long)]
         instance: Option<String>,

@@ -11,6 +11,8 @@ use serde_json::{json, Value};
 
 use feedloop_analysis::sim::{simulate, ContourJudge};
 use feedloop_model::job::{Job, Mode, WaitKind};
+
+use crate::choice::{Choice, ModeArg, WaitArg};
 use feedloop_plant::Plant;
 use feedloop_plugins::Builtins;
 use feedloop_runtime::plant::{
@@ -144,12 +146,12 @@ pub struct ProcArgs {
     /// Output folder for this process' log and report.
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
-    /// realtime | lockstep (default: the job's).
-    #[arg(long)]
-    pub mode: Option<String>,
-    /// busy | block | hybrid (default: the job's).
-    #[arg(long)]
-    pub wait: Option<String>,
+    /// How the processes keep time (default: the job's).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// How a process waits for the next message (default: the job's).
+    #[arg(long, value_enum)]
+    pub wait: Option<WaitArg>,
     /// Run this many cycles instead of the job's duration.
     #[arg(long)]
     pub cycles: Option<u64>,
@@ -195,8 +197,8 @@ struct ProcStart {
 fn start_process(a: &ProcArgs) -> Result<ProcStart> {
     signals::install();
     let loaded = load(&a.job)?;
-    let mode = mode_of(&loaded.job, a.mode.clone())?;
-    let wait = wait_of(&loaded.job, a.wait.clone())?;
+    let mode = mode_of(&loaded.job, a.mode.map(|m| m.id().to_string()))?;
+    let wait = wait_of(&loaded.job, a.wait.map(|w| w.id().to_string()))?;
     create_dir(&a.out)?;
     let rt = apply_rt(a, wait);
     let spin = Duration::from_secs_f64(loaded.job.spin_s());
@@ -552,12 +554,16 @@ fn wait_both(plant: &mut Child, sched: &mut Child, job: &Job, out: &Path) -> Res
 pub fn run(
     job_path: &Path,
     out: &Path,
-    mode: Option<String>,
-    wait: Option<String>,
+    mode: Option<ModeArg>,
+    wait: Option<WaitArg>,
     instance: Option<String>,
     pin: Option<&str>,
     json_only: bool,
 ) -> Result<ExitCode> {
+    let (mode, wait) = (
+        mode.map(|m| m.id().to_string()),
+        wait.map(|w| w.id().to_string()),
+    );
     signals::install();
     // Validate everything before any process starts.
     let cpus = pin.map(parse_pin).transpose()?;
