@@ -166,7 +166,6 @@ fn the_kuka_encoders_zero_offset_is_found_and_removed_before_any_fit() {
 /// What a diagnosis recommends, fitted as `fit` does, lowers the error of its channel, and the
 /// verdict quotes the figures that fit measured.
 fn assert_recommendation_holds(m: &WbModel, d: &AxisData, what: &str) -> Option<WbModel> {
-    use feedloop_analysis::workbench::fit::fit_with;
     let dg = diagnose(m, d, &DiagOptions::default());
     let top = dg
         .candidates
@@ -175,7 +174,10 @@ fn assert_recommendation_holds(m: &WbModel, d: &AxisData, what: &str) -> Option<
     if !dg.verdict.contains("fit --add") {
         return None;
     }
-    let r = fit_with(m, d, top.add.clone(), None, 0.05).unwrap();
+    // what the verdict tells the user to run: `fit --add IDS`
+    let mut ids: Vec<EffectId> = top.add.iter().map(|e| e.id).collect();
+    ids.dedup();
+    let r = fit(m, d, &ids, None, 0.05).unwrap();
     let (b, a) = match top.channel {
         "deflection" => (r.before.window_sim_nrmse_pct, r.after.window_sim_nrmse_pct),
         "controller" => (r.before.controller_nrmse_pct, r.after.controller_nrmse_pct),

@@ -29,7 +29,7 @@ use super::effects::{
     channel, class_of, constant_force_value, constant_force_words, evidence, fmt, round_sig,
     Channel, Effect, EffectId, Side, WbModel,
 };
-use super::fit::{fit_with, FitResult};
+use super::fit::{fit, fit_with, FitResult};
 use super::lsq::{blocks, Cv};
 use super::refit::{
     backlash_hyper, best_effect, cv_cols, cv_cols_masked, default_side, deflection, flat,
@@ -852,11 +852,14 @@ fn confirm(
             break;
         }
         tried += 1;
+        // what the verdict would tell the user to run, run: `fit --free KEY` or `fit --add IDS`
         let res = if c.is_param {
             let free = [c.effect.clone()];
             fit_with(model, d, vec![], Some(&free), window_s)
         } else {
-            fit_with(model, d, c.add.clone(), None, window_s)
+            let mut ids: Vec<EffectId> = c.add.iter().map(|e| e.id).collect();
+            ids.dedup();
+            fit(model, d, &ids, None, window_s)
         };
         match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
             Some((b, a, name)) if a < b => {

@@ -443,8 +443,14 @@ pub fn fit_with(
         return Err(WorkbenchError::EffectRefused {
             effect,
             reason: format!(
-                "the model it would write is one the plant refuses (`{}`: {}): a fitted level of the wrong sign means these data do not show the effect",
-                e.key, e.reason
+                "the model it would write is one the plant refuses (`{}`: {}){}",
+                e.key,
+                e.reason,
+                if e.reason.starts_with("must be") {
+                    ": a fitted value outside its physical range means these data do not show the effect"
+                } else {
+                    ""
+                }
             ),
             advice: "nothing was written; run `feedloop diagnose`, refit with other base parameters free (--free), or leave it out".into(),
         });

@@ -442,10 +442,11 @@ fn rotary_stiffness(
             .map(|v| if v.abs() > eps { v.signum() } else { 0.0 })
             .collect();
     let th = cross_validate(&normals(&[trans, &one, &dir], &defl, bl)).theta;
+    // (the reading has already removed an offset it found: it is added back to say the whole)
     notes.push(format!(
         "encoders' zero offset {:.4e} rad (motor side), lost motion {:.4e} rad between the \
          directions of travel: both left out of the stiffness",
-        th[1],
+        th[1] + d.encoder_offset.unwrap_or(0.0),
         2.0 * th[2]
     ));
     if th[0] > 0.0 && th[0].is_finite() {
