@@ -36,11 +36,13 @@ pub enum EffectId {
     TorqueSaturation,
     /// `unbalance`: a load torque of the axis' own angle (gravity on a rotary load).
     Unbalance,
+    /// `directional_friction`: dry and viscous friction that differ between the directions.
+    DirectionalFriction,
 }
 
 impl EffectId {
     /// Every effect, in the order error messages list them.
-    pub const ALL: [EffectId; 12] = [
+    pub const ALL: [EffectId; 13] = [
         EffectId::ViscousFriction,
         EffectId::CoulombFriction,
         EffectId::StribeckFriction,
@@ -53,6 +55,7 @@ impl EffectId {
         EffectId::CurrentLag,
         EffectId::TorqueSaturation,
         EffectId::Unbalance,
+        EffectId::DirectionalFriction,
     ];
 
     /// Name used in model files (`[effects.<id>]`) and on the command line.
@@ -70,6 +73,7 @@ impl EffectId {
             EffectId::CurrentLag => "current_lag",
             EffectId::TorqueSaturation => "torque_saturation",
             EffectId::Unbalance => "unbalance",
+            EffectId::DirectionalFriction => "directional_friction",
         }
     }
 
@@ -93,7 +97,9 @@ impl EffectId {
     /// Stribeck friction is Coulomb friction with a hump at low speed.
     pub fn supersedes(self) -> Option<EffectId> {
         match self {
-            EffectId::StribeckFriction => Some(EffectId::CoulombFriction),
+            EffectId::StribeckFriction | EffectId::DirectionalFriction => {
+                Some(EffectId::CoulombFriction)
+            }
             _ => None,
         }
     }
@@ -102,7 +108,10 @@ impl EffectId {
     pub fn has_side(self) -> bool {
         matches!(
             self,
-            EffectId::ViscousFriction | EffectId::CoulombFriction | EffectId::StribeckFriction
+            EffectId::ViscousFriction
+                | EffectId::CoulombFriction
+                | EffectId::StribeckFriction
+                | EffectId::DirectionalFriction
         )
     }
 

@@ -161,7 +161,7 @@ impl Default for DiagOptions {
     }
 }
 
-/// Significant candidates whose fit is tried before one is recommended (see [`confirm`]).
+/// First candidates whose fit is tried before none is recommended (see [`confirm`]).
 pub const MAX_CONFIRM: usize = 3;
 
 /// Diagnoses `model` on `d` (which must carry torque), in named steps: the torque channel's
@@ -178,6 +178,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
     if let Some(cc) = &cc {
         controller_candidates(model, d, cc, &mut cands);
     }
+    refine_of_coulomb(&mut cands, ch.min_pct);
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
     let now = inertias_now(model, &ch.free_keys);
     let tf = TorqueFit {
@@ -188,9 +189,37 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         bl: &ch.bl,
         mask: ch.mask.as_deref(),
     };
-    condition_on_top(&mut cands, model, d, &tf, ch.e0);
-    mark_indistinguishable(&mut cands);
-    let fitted = confirm(&mut cands, model, d, opts.window_s);
+    // forward selection beyond the first candidate, whose recommendation is then confirmed by
+    // its fit; a first candidate whose fit fails loses its significance and the selection is
+    // made again beyond the next one (at most MAX_CONFIRM times)
+    let ranked = cands;
+    let mut rejected: Vec<(String, String)> = Vec::new();
+    let (cands, fitted) = loop {
+        let mut cands = ranked.clone();
+        for c in cands.iter_mut() {
+            if let Some((_, why)) = rejected.iter().find(|(e, _)| *e == c.effect) {
+                c.significant = false;
+                c.evidence = format!("{}; {why}", c.evidence);
+            }
+        }
+        condition_on_top(&mut cands, model, d, &tf, ch.e0);
+        mark_indistinguishable(&mut cands);
+        let top = cands
+            .iter()
+            .position(|c| c.significant && (c.is_param || !c.add.is_empty()));
+        let Some(i) = top else { break (cands, None) };
+        match confirm(&cands[i], model, d, opts.window_s) {
+            Ok(f) => break (cands, Some(f)),
+            Err(why) if rejected.len() + 1 < MAX_CONFIRM => {
+                rejected.push((cands[i].effect.clone(), why));
+            }
+            Err(why) => {
+                cands[i].significant = false;
+                cands[i].evidence = format!("{}; {why}", cands[i].evidence);
+                break (cands, None);
+            }
+        }
+    };
     let (white, ac) = residual_whiteness(d, &ch);
     let verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
     Diagnosis {
@@ -388,6 +417,39 @@ fn effect_candidates(
         );
     }
     untested
+}
+
+/// `directional_friction` is Coulomb friction with levels and slopes of their own in each
+/// direction: it is credited only with what it lowers the error by beyond `coulomb_friction`
+/// (with its offset), and is significant only when that is material, so the simpler law is named
+/// unless the data ask for the richer one.
+fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
+    let Some(coulomb) = cands
+        .iter()
+        .find(|c| c.effect == EffectId::CoulombFriction.id())
+        .map(|c| c.error_reduction_pct)
+    else {
+        return;
+    };
+    for c in cands
+        .iter_mut()
+        .filter(|c| c.effect == EffectId::DirectionalFriction.id())
+    {
+        let extra = c.error_reduction_pct - coulomb;
+        c.error_reduction_pct = extra;
+        if extra < min_pct {
+            c.significant = false;
+        }
+        c.evidence = format!(
+            "{}; beyond coulomb_friction it lowers the cross-validated error by {extra:.1} %{}",
+            c.evidence,
+            if extra < min_pct {
+                " (not significant)"
+            } else {
+                ""
+            }
+        );
+    }
 }
 
 /// A candidate goes to the list, or its effect to `untested` with the reason it could not be
@@ -833,68 +895,48 @@ fn channel_errors(f: &FitResult, channel: &str) -> Option<(f64, f64, &'static st
     Some((b?, a?, name))
 }
 
-/// Fits the significant candidates in rank order, as `fit` would, until one lowers the error of
-/// the channel it was scored on: a candidate whose fit is refused or raises that error loses
-/// its significance (with the measured figures in its evidence), so it is never recommended.
-/// At most [`MAX_CONFIRM`] are tried; what the recommended one's fit delivers is returned.
+/// Fits candidate `c` as the verdict would tell the user to (`fit --free KEY` or `fit --add
+/// IDS`) and measures the error of the channel it was scored on: what the fit delivers, or why it
+/// is not recommended (its fit is refused or raises that error), in words for its evidence.
 fn confirm(
-    cands: &mut [Candidate],
+    c: &Candidate,
     model: &WbModel,
     d: &AxisData,
     window_s: f64,
-) -> Option<Confirmed> {
-    let mut tried = 0;
-    for c in cands.iter_mut() {
-        if !c.significant || (!c.is_param && c.add.is_empty()) {
-            continue;
-        }
-        if tried >= MAX_CONFIRM {
-            break;
-        }
-        tried += 1;
-        // what the verdict would tell the user to run, run: `fit --free KEY` or `fit --add IDS`
-        let res = if c.is_param {
-            let free = [c.effect.clone()];
-            fit_with(model, d, vec![], Some(&free), window_s)
-        } else {
-            let mut ids: Vec<EffectId> = c.add.iter().map(|e| e.id).collect();
-            ids.dedup();
-            fit(model, d, &ids, None, window_s)
-        };
-        match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
-            Some((b, a, name)) if a < b => {
-                return Some(Confirmed {
-                    effect: c.effect.clone(),
-                    before_pct: b,
-                    after_pct: a,
-                    words: format!(
-                        "fitting it takes the {name} from {} % to {} % (a cut of {:.0} %)",
-                        sig(b),
-                        sig(a),
-                        100.0 * (b - a) / b.max(1e-300)
-                    ),
-                });
+) -> Result<Confirmed, String> {
+    let res = if c.is_param {
+        let free = [c.effect.clone()];
+        fit_with(model, d, vec![], Some(&free), window_s)
+    } else {
+        let mut ids: Vec<EffectId> = c.add.iter().map(|e| e.id).collect();
+        ids.dedup();
+        fit(model, d, &ids, None, window_s)
+    };
+    match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
+        Some((b, a, name)) if a < b => Ok(Confirmed {
+            effect: c.effect.clone(),
+            before_pct: b,
+            after_pct: a,
+            words: format!(
+                "fitting it takes the {name} from {} % to {} % (a cut of {:.0} %)",
+                sig(b),
+                sig(a),
+                100.0 * (b - a) / b.max(1e-300)
+            ),
+        }),
+        Some((b, a, name)) => Err(format!(
+            "fitting it raises the {name} from {} % to {} %: not recommended",
+            sig(b),
+            sig(a)
+        )),
+        None => Err(format!(
+            "its fit is refused ({})",
+            match res {
+                Err(e) => e.to_string(),
+                Ok(_) => "its channel's error cannot be measured on this trace".into(),
             }
-            Some((b, a, name)) => {
-                c.significant = false;
-                c.evidence = format!(
-                    "{}; fitting it raises the {name} from {} % to {} %: not recommended",
-                    c.evidence,
-                    sig(b),
-                    sig(a)
-                );
-            }
-            None => {
-                c.significant = false;
-                let why = match res {
-                    Err(e) => e.to_string(),
-                    Ok(_) => "its channel's error cannot be measured on this trace".into(),
-                };
-                c.evidence = format!("{}; its fit is refused ({why})", c.evidence);
-            }
-        }
+        )),
     }
-    None
 }
 
 fn verdict(
@@ -1005,8 +1047,13 @@ fn condition_on_top(
     e0: f64,
 ) {
     let (base_cols, res, bl, mk) = (tf.base_cols, tf.res, tf.bl, tf.mask);
-    let Some(top) = cands.first() else { return };
-    if top.is_param || !top.significant || top.channel != "torque" {
+    // the first significant candidate (one ranked above it lost its significance when its fit
+    // failed and stays as it is)
+    let Some(ti) = cands.iter().position(|c| c.significant) else {
+        return;
+    };
+    let top = &cands[ti];
+    if top.is_param || top.channel != "torque" {
         return;
     }
     let top_add = top.add.clone();
@@ -1035,7 +1082,7 @@ fn condition_on_top(
     let mut now_ext = tf.now.to_vec();
     now_ext.resize(cols.len(), 0.0);
     let mut included = Vec::new();
-    for c in cands.iter_mut().skip(1) {
+    for c in cands.iter_mut().skip(ti + 1) {
         if c.is_param || c.channel != "torque" || c.add.is_empty() {
             continue;
         }

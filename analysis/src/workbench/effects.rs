@@ -17,9 +17,9 @@ use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
 use feedloop_model::params::read_toml_file;
 use feedloop_plant::effects::{
     read_effects, BacklashParams, CoggingParams, CoggingPeriod, ConstantForceParams,
-    CoulombFrictionParams, Ctx, CurrentLagParams, DelayParams, EffectParams, PitchErrorParams,
-    StribeckFrictionParams, ThirdMassParams, TorqueSaturationParams, UnbalanceParams,
-    ViscousFrictionParams,
+    CoulombFrictionParams, Ctx, CurrentLagParams, DelayParams, DirectionalFrictionParams,
+    EffectParams, PitchErrorParams, StribeckFrictionParams, ThirdMassParams,
+    TorqueSaturationParams, UnbalanceParams, ViscousFrictionParams,
 };
 
 use super::base::BaseParam;
@@ -64,7 +64,8 @@ pub fn channel(id: EffectId) -> Channel {
         | EffectId::Cogging
         | EffectId::ConstantForce
         | EffectId::ThirdMass
-        | EffectId::Unbalance => Channel::Torque,
+        | EffectId::Unbalance
+        | EffectId::DirectionalFriction => Channel::Torque,
     }
 }
 
@@ -83,6 +84,18 @@ fn sgn(v: f64, eps: f64) -> f64 {
     } else {
         0.0
     }
+}
+
+/// The regressor functions of `directional_friction` of the velocity, outside the dead band
+/// `eps`: the level for positive velocity, the level for negative velocity (as the torque
+/// needed: -1 there), the slope for positive and for negative velocity.
+fn directional_columns(eps: f64) -> [Box<dyn Fn(f64) -> f64>; 4] {
+    [
+        Box::new(move |x| if x > eps { 1.0 } else { 0.0 }),
+        Box::new(move |x| if x < -eps { -1.0 } else { 0.0 }),
+        Box::new(|x: f64| x.max(0.0)),
+        Box::new(|x: f64| x.min(0.0)),
+    ]
 }
 
 /// The block means of `sin(w x)` and `cos(w x)` for a position `x` held at the centres of blocks
@@ -124,6 +137,7 @@ impl Effect {
             | EffectId::Backlash => 1,
             EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging => 2,
             EffectId::PitchError | EffectId::Unbalance => 3,
+            EffectId::DirectionalFriction => 4,
             EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => 0,
         };
         Self {
@@ -153,7 +167,10 @@ impl Effect {
         if d.torque_filtered
             && matches!(
                 self.id,
-                EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging
+                EffectId::CoulombFriction
+                    | EffectId::StribeckFriction
+                    | EffectId::Cogging
+                    | EffectId::DirectionalFriction
             )
         {
             let fs = 1.0 / d.dt;
@@ -195,6 +212,14 @@ impl Effect {
                 vec![s, st]
             }
             EffectId::ConstantForce => vec![vec![1.0; d.len()]],
+            EffectId::DirectionalFriction => {
+                let eps = dead_band(d, v);
+                let m = |f: &dyn Fn(f64) -> f64| v.iter().map(|x| f(*x)).collect::<Vec<f64>>();
+                directional_columns(eps)
+                    .iter()
+                    .map(|f| m(f.as_ref()))
+                    .collect()
+            }
             EffectId::Cogging => {
                 let w = 2.0 * PI / self.hyper[0];
                 vec![
@@ -269,6 +294,10 @@ impl Effect {
                 vec![m(v, &|x| sgn(x, eps)), m(v, &hump)]
             }
             EffectId::Cogging => held_ripple(&d.qm, 2.0 * PI / self.hyper[0], d.sub),
+            EffectId::DirectionalFriction => directional_columns(dead_band(d, v))
+                .iter()
+                .map(|f| m(v, f.as_ref()))
+                .collect(),
             EffectId::ViscousFriction
             | EffectId::ConstantForce
             | EffectId::ThirdMass
@@ -341,7 +370,8 @@ impl Effect {
             | EffectId::Cogging
             | EffectId::ConstantForce
             | EffectId::ThirdMass
-            | EffectId::Unbalance => y.to_vec(),
+            | EffectId::Unbalance
+            | EffectId::DirectionalFriction => y.to_vec(),
         }
     }
 
@@ -416,6 +446,16 @@ impl Effect {
             EffectId::Backlash => EffectParams::Backlash(self.backlash_params(kind, r)),
             EffectId::PitchError => EffectParams::PitchError(self.pitch_params(r)),
             EffectId::Unbalance => EffectParams::Unbalance(self.unbalance_params(r)),
+            EffectId::DirectionalFriction => {
+                let c = &self.coef;
+                EffectParams::DirectionalFriction(DirectionalFrictionParams {
+                    side,
+                    fc_pos: c[0] * tf,
+                    fc_neg: c[1] * tf,
+                    c_pos: c[2] * tf / vf,
+                    c_neg: c[3] * tf / vf,
+                })
+            }
         }
     }
 
@@ -514,6 +554,14 @@ impl Effect {
                     AxisKind::BallScrew | AxisKind::Rotary => 0.5 * p.gap * r,
                     AxisKind::Rigid => 0.5 * p.gap,
                 }];
+            }
+            EffectParams::DirectionalFriction(p) => {
+                e.coef = vec![
+                    p.fc_pos / tf,
+                    p.fc_neg / tf,
+                    p.c_pos * vf / tf,
+                    p.c_neg * vf / tf,
+                ];
             }
             EffectParams::Unbalance(p) => {
                 e.hyper = vec![p.period_rad];
@@ -922,6 +970,16 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
             fmt(e.hyper[0]),
             fmt(round_sig(e.pitch_params(d.r).amplitude_m))
         ),
+        EffectId::DirectionalFriction => {
+            let c = &e.coef;
+            format!(
+                "friction differs between the directions of travel: {} {fu} with a viscous slope of {} beyond the model's damping moving forward, {} {fu} with {} moving back (directional_friction; slopes in torque units per unit of velocity)",
+                fmt(c[0] * r),
+                fmt(c[2]),
+                fmt(c[1] * r),
+                fmt(c[3])
+            )
+        }
         EffectId::Unbalance => {
             let p = e.unbalance_params(d.r);
             format!(
@@ -965,6 +1023,7 @@ pub fn class_of(id: EffectId) -> &'static str {
         EffectId::Backlash => "backlash",
         EffectId::PitchError => "pitch",
         EffectId::Unbalance => "gravity",
+        EffectId::DirectionalFriction => "friction",
     }
 }
 

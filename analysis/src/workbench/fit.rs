@@ -9,6 +9,8 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
+use feedloop_model::model::AxisKind;
+use feedloop_model::units::sig;
 use feedloop_plant::effects::read_effects;
 
 use super::base::{BaseClass, BaseParam};
@@ -18,7 +20,8 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, normals};
 use super::refit::{
-    best_effect, deflection, flat, held_words, inertias_now, moving_mask, Refit, FOLDS,
+    best_effect, default_side, deflection, flat, held_words, inertias_now, moving_mask, Refit,
+    FOLDS,
 };
 use super::window::window_sim;
 use super::WorkbenchError;
@@ -131,6 +134,26 @@ pub fn fit(
 ) -> Result<FitResult, WorkbenchError> {
     let kind = d.kind;
     let mut warnings: Vec<String> = Vec::new();
+    let mut held_all: Vec<BaseParam> = Vec::new();
+    // a directional friction carries the whole viscous slope of its body in each direction:
+    // that body's damping moves into it (set to zero here, refitted as the effect's slopes)
+    let original = model;
+    let mut work = model.clone();
+    if add.contains(&EffectId::DirectionalFriction) {
+        let side = default_side(kind);
+        for (p, v) in work.base.iter_mut() {
+            let on_side = kind == AxisKind::Rigid || p.on_load() == (side == Side::Load);
+            if p.class() == BaseClass::Damping && on_side && *v != 0.0 {
+                warnings.push(format!(
+                    "{p} = {} moved into directional_friction's viscous slopes (set to 0)",
+                    sig(*v)
+                ));
+                *v = 0.0;
+            }
+        }
+        update_plant(&mut work);
+    }
+    let model = &work;
     let free_keys = free_keys(model, d, free)?;
     let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     let bl = blocks(d.range, FOLDS);
@@ -198,6 +221,7 @@ pub fn fit(
                 }
                 if !held.is_empty() {
                     warnings.push(format!("{id}: {}", held_words(&held, &free_keys)));
+                    held_all.extend(held.iter().filter_map(|i| free_keys.get(*i).copied()));
                 }
                 if let Some(why) = &doubtful {
                     warnings.push(format!("{id}: {why} (doubtful)"));
@@ -207,7 +231,20 @@ pub fn fit(
         }
     }
     let _ = kind;
+    // the base parameters the effects' own refits held (what the data cannot tell apart from
+    // them) stay held in the joint refit: the same refit that diagnose ranks by
+    let narrowed: Option<Vec<String>> = (!held_all.is_empty()).then(|| {
+        free_keys
+            .iter()
+            .filter(|k| !held_all.contains(k))
+            .map(|k| k.key().to_string())
+            .collect()
+    });
+    let free = narrowed.as_deref().or(free);
     let mut r = fit_with(model, d, effects, free, window_s)?;
+    if add.contains(&EffectId::DirectionalFriction) {
+        r.before = Errors::of(original, d, window_s);
+    }
     warnings.append(&mut r.warnings);
     r.warnings = warnings;
     Ok(r)

@@ -11,7 +11,7 @@ use feedloop_model::model::AxisKind;
 use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::lsq::{blocks, cross_validate, normals_masked, Cv};
+use super::lsq::{blocks, cross_validate, normals, normals_masked, Cv};
 use super::signal::quantile;
 use feedloop_model::units::sig;
 
@@ -131,7 +131,8 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
         EffectId::ViscousFriction
         | EffectId::CoulombFriction
         | EffectId::ConstantForce
-        | EffectId::Backlash => vec![vec![]],
+        | EffectId::Backlash
+        | EffectId::DirectionalFriction => vec![vec![]],
         // one load revolution first (a tie keeps it), then the periods a load column referred
         // through a gear shows: from half the travel to a thousand times it
         EffectId::Unbalance => {
@@ -274,6 +275,18 @@ pub fn best_effect(
     }
     let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
     let nb = base.len();
+    // a base column that the effect's own columns span (the damping beside a friction with
+    // viscous slopes) cannot be refitted beside it: held from the start
+    let collinear: Vec<usize> = match (channel(id), grid.first()) {
+        (Channel::Torque, Some(h)) => {
+            let cols = Effect::new(id, side, h.clone()).columns(d);
+            let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+            (0..nb)
+                .filter(|i| spanned(base[*i], &refs, d.range))
+                .collect()
+        }
+        _ => Vec::new(),
+    };
     let eval = |h: Vec<f64>| -> Result<Refit, Untestable> {
         let e = Effect::new(id, side, h);
         let target: Option<Vec<f64>> = match &needed {
@@ -294,7 +307,7 @@ pub fn best_effect(
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
         let y = target.as_deref().unwrap_or(y);
         // base columns held at their values where the joint fit would make them vanish
-        let mut held: Vec<usize> = Vec::new();
+        let mut held: Vec<usize> = collinear.clone();
         let cv = loop {
             let free: Vec<&[f64]> = (0..nb)
                 .filter(|i| !held.contains(i))
@@ -428,7 +441,8 @@ fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
             | EffectId::CoulombFriction
             | EffectId::ConstantForce
             | EffectId::Backlash
-            | EffectId::PitchError => return None,
+            | EffectId::PitchError
+            | EffectId::DirectionalFriction => return None,
         };
     let values: Vec<f64> = grid
         .iter()
@@ -461,6 +475,18 @@ fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
         sig(lo),
         sig(hi)
     ))
+}
+
+/// Whether column `b` lies in the span of `cols` over `range` (a least-squares fit of it leaves
+/// less than 1e-6 of its energy).
+fn spanned(b: &[f64], cols: &[&[f64]], range: (usize, usize)) -> bool {
+    if cols.is_empty() {
+        return false;
+    }
+    let ne = normals(cols, b, &blocks(range, 1));
+    let Some(n) = ne.first() else { return false };
+    let th = n.solve();
+    n.yty > 0.0 && n.sse(&th) < 1e-6 * n.yty
 }
 
 /// `cv` of a fit without the base columns `held` (sorted), with a 0 coefficient (and standard
@@ -548,19 +574,17 @@ pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
         .collect()
 }
 
-/// `jm_kgm2 held at its value (the data cannot tell it apart from this effect: its joint refit
-/// fell below a tenth of its value)`, for the base parameters `held` (indices into `keys`).
+/// `jm_kgm2 held at its value (the data cannot tell it apart from this effect ...)`, for the base
+/// parameters `held` (indices into `keys`).
 pub fn held_words(held: &[usize], keys: &[BaseParam]) -> String {
     let names: Vec<&str> = held
         .iter()
         .filter_map(|i| keys.get(*i).map(|k| k.key()))
         .collect();
     format!(
-        "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit took {} below a tenth of {} value)",
+        "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit would take an inertia below a tenth of its value, or the effect's own columns hold it)",
         names.join(", "),
         if names.len() == 1 { "its" } else { "their" },
         if names.len() == 1 { "it" } else { "them" },
-        if names.len() == 1 { "it" } else { "them" },
-        if names.len() == 1 { "its" } else { "their" },
     )
 }

@@ -82,6 +82,8 @@ struct Body {
     ex: f64,
     offset: f64,
     cog: Vec<(f64, f64, f64)>,
+    /// the direction-dependent part of the viscous friction, times |v|
+    dasym: f64,
     /// unbalance: coefficients of sin and cos of the load angle, and the load's motor units per
     /// radian of that angle
     unb: (f64, f64, f64),
@@ -101,6 +103,7 @@ impl Body {
             ex: 2.0,
             offset: 0.0,
             cog: vec![],
+            dasym: 0.0,
             unb: (0.0, 0.0, d.r),
             eps: dead_band(d, &d.vm),
             limit: f64::INFINITY,
@@ -131,6 +134,13 @@ impl Body {
                     e.coef[1],
                 )),
                 EffectId::ThirdMass => b.inertia += e.coef[0].max(0.0),
+                EffectId::DirectionalFriction => {
+                    let c = &e.coef;
+                    b.fc += 0.5 * (c[0] + c[1]);
+                    b.fasym += 0.5 * (c[0] - c[1]);
+                    b.damping += 0.5 * (c[2] + c[3]);
+                    b.dasym += 0.5 * (c[2] - c[3]);
+                }
                 EffectId::Unbalance => {
                     b.unb.2 = d.r * e.hyper[0] / (2.0 * std::f64::consts::PI);
                     b.unb.0 += e.coef[0];
@@ -151,7 +161,7 @@ impl Body {
 
     /// Torque needed apart from inertia and dry friction.
     fn smooth(&self, q: f64, v: f64) -> f64 {
-        let mut t = self.damping * v + self.offset;
+        let mut t = self.damping * v + self.dasym * v.abs() + self.offset;
         for (w, a, c) in &self.cog {
             t += a * (w * q).sin() + c * (w * q).cos();
         }

@@ -17,6 +17,7 @@ pub mod constant_force;
 pub mod coulomb_friction;
 pub mod current_lag;
 pub mod delay;
+pub mod directional_friction;
 pub mod pitch_error;
 pub mod stribeck_friction;
 pub mod third_mass;
@@ -34,6 +35,7 @@ pub use constant_force::ConstantForceParams;
 pub use coulomb_friction::CoulombFrictionParams;
 pub use current_lag::CurrentLagParams;
 pub use delay::DelayParams;
+pub use directional_friction::DirectionalFrictionParams;
 pub use pitch_error::PitchErrorParams;
 pub use stribeck_friction::StribeckFrictionParams;
 pub use third_mass::ThirdMassParams;
@@ -239,6 +241,8 @@ pub enum EffectParams {
     TorqueSaturation(TorqueSaturationParams),
     /// `unbalance`.
     Unbalance(UnbalanceParams),
+    /// `directional_friction`.
+    DirectionalFriction(DirectionalFrictionParams),
 }
 
 impl EffectParams {
@@ -257,6 +261,7 @@ impl EffectParams {
             EffectParams::CurrentLag(_) => EffectId::CurrentLag,
             EffectParams::TorqueSaturation(_) => EffectId::TorqueSaturation,
             EffectParams::Unbalance(_) => EffectId::Unbalance,
+            EffectParams::DirectionalFriction(_) => EffectId::DirectionalFriction,
         }
     }
 
@@ -266,6 +271,7 @@ impl EffectParams {
             EffectParams::ViscousFriction(p) => Some(p.side),
             EffectParams::CoulombFriction(p) => Some(p.side),
             EffectParams::StribeckFriction(p) => Some(p.side),
+            EffectParams::DirectionalFriction(p) => Some(p.side),
             EffectParams::Backlash(_)
             | EffectParams::PitchError(_)
             | EffectParams::Cogging(_)
@@ -310,6 +316,9 @@ impl EffectParams {
                 EffectParams::TorqueSaturation(TorqueSaturationParams::read(f, table, ctx)?)
             }
             EffectId::Unbalance => EffectParams::Unbalance(UnbalanceParams::read(f, table, ctx)?),
+            EffectId::DirectionalFriction => {
+                EffectParams::DirectionalFriction(DirectionalFrictionParams::read(f, table, ctx)?)
+            }
         })
     }
 
@@ -328,6 +337,7 @@ impl EffectParams {
             EffectParams::CurrentLag(p) => p.to_table(),
             EffectParams::TorqueSaturation(p) => p.to_table(ctx),
             EffectParams::Unbalance(p) => p.to_table(),
+            EffectParams::DirectionalFriction(p) => p.to_table(ctx),
         }
     }
 }
@@ -382,6 +392,12 @@ impl EffectSet {
             EffectParams::CurrentLag(p) => self.lag_tau_s = Some(p.tau_s),
             EffectParams::TorqueSaturation(p) => self.limit = Some(p.limit),
             EffectParams::Unbalance(p) => self.unbalance = Some(p.motor(ctx)),
+            EffectParams::DirectionalFriction(p) => {
+                let b = p.side.body(ctx.kind);
+                let (dry, visc) = p.motor(ctx);
+                self.dry[b] = Some(dry);
+                self.viscous[b] = Some(visc);
+            }
         }
     }
 }
@@ -472,9 +488,11 @@ pub fn read_effects(model: &ModelFile) -> Result<Vec<EffectParams>, ConfigError>
                 harmonics += 1;
             }
             let p = EffectParams::read(effect, &mut f, table, &ctx)?;
-            let seen = match effect {
-                EffectId::ViscousFriction => Some(&mut visc_from),
-                EffectId::CoulombFriction | EffectId::StribeckFriction => Some(&mut dry_from),
+            // the friction laws a body may carry once each: one dry, one viscous
+            let (dry, visc) = match effect {
+                EffectId::ViscousFriction => (false, true),
+                EffectId::CoulombFriction | EffectId::StribeckFriction => (true, false),
+                EffectId::DirectionalFriction => (true, true),
                 EffectId::Backlash
                 | EffectId::PitchError
                 | EffectId::Cogging
@@ -483,14 +501,19 @@ pub fn read_effects(model: &ModelFile) -> Result<Vec<EffectParams>, ConfigError>
                 | EffectId::Delay
                 | EffectId::CurrentLag
                 | EffectId::TorqueSaturation
-                | EffectId::Unbalance => None,
+                | EffectId::Unbalance => (false, false),
             };
-            if let (Some(seen), Some(side)) = (seen, p.side()) {
+            if let Some(side) = p.side() {
                 let b = side.body(ctx.kind);
-                if let Some(prev) = &seen[b] {
-                    return Err(duplicate_side(&f, &prefix, prev, side, ctx.kind));
+                for (taken, seen) in [(dry, &mut dry_from), (visc, &mut visc_from)] {
+                    if !taken {
+                        continue;
+                    }
+                    if let Some(prev) = &seen[b] {
+                        return Err(duplicate_side(&f, &prefix, prev, side, ctx.kind));
+                    }
+                    seen[b] = Some(prefix.clone());
                 }
-                seen[b] = Some(prefix.clone());
             }
             f.finish()?;
             out.push(p);
@@ -516,7 +539,8 @@ fn duplicate_side(
         prefix,
         format!(
             "{what} already has this kind of friction from `{prev}` (stribeck_friction includes the \
-             Coulomb level; give one dry and one viscous friction per side)"
+             Coulomb level, directional_friction is a dry and a viscous friction; give one dry and \
+             one viscous friction per side)"
         ),
     )
 }
@@ -621,5 +645,60 @@ mod tests {
                 );
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod directional_tests {
+    use std::path::Path;
+
+    use super::*;
+
+    #[test]
+    fn directional_friction_round_trips_and_takes_both_friction_slots_of_its_body() {
+        let head = "kind = \"ballscrew\"\njm_kgm2 = 2e-3\nkl_nm_per_rad = 3000.0\njl_kgm2 = 3e-3\nlead_m = 0.01\n";
+        let model = |effects: &str| {
+            let t: toml::Table = format!("{head}{effects}").parse().unwrap();
+            ModelFile::from_table(&t, Path::new("m.toml")).unwrap()
+        };
+        let m = model(
+            "[effects.directional_friction]\nside = \"load\"\nfc_pos_n = 40.0\nfc_neg_n = 30.0\nc_pos_ns_per_m = 500.0\n",
+        );
+        let p = read_effects(&m).unwrap();
+        let EffectParams::DirectionalFriction(d) = p[0] else {
+            panic!("{p:?}")
+        };
+        assert_eq!(
+            (d.fc_pos, d.fc_neg, d.c_pos, d.c_neg),
+            (40.0, 30.0, 500.0, 0.0)
+        );
+        let mut eff = toml::Table::new();
+        eff.insert(
+            "directional_friction".into(),
+            toml::Value::Table(p[0].to_table(&Ctx::of(&m))),
+        );
+        let mut t: toml::Table = head.parse().unwrap();
+        t.insert("effects".into(), toml::Value::Table(eff));
+        let back = read_effects(&ModelFile::from_table(&t, Path::new("m.toml")).unwrap()).unwrap();
+        assert_eq!(back, p);
+        // it is the load's dry and viscous friction: a second one on that body is refused
+        for other in [
+            "[effects.coulomb_friction]\nside = \"load\"\nfc_n = 1.0\n",
+            "[effects.viscous_friction]\nside = \"load\"\nc_ns_per_m = 1.0\n",
+        ] {
+            let m = model(&format!(
+                "[effects.directional_friction]\nside = \"load\"\nfc_pos_n = 4.0\nfc_neg_n = 3.0\n{other}"
+            ));
+            let e = read_effects(&m).unwrap_err();
+            assert!(
+                e.reason.contains("already has this kind of friction"),
+                "{e}"
+            );
+        }
+        // on the other body it is fine
+        let m = model(
+            "[effects.directional_friction]\nside = \"load\"\nfc_pos_n = 4.0\nfc_neg_n = 3.0\n[effects.coulomb_friction]\nfc_nm = 0.1\n",
+        );
+        assert_eq!(read_effects(&m).unwrap().len(), 2);
     }
 }
