@@ -598,7 +598,7 @@ fn heldout_long_held_report() {
         let full = first(&diagnose(&m, &d, &DiagOptions::default()));
         drop(d);
         let q = held_block(tr.period_s(), 100.0);
-        let h = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
+        let h = load_axis_held(tr, &m.file, "x", &Prep::default(), q).unwrap();
         let held = first(&diagnose(&m, &h, &DiagOptions::default()));
         let effect = |x: &str| x.split(" (").next().unwrap_or_default().to_string();
         let class = |x: &str| x.split(" / ").next().unwrap_or_default().to_string();

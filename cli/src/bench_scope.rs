@@ -177,7 +177,7 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
         Some(p) => crate::processes::parse_pin(p)?.to_vec(),
     };
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let job = crate::bench::bench_job(
+    let job = crate::bench_run::bench_job(
         &a.out,
         a.period_s,
         wait,
@@ -208,7 +208,9 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
                 a.cycles as f64 * a.period_s
             );
             if !with_scope {
-                crate::bench::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance)?;
+                crate::bench_run::run_processes(
+                    &job, &dir, wait, a.cycles, &cpus, None, &instance,
+                )?;
                 row.insert(name.into(), figures(&dir, period_ns)?);
                 continue;
             }
@@ -291,7 +293,7 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
             });
             let before = get(&addr, "/api/stats");
             let ran =
-                crate::bench::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance);
+                crate::bench_run::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance);
             let after = get(&addr, "/api/stats");
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
             let rss = sampler.join().unwrap_or_default();

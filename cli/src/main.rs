@@ -5,6 +5,7 @@
 //! logs of hand-started processes).
 
 mod bench;
+mod bench_run;
 mod bench_scope;
 mod choice;
 mod control;

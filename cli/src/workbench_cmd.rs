@@ -239,7 +239,7 @@ fn load(
     let q = held_block(dt, c.cutoff_hz.unwrap_or((0.1 / dt).min(100.0)));
     // (without the torque column the ordinary reading says what is missing)
     let d = if held && tr.len() >= LONG_TRACE && q >= 2 && tr.has(&format!("{axis}.torque")) {
-        load_axis_held(tr, &m, &axis, &prep, q)?
+        load_axis_held(tr, &m.file, &axis, &prep, q)?
     } else {
         let d = load_axis(&tr, &m.file, &axis, &prep)?;
         if let Some(why) = need_torque {

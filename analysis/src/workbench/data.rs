@@ -11,8 +11,7 @@ use std::path::{Path, PathBuf};
 use feedloop_model::model::{AxisKind, ModelFile};
 use feedloop_trace::Trace;
 
-use super::controller::{best_law, HeldLaw, Law};
-use super::effects::WbModel;
+use super::law::{best_law, HeldLaw, Law};
 use super::lsq::{blocks, cross_validate, normals};
 use super::signal::{
     block_centres, block_means, derivative, derivative_fine, filtfilt_butter4, zoh_mid,
@@ -502,19 +501,18 @@ pub fn held_block(dt: f64, cutoff_hz: f64) -> usize {
 /// columns are taken out of the trace one by one, each reduced to its block means and freed,
 /// so memory is that of the trace's columns for the axis and no more. The recorded torque is
 /// held as the block means of the torque acting between the samples (the half-sample alignment
-/// of [`WbModel::applied_torque`], done here at the recording's rate); the filtered positions,
+/// of `WbModel::applied_torque`, done here at the recording's rate); the filtered positions,
 /// their derivatives and the filtered torque are then made from the block means at the held
 /// rate, so every series of the equation error goes through the same block mean and filter. The
 /// controller law, whose integrator sums every recorded sample, is evaluated on the recorded
 /// samples before they are freed and kept at the block centres ([`HeldLaw`]).
 pub fn load_axis_held(
     trace: Trace,
-    model: &WbModel,
+    file: &ModelFile,
     axis: &str,
     prep: &Prep,
     q: usize,
 ) -> Result<AxisData, WorkbenchError> {
-    let file = &model.file;
     let q = q.max(1);
     let kind = file.plant.kind();
     let r = file.plant.motor_per_load();
@@ -576,7 +574,7 @@ pub fn load_axis_held(
     if let (Some(m), Some(c)) = (motor.as_mut(), offset) {
         m.iter_mut().for_each(|v| *v -= c);
     }
-    let held_law = match (Law::of(model), &torque) {
+    let held_law = match (Law::of(file), &torque) {
         (Some(law_p), Some(rec)) => best_law(
             &law_p,
             &cmd,
@@ -640,6 +638,7 @@ mod tests {
 
     use super::*;
     use crate::workbench::controller::ControllerChannel;
+    use crate::workbench::effects::WbModel;
 
     fn model() -> WbModel {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/xy-x.toml");
@@ -692,7 +691,7 @@ mod tests {
         let q = 10;
         let tr = trace(&m, 2003, true);
         let full = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
-        let held = load_axis_held(tr, &m, "x", &Prep::default(), q).unwrap();
+        let held = load_axis_held(tr, &m.file, "x", &Prep::default(), q).unwrap();
         assert_eq!(held.len(), 200);
         assert_eq!(held.sub, q);
         assert!((held.dt - 1e-3).abs() < 1e-15);
@@ -742,7 +741,7 @@ mod tests {
         let full = load_axis(&tr, &m.file, "x", &Prep::default())
             .unwrap_err()
             .to_string();
-        let held = load_axis_held(tr, &m, "x", &Prep::default(), 10)
+        let held = load_axis_held(tr, &m.file, "x", &Prep::default(), 10)
             .unwrap_err()
             .to_string();
         assert_eq!(held, full);

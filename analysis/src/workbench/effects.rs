@@ -228,18 +228,19 @@ impl Effect {
                 ]
             }
             EffectId::ThirdMass => vec![third_mass_accel(d, self.hyper[0], self.hyper[1])],
-            EffectId::Backlash => vec![match (self.hyper.as_slice(), &d.torque) {
-                // the flank in contact follows the torque the screw transmits, not the
-                // direction of travel (a load without friction is braked through the other
-                // flank); inside the dead band of that torque the position in the gap is
-                // undetermined
-                ([jm, dm, eps, ..], Some(y)) => (0..d.len())
+            // the flank in contact follows the torque the screw transmits, not the direction of
+            // travel (a load without friction is braked through the other flank); inside the
+            // dead band of that torque the position in the gap is undetermined; without the
+            // model's hyper (or a torque) the direction of travel stands in
+            EffectId::Backlash => vec![if let ([jm, dm, eps, ..], Some(y)) =
+                (self.hyper.as_slice(), &d.torque)
+            {
+                (0..d.len())
                     .map(|k| sgn(y[k] - jm * d.am[k] - dm * d.vm[k], *eps))
-                    .collect(),
-                _ => {
-                    let eps = dead_band(d, &d.vm);
-                    d.vm.iter().map(|x| sgn(*x, eps)).collect()
-                }
+                    .collect()
+            } else {
+                let eps = dead_band(d, &d.vm);
+                d.vm.iter().map(|x| sgn(*x, eps)).collect()
             }],
             EffectId::PitchError => {
                 let w = 2.0 * PI / (self.hyper[0] * d.r);

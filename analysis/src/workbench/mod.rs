@@ -20,6 +20,7 @@ pub mod diagnose;
 pub mod effects;
 pub mod fit;
 pub mod import;
+pub mod law;
 pub mod lsq;
 pub mod refit;
 pub mod report;

@@ -277,15 +277,15 @@ pub fn best_effect(
     let nb = base.len();
     // a base column that the effect's own columns span (the damping beside a friction with
     // viscous slopes) cannot be refitted beside it: held from the start
-    let collinear: Vec<usize> = match (channel(id), grid.first()) {
-        (Channel::Torque, Some(h)) => {
+    let collinear: Vec<usize> = match grid.first().filter(|_| channel(id) == Channel::Torque) {
+        Some(h) => {
             let cols = Effect::new(id, side, h.clone()).columns(d);
             let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
             (0..nb)
                 .filter(|i| spanned(base[*i], &refs, d.range))
                 .collect()
         }
-        _ => Vec::new(),
+        None => Vec::new(),
     };
     let eval = |h: Vec<f64>| -> Result<Refit, Untestable> {
         let e = Effect::new(id, side, h);

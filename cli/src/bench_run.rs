@@ -1,0 +1,105 @@
+//! The benchmark's chain as a job (the X-C grinder with the four seed controllers, written
+//! beside the run) and its two processes run to the end: what `bench latency` and `bench scope`
+//! both measure.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Result};
+use feedloop_model::job::{Mode, WaitKind};
+
+use crate::processes::spawn;
+
+const JOB: &str = include_str!("../../examples/jobs/xc-full-chain.toml");
+const MODEL_X: &str = include_str!("../../examples/models/xc-x.toml");
+const MODEL_C: &str = include_str!("../../examples/models/xc-c.toml");
+const QUADRANT_TABLE: &str = include_str!("../../examples/tables/xy-circle-quadrant.toml");
+
+/// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
+/// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
+/// `cycles`.
+pub(crate) fn bench_job(
+    dir: &Path,
+    period_s: f64,
+    wait: WaitKind,
+    cycles: u64,
+    phase_probe_s: f64,
+) -> Result<PathBuf> {
+    std::fs::write(dir.join("bench-x.toml"), MODEL_X)?;
+    std::fs::write(dir.join("bench-c.toml"), MODEL_C)?;
+    std::fs::write(dir.join("bench-quadrant.toml"), QUADRANT_TABLE)?;
+    // one revolution per second: enough turns to keep the cam turning through the whole run
+    let turns = (cycles as f64 * period_s).ceil() + 1.0;
+    let mut job = String::new();
+    for line in JOB.lines() {
+        let key = line.split('=').next().unwrap_or("").trim();
+        let line = match key {
+            "name" => "name = \"bench-latency\"".to_string(),
+            "period_s" => format!(
+                "period_s = {period_s:e}\n\n[run]\nmode = \"realtime\"\nwait = \"{}\"\n\
+                 phase_probe_s = {phase_probe_s:e}",
+                wait.id()
+            ),
+            "turns" => format!("turns = {turns}"),
+            _ => line
+                .replace("../models/xc-x.toml", "bench-x.toml")
+                .replace("../models/xc-c.toml", "bench-c.toml")
+                .replace("../tables/xy-circle-quadrant.toml", "bench-quadrant.toml"),
+        };
+        job.push_str(&line);
+        job.push('\n');
+    }
+    let p = dir.join("bench-job.toml");
+    std::fs::write(&p, job)?;
+    Ok(p)
+}
+
+/// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of
+/// `cpus` (when given), and waits for both.
+pub(crate) fn run_processes(
+    job: &Path,
+    out: &Path,
+    wait: WaitKind,
+    cycles: u64,
+    cpus: &[usize],
+    fifo: Option<i32>,
+    instance: &str,
+) -> Result<()> {
+    let extra = |i: usize| {
+        let mut v = vec!["--cycles".to_string(), cycles.to_string()];
+        if let Some(c) = cpus.get(i) {
+            v.extend(["--cpu".to_string(), c.to_string()]);
+        }
+        if let Some(f) = fifo {
+            v.extend(["--fifo".to_string(), f.to_string()]);
+        }
+        v
+    };
+    for f in ["plant.log", "plant.json", "scheduler.log", "scheduler.json"] {
+        let _ = std::fs::remove_file(out.join(f));
+    }
+    let mut plant = spawn("plant", instance, job, out, Mode::Realtime, wait, &extra(0))?;
+    let mut sched = spawn(
+        "scheduler",
+        instance,
+        job,
+        out,
+        Mode::Realtime,
+        wait,
+        &extra(1),
+    )?;
+    let ps = plant.wait()?;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while sched.try_wait()?.is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = sched.kill();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = sched.wait();
+    if !ps.success() && !out.join("plant.json").exists() {
+        bail!("the plant process failed ({ps})");
+    }
+    Ok(())
+}
