@@ -405,17 +405,24 @@ pub fn load_axis(
 /// other columns explain, and is larger than 1e-9 of the travel; a trace with no reversal
 /// cannot tell it from a lost motion and gives `None`.
 pub fn encoder_offset(motor: &[f64], load: &[f64], torque: Option<&[f64]>, dt: f64) -> Option<f64> {
-    let n = motor.len().min(load.len());
-    if n < 50 {
+    let full = motor.len().min(load.len());
+    if full < 50 {
         return None;
     }
-    let defl: Vec<f64> = (0..n).map(|k| motor[k] - load[k]).collect();
-    let vel: Vec<f64> = (0..n)
-        .map(|k| {
-            let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
+    // at most 200,000 evenly spread samples: a constant needs no more, and a long trace's
+    // columns are not copied whole
+    let step = (full / 200_000).max(1);
+    let at: Vec<usize> = (0..full).step_by(step).collect();
+    let n = at.len();
+    let defl: Vec<f64> = at.iter().map(|&k| motor[k] - load[k]).collect();
+    let vel: Vec<f64> = at
+        .iter()
+        .map(|&k| {
+            let (a, b) = (k.saturating_sub(1), (k + 1).min(full - 1));
             (motor[b] - motor[a]) / ((b - a).max(1) as f64 * dt)
         })
         .collect();
+    let torque: Option<Vec<f64>> = torque.map(|y| at.iter().map(|&k| y[k]).collect());
     let vmax = vel.iter().fold(0.0f64, |a, v| a.max(v.abs()));
     let dir: Vec<f64> = vel
         .iter()
@@ -432,8 +439,8 @@ pub fn encoder_offset(motor: &[f64], load: &[f64], torque: Option<&[f64]>, dt: f
     }
     let one = vec![1.0; n];
     let mut cols: Vec<&[f64]> = vec![&one, &dir];
-    if let Some(y) = torque {
-        cols.push(&y[..n]);
+    if let Some(y) = &torque {
+        cols.push(y);
     }
     let cv = cross_validate(&normals(&cols, &defl, &blocks((0, n), 5)));
     let (c0, se) = (cv.theta[0], cv.theta_se[0]);
