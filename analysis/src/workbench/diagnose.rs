@@ -26,8 +26,8 @@ use super::base::BaseParam;
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
 use super::effects::{
-    channel, class_of, constant_force_value, constant_force_words, evidence, fmt, round_sig,
-    Channel, Effect, EffectId, Side, WbModel,
+    channel, class_of, constant_force_value, constant_force_words, evidence, fmt, reversals,
+    round_sig, Channel, Effect, EffectId, Side, WbModel,
 };
 use super::fit::{fit, fit_with, FitResult};
 use super::lsq::{blocks, Cv};
@@ -730,6 +730,14 @@ fn torque_effect_candidate(
                 *c += x;
             }
         }
+    }
+    // a friction law needs reversals to be told from an offset and a slope: say so where that
+    // is why it is not named
+    let turns = reversals(d);
+    if !significant && class_of(id) == "friction" && turns < 2 {
+        ev = format!(
+            "{ev}; too few reversals to judge friction ({turns} in this record): record moves in both directions"
+        );
     }
     Ok(Candidate {
         effect: id.to_string(),
