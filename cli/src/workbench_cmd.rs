@@ -686,9 +686,11 @@ fn fit_cmd(
         println!("{k} = {v:.6}");
     }
     println!(
-        "equation NRMSE {} -> {}; windowed simulation NRMSE {} -> {}",
+        "equation NRMSE {} -> {} (where the axis moves: {} -> {}); windowed simulation NRMSE {} -> {}",
         opt(r.before.equation_nrmse_pct),
         opt(r.after.equation_nrmse_pct),
+        opt(r.before.equation_moving_nrmse_pct),
+        opt(r.after.equation_moving_nrmse_pct),
         opt(r.before.window_sim_nrmse_pct),
         opt(r.after.window_sim_nrmse_pct)
     );

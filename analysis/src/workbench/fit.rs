@@ -14,7 +14,7 @@ use feedloop_model::units::sig;
 use feedloop_plant::effects::read_effects;
 
 use super::base::{BaseClass, BaseParam};
-use super::compare::equation_error;
+use super::compare::{classify, equation_error, SegKind};
 use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
@@ -23,6 +23,7 @@ use super::refit::{
     best_effect, default_side, deflection, flat, held_words, inertias_now, moving_mask, Refit,
     FOLDS,
 };
+use super::signal::nrmse_pct;
 use super::window::window_sim;
 use super::WorkbenchError;
 
@@ -33,6 +34,9 @@ pub struct Errors {
     pub equation_nrmse_pct: Option<f64>,
     /// Relative equation error `||e|| / ||y||`, %.
     pub relative_error_pct: Option<f64>,
+    /// Equation-error NRMSE over the samples where the axis moves (standstills left out: there
+    /// dry friction takes whatever the loop applies), %.
+    pub equation_moving_nrmse_pct: Option<f64>,
     /// Windowed-simulation NRMSE of the headline channel, %.
     pub window_sim_nrmse_pct: Option<f64>,
     /// NRMSE of the recorded torque against the controller law, % (None without torque or
@@ -45,9 +49,22 @@ impl Errors {
     pub fn of(model: &WbModel, d: &AxisData, window_s: f64) -> Self {
         let eq = d.torque.as_ref().map(|y| equation_error(model, d, y));
         let ws = window_sim(model, d, window_s);
+        let moving = eq.as_ref().and_then(|e| {
+            let kinds = classify(d);
+            let (a, b) = d.range;
+            let rows: Vec<usize> = (a..b)
+                .filter(|k| kinds.get(*k).is_some_and(|s| *s != SegKind::Standstill))
+                .collect();
+            (!rows.is_empty()).then(|| {
+                let m: Vec<f64> = rows.iter().map(|k| e.measured[*k]).collect();
+                let r: Vec<f64> = rows.iter().map(|k| e.residual[*k]).collect();
+                nrmse_pct(&m, &r)
+            })
+        });
         Self {
             equation_nrmse_pct: eq.as_ref().map(|e| e.nrmse_pct),
             relative_error_pct: eq.as_ref().map(|e| e.relative_error_pct),
+            equation_moving_nrmse_pct: moving,
             window_sim_nrmse_pct: ws.headline_nrmse_pct(),
             controller_nrmse_pct: ControllerChannel::new(model, d).map(|c| c.nrmse_pct),
         }
@@ -58,6 +75,7 @@ impl Errors {
         json!({
             "equation_nrmse_pct": self.equation_nrmse_pct,
             "relative_error_pct": self.relative_error_pct,
+            "equation_moving_nrmse_pct": self.equation_moving_nrmse_pct,
             "window_sim_nrmse_pct": self.window_sim_nrmse_pct,
             "controller_nrmse_pct": self.controller_nrmse_pct,
         })
