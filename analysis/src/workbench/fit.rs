@@ -9,7 +9,6 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
-use feedloop_model::model::AxisKind;
 use feedloop_model::units::sig;
 use feedloop_plant::effects::read_effects;
 
@@ -20,7 +19,7 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, normals};
 use super::refit::{
-    best_effect, default_side, deflection, flat, held_words, inertias_now, moving_mask, Refit,
+    best_effect, deflection, flat, held_words, inertias_now, moving_mask, spanned_base, Refit,
     FOLDS,
 };
 use super::signal::nrmse_pct;
@@ -153,26 +152,25 @@ pub fn fit(
     let kind = d.kind;
     let mut warnings: Vec<String> = Vec::new();
     let mut held_all: Vec<BaseParam> = Vec::new();
-    // a directional friction carries the whole viscous slope of its body in each direction:
-    // that body's damping moves into it (set to zero here, refitted as the effect's slopes)
+    // an added effect whose columns hold a base parameter's (the damping beside a friction with
+    // viscous slopes) carries that parameter whole: it is set to zero here and refitted as the
+    // effect's coefficient, which then keeps its physical sign
     let original = model;
     let mut work = model.clone();
-    if add.contains(&EffectId::DirectionalFriction) {
-        let side = default_side(kind);
-        for (p, v) in work.base.iter_mut() {
-            let on_side = kind == AxisKind::Rigid || p.on_load() == (side == Side::Load);
-            if p.class() == BaseClass::Damping && on_side && *v != 0.0 {
-                warnings.push(format!(
-                    "{p} = {} moved into directional_friction's viscous slopes (set to 0)",
-                    sig(*v)
-                ));
+    let free_keys = free_keys(model, d, free)?;
+    let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+    for &id in add {
+        for i in spanned_base(id, d, &cols) {
+            let p = free_keys[i];
+            if let Some((_, v)) = work.base.iter_mut().find(|(k, v)| *k == p && *v != 0.0) {
+                warnings.push(format!("{p} = {} moved into {id} (set to 0)", sig(*v)));
                 *v = 0.0;
             }
         }
-        update_plant(&mut work);
     }
+    update_plant(&mut work);
+    let moved = work.base != model.base;
     let model = &work;
-    let free_keys = free_keys(model, d, free)?;
     let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     let bl = blocks(d.range, FOLDS);
     let moving = moving_mask(d);
@@ -260,7 +258,7 @@ pub fn fit(
     });
     let free = narrowed.as_deref().or(free);
     let mut r = fit_with(model, d, effects, free, window_s)?;
-    if add.contains(&EffectId::DirectionalFriction) {
+    if moved {
         r.before = Errors::of(original, d, window_s);
     }
     warnings.append(&mut r.warnings);

@@ -277,16 +277,7 @@ pub fn best_effect(
     let nb = base.len();
     // a base column that the effect's own columns span (the damping beside a friction with
     // viscous slopes) cannot be refitted beside it: held from the start
-    let collinear: Vec<usize> = match grid.first().filter(|_| channel(id) == Channel::Torque) {
-        Some(h) => {
-            let cols = Effect::new(id, side, h.clone()).columns(d);
-            let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-            (0..nb)
-                .filter(|i| spanned(base[*i], &refs, d.range))
-                .collect()
-        }
-        None => Vec::new(),
-    };
+    let collinear = spanned_base(id, d, base);
     let eval = |h: Vec<f64>| -> Result<Refit, Untestable> {
         let e = Effect::new(id, side, h);
         let target: Option<Vec<f64>> = match &needed {
@@ -475,6 +466,23 @@ fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
         sig(lo),
         sig(hi)
     ))
+}
+
+/// The base columns among `base` that the columns of effect `id` (on its default side, at the
+/// first point of its grid) span: a torque-channel effect whose columns hold a base parameter's
+/// (the damping beside a friction with viscous slopes) carries that parameter.
+pub fn spanned_base(id: EffectId, d: &AxisData, base: &[&[f64]]) -> Vec<usize> {
+    if channel(id) != Channel::Torque {
+        return Vec::new();
+    }
+    let Some(h) = hyper_grid(id, d).into_iter().next() else {
+        return Vec::new();
+    };
+    let cols = Effect::new(id, default_side(d.kind), h).columns(d);
+    let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    (0..base.len())
+        .filter(|i| spanned(base[*i], &refs, d.range))
+        .collect()
 }
 
 /// Whether column `b` lies in the span of `cols` over `range` (a least-squares fit of it leaves
