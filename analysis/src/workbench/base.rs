@@ -116,29 +116,20 @@ impl BaseParam {
 
     /// Its value in `plant` (`None` on a plant of the other structure).
     pub fn get(self, plant: &PlantParams) -> Option<f64> {
-        match plant {
-            PlantParams::Rigid(p) => match self {
-                BaseParam::MassKg => Some(p.mass_kg),
-                BaseParam::ViscousNsPerM => Some(p.viscous_ns_per_m),
-                BaseParam::JmKgm2
-                | BaseParam::JlKgm2
-                | BaseParam::DmNmsPerRad
-                | BaseParam::DlNmsPerRad => None,
-            },
-            PlantParams::BallScrew { two_mass: t, .. }
-            | PlantParams::Rotary { two_mass: t, .. } => match self {
-                BaseParam::JmKgm2 => Some(t.jm_kgm2),
-                BaseParam::JlKgm2 => Some(t.jl_kgm2),
-                BaseParam::DmNmsPerRad => Some(t.dm_nms_per_rad),
-                BaseParam::DlNmsPerRad => Some(t.dl_nms_per_rad),
-                BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
-            },
-        }
+        let mut p = *plant;
+        self.slot(&mut p).map(|v| *v)
     }
 
     /// Sets its value in `plant` (no change on a plant of the other structure).
     pub fn set(self, plant: &mut PlantParams, v: f64) {
-        let slot = match plant {
+        if let Some(s) = self.slot(plant) {
+            *s = v;
+        }
+    }
+
+    /// Where it lives in `plant` (`None` on a plant of the other structure).
+    fn slot(self, plant: &mut PlantParams) -> Option<&mut f64> {
+        match plant {
             PlantParams::Rigid(p) => match self {
                 BaseParam::MassKg => Some(&mut p.mass_kg),
                 BaseParam::ViscousNsPerM => Some(&mut p.viscous_ns_per_m),
@@ -155,9 +146,6 @@ impl BaseParam {
                 BaseParam::DlNmsPerRad => Some(&mut t.dl_nms_per_rad),
                 BaseParam::MassKg | BaseParam::ViscousNsPerM => None,
             },
-        };
-        if let Some(s) = slot {
-            *s = v;
         }
     }
 }

@@ -12,9 +12,10 @@ use feedloop_model::model::{AxisKind, ModelFile};
 use feedloop_trace::Trace;
 
 use super::law::{best_law, HeldLaw, Law};
-use super::lsq::{blocks, cross_validate, normals};
+use super::lsq::{blocks, cross_validate, normals, CI_SIGMAS};
 use super::signal::{
-    block_centres, block_means, derivative, derivative_fine, filtfilt_butter4, zoh_mid,
+    block_centres, block_means, derivative, derivative_fine, filtfilt_butter4, span, std_dev,
+    zoh_mid,
 };
 use super::WorkbenchError;
 
@@ -451,17 +452,11 @@ pub fn encoder_offset(motor: &[f64], load: &[f64], torque: Option<&[f64]>, dt: f
                 .sum::<f64>()
         })
         .collect();
-    let m = explained.iter().sum::<f64>() / n as f64;
-    let spread = (explained.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n as f64).sqrt();
-    let travel = motor.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-        - motor.iter().cloned().fold(f64::INFINITY, f64::min);
-    let counts =
-        c0.abs() > CI_OFFSET_SIGMAS * se && c0.abs() > 0.5 * spread && c0.abs() > 1e-9 * travel;
+    let counts = c0.abs() > CI_SIGMAS * se
+        && c0.abs() > 0.5 * std_dev(&explained)
+        && c0.abs() > 1e-9 * span(motor);
     counts.then_some(c0)
 }
-
-/// Standard errors outside which an encoder offset counts (see [`encoder_offset`]).
-const CI_OFFSET_SIGMAS: f64 = 3.0;
 
 /// Units check: with a motor column the ratio of motor to load travel must match the model.
 fn check_travel(
@@ -473,12 +468,7 @@ fn check_travel(
 ) -> Result<(), WorkbenchError> {
     let kind = model.plant.kind();
     let r = model.plant.motor_per_load();
-    let travel = |x: &[f64]| {
-        let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
-        let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        hi - lo
-    };
-    let (tm, tl) = (travel(m), travel(load));
+    let (tm, tl) = (span(m), span(load));
     if tl > 0.0 && tm > 0.0 {
         let ratio = tm / tl;
         if (ratio / r - 1.0).abs() > 0.2 {

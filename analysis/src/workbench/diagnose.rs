@@ -63,10 +63,7 @@ fn load_to_motor(d: &AxisData) -> f64 {
     }
 }
 
-/// Half-width of a refitted value's confidence interval, in standard errors (jackknife over
-/// the blocks; with 5 blocks, 3 standard errors is about the 96 % interval of Student's t with
-/// 4 degrees of freedom).
-pub const CI_SIGMAS: f64 = 3.0;
+pub use super::lsq::CI_SIGMAS;
 
 /// One candidate cause.
 #[derive(Debug, Clone)]

@@ -9,6 +9,7 @@ use feedloop_trace::{check_column_name, Trace};
 use super::data::{load_axis, pick_axis, AxisData, Prep};
 use super::effects::{round_sig, WbModel};
 use super::lsq::{blocks, cross_validate, normals};
+use super::signal::span;
 use super::WorkbenchError;
 
 /// One `target=expression` entry of `--map`.
@@ -250,10 +251,6 @@ pub fn model_init(
     let kind = spec.kind;
     // motor units per load unit from the motor/load travel ratio (when the trace has a motor
     // column): a lead for a ball screw, a gear ratio for a rotary axis
-    let span = |x: &[f64]| {
-        x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-            - x.iter().cloned().fold(f64::INFINITY, f64::min)
-    };
     let travels = |flag: &str, what: &str| -> Result<(f64, f64), WorkbenchError> {
         let m = trace.column(&format!("{axis}.motor")).ok_or_else(|| WorkbenchError::BadArgument {
             arg: flag.into(),

@@ -7,6 +7,11 @@
 
 use nalgebra::{DMatrix, DVector};
 
+/// Half-width of a refitted value's confidence interval, in standard errors (jackknife over
+/// the blocks; with 5 blocks, 3 standard errors is about the 96 % interval of Student's t with
+/// 4 degrees of freedom).
+pub const CI_SIGMAS: f64 = 3.0;
+
 /// Normal equations of one block: `X^T X`, `X^T y`, `y^T y`, sample count.
 #[derive(Debug, Clone)]
 pub struct Normal {

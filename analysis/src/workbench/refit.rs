@@ -12,7 +12,7 @@ use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals, normals_masked, Cv};
-use super::signal::quantile;
+use super::signal::{quantile, span};
 use feedloop_model::units::sig;
 
 /// Folds of the blocked cross-validation.
@@ -136,11 +136,7 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
         // one load revolution first (a tie keeps it), then the periods a load column referred
         // through a gear shows: from half the travel to a thousand times it
         EffectId::Unbalance => {
-            let travel = {
-                let q = &d.ql[a..b];
-                q.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-                    - q.iter().cloned().fold(f64::INFINITY, f64::min)
-            } / d.r;
+            let travel = span(&d.ql[a..b]) / d.r;
             let mut g = vec![vec![2.0 * std::f64::consts::PI]];
             if travel > 0.0 {
                 g.extend(

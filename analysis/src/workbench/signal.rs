@@ -182,6 +182,12 @@ pub fn rms(x: &[f64]) -> f64 {
     (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt()
 }
 
+/// Largest minus smallest value (the travel of a position column).
+pub fn span(x: &[f64]) -> f64 {
+    x.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        - x.iter().cloned().fold(f64::INFINITY, f64::min)
+}
+
 /// Mean.
 pub fn mean(x: &[f64]) -> f64 {
     if x.is_empty() {
