@@ -415,39 +415,37 @@ pub fn best_effect(
 /// revolution are bounds; a mode's damping ratio and a Stribeck exponent are shapes, not
 /// searched ranges; an unbalance's one-revolution period is the physical default, not an edge.
 fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
-    let (dim, name, low_is_bound, high_is_bound, skip_first): (usize, &str, bool, bool, bool) =
-        match id {
-            EffectId::StribeckFriction => (0, "Stribeck velocity", false, false, false),
-            EffectId::Cogging => (0, "period", false, false, false),
-            EffectId::ThirdMass => (0, "frequency", false, false, false),
-            EffectId::Delay => (0, "delay", true, false, false),
-            EffectId::CurrentLag => (0, "time constant", false, false, false),
-            EffectId::TorqueSaturation => (0, "limit", false, false, false),
-            EffectId::Unbalance => (0, "period", false, false, true),
-            EffectId::ViscousFriction
-            | EffectId::CoulombFriction
-            | EffectId::ConstantForce
-            | EffectId::Backlash
-            | EffectId::PitchError
-            | EffectId::DirectionalFriction => return None,
-        };
-    let values: Vec<f64> = grid
+    // (the parameter's name, whether the lowest value searched is a bound, whether the grid's
+    // first point is a default outside the range)
+    let (name, low_is_bound, skip_first) = match id {
+        EffectId::StribeckFriction => ("Stribeck velocity", false, false),
+        EffectId::Cogging => ("period", false, false),
+        EffectId::ThirdMass => ("frequency", false, false),
+        EffectId::Delay => ("delay", true, false),
+        EffectId::CurrentLag => ("time constant", false, false),
+        EffectId::TorqueSaturation => ("limit", false, false),
+        EffectId::Unbalance => ("period", false, true),
+        EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::ConstantForce
+        | EffectId::Backlash
+        | EffectId::PitchError
+        | EffectId::DirectionalFriction => return None,
+    };
+    let mut values: Vec<f64> = grid
         .iter()
         .skip(usize::from(skip_first))
-        .filter_map(|h| h.get(dim).copied())
+        .filter_map(|h| h.first().copied())
         .collect();
-    let v = *hyper.get(dim)?;
-    let lo = values.iter().cloned().fold(f64::INFINITY, f64::min);
-    let hi = values.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    let mut distinct = values.clone();
-    distinct.sort_by(f64::total_cmp);
-    distinct.dedup();
-    if distinct.len() < 3 || lo >= hi {
+    values.sort_by(f64::total_cmp);
+    values.dedup();
+    let v = *hyper.first()?;
+    let (&lo, &hi) = (values.first()?, values.last()?);
+    if values.len() < 3 {
         return None;
     }
     // a cogging period on a rotary motor is 2 pi / n: its largest value (n = 1) is the bound
-    let high_is_bound =
-        high_is_bound || (id == EffectId::Cogging && (hi - std::f64::consts::TAU).abs() < 1e-12);
+    let high_is_bound = id == EffectId::Cogging && (hi - std::f64::consts::TAU).abs() < 1e-12;
     let near = |edge: f64| (v - edge).abs() <= 0.02 * edge.abs().max(1e-300);
     let edge = if near(lo) && !low_is_bound {
         "lower"

@@ -86,6 +86,7 @@ impl UnbalanceParams {
     pub(crate) fn motor(&self, ctx: &Ctx) -> Unbalance {
         Unbalance {
             params: *self,
+            wavenumber: 2.0 * std::f64::consts::PI / self.period_rad,
             torque_to_motor: ctx.load_units().torque_to_motor,
         }
     }
@@ -95,6 +96,8 @@ impl UnbalanceParams {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Unbalance {
     params: UnbalanceParams,
+    /// `2 pi / period_rad`, rad of phase per rad of load angle.
+    wavenumber: f64,
     /// Load torque to motor torque (1 / gear ratio).
     torque_to_motor: f64,
 }
@@ -104,7 +107,7 @@ impl Unbalance {
     #[inline]
     pub fn torque(&self, th_load: f64) -> f64 {
         let p = &self.params;
-        let w = 2.0 * std::f64::consts::PI / p.period_rad;
-        (p.constant_nm - p.mgr_nm * (w * (th_load - p.zero_angle_rad)).sin()) * self.torque_to_motor
+        (p.constant_nm - p.mgr_nm * (self.wavenumber * (th_load - p.zero_angle_rad)).sin())
+            * self.torque_to_motor
     }
 }
