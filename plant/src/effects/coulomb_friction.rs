@@ -22,9 +22,9 @@
 //! body either sticks (velocity set to exactly 0, position frozen) or slides on in the direction
 //! of the net torque. Sticking is a constrained linear mode, discretised exactly.
 
-use feedloop_model::params::{ConfigError, Fields, Range};
+use feedloop_model::params::{ConfigError, Fields};
 
-use super::{check_keys, put, put_side, read_side, stribeck_friction, Ctx, Side};
+use super::{level_pair_table, read_level_pair, stribeck_friction, Ctx, Side};
 
 /// Dry friction of one body, motor units (`coulomb_friction`, or `stribeck_friction` with a
 /// higher breakaway level).
@@ -118,25 +118,13 @@ impl CoulombFrictionParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        let (side, u) = read_side(f, ctx)?;
-        let key = format!("fc_{}", u.torque);
-        let key_neg = format!("fc_neg_{}", u.torque);
-        check_keys(f, table, &["side", &key, &key_neg])?;
-        let fc = f.f64(&key, Range::NonNegative)?;
-        let fc_neg = f.f64_or(&key_neg, Range::NonNegative, fc)?;
+        let (side, fc, fc_neg) = read_level_pair(f, table, ctx, "fc", |u| u.torque)?;
         Ok(Self { side, fc, fc_neg })
     }
 
     /// The model-file table (`fc_neg_*` only where it differs).
     pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        let u = ctx.units(self.side);
-        let mut t = toml::Table::new();
-        put(&mut t, format!("fc_{}", u.torque), self.fc);
-        if self.fc_neg != self.fc {
-            put(&mut t, format!("fc_neg_{}", u.torque), self.fc_neg);
-        }
-        put_side(&mut t, self.side, ctx);
-        t
+        level_pair_table(ctx, self.side, "fc", |u| u.torque, (self.fc, self.fc_neg))
     }
 
     /// In motor units.

@@ -26,7 +26,7 @@ pub mod unbalance;
 pub mod viscous_friction;
 
 use feedloop_model::model::{AxisKind, ModelFile, PlantParams};
-use feedloop_model::params::{nearest, ConfigError, ConfigErrorKind, Fields};
+use feedloop_model::params::{nearest, ConfigError, ConfigErrorKind, Fields, Range};
 pub use feedloop_model::{EffectId, Side};
 
 pub use backlash::BacklashParams;
@@ -202,6 +202,43 @@ pub const MAX_COGGING_HARMONICS: usize = 8;
 /// Writes `value` under `key` (a float in the model file's units).
 pub(crate) fn put(t: &mut toml::Table, key: impl Into<String>, value: f64) {
     t.insert(key.into(), toml::Value::Float(value));
+}
+
+/// Reads a friction table of one level per direction on the body its `side` names:
+/// `{stem}_{unit}` for positive velocity and `{stem}_neg_{unit}` for negative (default: the
+/// positive one), both >= 0, and no other key. Returns the side and the two levels.
+pub(crate) fn read_level_pair(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    ctx: &Ctx,
+    stem: &str,
+    unit: fn(&Units) -> &'static str,
+) -> Result<(Side, f64, f64), ConfigError> {
+    let (side, u) = read_side(f, ctx)?;
+    let key = format!("{stem}_{}", unit(&u));
+    let key_neg = format!("{stem}_neg_{}", unit(&u));
+    check_keys(f, table, &["side", &key, &key_neg])?;
+    let pos = f.f64(&key, Range::NonNegative)?;
+    let neg = f.f64_or(&key_neg, Range::NonNegative, pos)?;
+    Ok((side, pos, neg))
+}
+
+/// The table [`read_level_pair`] reads: the negative-direction key only where it differs.
+pub(crate) fn level_pair_table(
+    ctx: &Ctx,
+    side: Side,
+    stem: &str,
+    unit: fn(&Units) -> &'static str,
+    (pos, neg): (f64, f64),
+) -> toml::Table {
+    let u = ctx.units(side);
+    let mut t = toml::Table::new();
+    put(&mut t, format!("{stem}_{}", unit(&u)), pos);
+    if neg != pos {
+        put(&mut t, format!("{stem}_neg_{}", unit(&u)), neg);
+    }
+    put_side(&mut t, side, ctx);
+    t
 }
 
 /// Writes the `side` key of a friction table (a rigid axis has one body and no side).

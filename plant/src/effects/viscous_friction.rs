@@ -19,9 +19,9 @@
 //! Integration: the mean `(c_pos + c_neg)/2` enters the exactly discretised linear part; the
 //! half difference, `-(c_pos - c_neg)/2 |v|`, is applied as a held torque per sub-step.
 
-use feedloop_model::params::{ConfigError, Fields, Range};
+use feedloop_model::params::{ConfigError, Fields};
 
-use super::{check_keys, put, put_side, read_side, Ctx, Side};
+use super::{level_pair_table, read_level_pair, Ctx, Side};
 
 /// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,25 +66,13 @@ impl ViscousFrictionParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        let (side, u) = read_side(f, ctx)?;
-        let key = format!("c_{}", u.visc);
-        let key_neg = format!("c_neg_{}", u.visc);
-        check_keys(f, table, &["side", &key, &key_neg])?;
-        let c = f.f64(&key, Range::NonNegative)?;
-        let c_neg = f.f64_or(&key_neg, Range::NonNegative, c)?;
+        let (side, c, c_neg) = read_level_pair(f, table, ctx, "c", |u| u.visc)?;
         Ok(Self { side, c, c_neg })
     }
 
     /// The model-file table (`c_neg_*` only where it differs).
     pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        let u = ctx.units(self.side);
-        let mut t = toml::Table::new();
-        put(&mut t, format!("c_{}", u.visc), self.c);
-        if self.c_neg != self.c {
-            put(&mut t, format!("c_neg_{}", u.visc), self.c_neg);
-        }
-        put_side(&mut t, self.side, ctx);
-        t
+        level_pair_table(ctx, self.side, "c", |u| u.visc, (self.c, self.c_neg))
     }
 
     /// In motor units.
