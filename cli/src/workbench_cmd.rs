@@ -82,7 +82,7 @@ pub enum WorkbenchCmd {
         /// Effects to add, comma-separated (ids of the effect library).
         #[arg(long, value_delimiter = ',')]
         add: Vec<String>,
-        /// Base parameters to refit (default: all of the plant's base parameters).
+        /// Parameters to refit: base keys and ids of effects already in the model (default: all base parameters and every effect's coefficients).
         #[arg(long, value_delimiter = ',')]
         free: Option<Vec<String>>,
         /// New model file.

@@ -33,7 +33,7 @@ use super::fit::{fit, fit_with, FitResult};
 use super::lsq::{blocks, Cv};
 use super::refit::{
     backlash_hyper, best_effect, cv_cols, cv_cols_masked, default_side, deflection, flat,
-    held_words, inertias_now, moving_mask, Refit, Untestable, FOLDS,
+    held_words, inertias_now, moving_mask, Refit, Released, Untestable, FOLDS,
 };
 use super::signal::{autocorrelation, mean, quantile, rms};
 use feedloop_model::model::AxisKind;
@@ -168,7 +168,8 @@ pub const MAX_CONFIRM: usize = 3;
 /// candidates the data cannot tell apart ([`mark_indistinguishable`]), and the verdict with the
 /// whiteness of what is left ([`residual_whiteness`], [`verdict`]).
 pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis {
-    let ch = TorqueChannel::new(model, d);
+    let rel = Released::of(model, d, None);
+    let ch = TorqueChannel::new(model, d, &rel);
     let mut cands = base_parameter_candidates(model, d, &ch);
     let untested = effect_candidates(model, d, &ch, &mut cands);
     let cc = ControllerChannel::new(model, d);
@@ -242,8 +243,10 @@ struct TorqueChannel<'d> {
     bl: Vec<(usize, usize)>,
     /// Base-parameter keys that can be refitted on this trace.
     free_keys: Vec<BaseParam>,
-    /// Their regressor columns.
+    /// Their regressor columns, then those of the model's own effects (see [`Released`]).
     base_cols: Vec<&'d [f64]>,
+    /// The name of each of `base_cols`' parameters.
+    names: Vec<String>,
     /// Rows that carry information (see [`moving_mask`]).
     mask: Option<Vec<f64>>,
     /// Cross-validation of the residual with nothing refitted.
@@ -259,7 +262,7 @@ struct TorqueChannel<'d> {
 }
 
 impl<'d> TorqueChannel<'d> {
-    fn new(model: &WbModel, d: &'d AxisData) -> Self {
+    fn new(model: &WbModel, d: &'d AxisData, rel: &'d Released) -> Self {
         assert!(
             d.torque.is_some(),
             "diagnose needs the torque column (checked by the caller)"
@@ -274,7 +277,10 @@ impl<'d> TorqueChannel<'d> {
             .copied()
             .filter(|k| d.has_motor() || !k.on_load())
             .collect();
-        let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+        let mut base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+        base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
+        let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
+        names.extend(rel.names(model));
         let mask = moving_mask(d);
         let cv0 = cv_cols_masked(&[], &[], &res, &bl, mask.as_deref());
         let e0 = cv0.rms.max(1e-300);
@@ -289,11 +295,22 @@ impl<'d> TorqueChannel<'d> {
             bl,
             free_keys,
             base_cols,
+            names,
             mask,
             cv0,
             e0,
             cvb,
         }
+    }
+}
+
+impl TorqueChannel<'_> {
+    /// A candidate's cut beyond the base refit (the model with every parameter it has refitted,
+    /// cross-validated), % of the larger of the model's error and that refit's: a refit that
+    /// generalises worse than the model as it stands (its values fitted on this very record)
+    /// credits no candidate with more than the whole error.
+    fn cut_pct(&self, cv: &Cv) -> f64 {
+        100.0 * (self.cvb.rms - cv.rms) / self.e0.max(self.cvb.rms)
     }
 }
 
@@ -587,7 +604,8 @@ fn mode_candidate(
         return torque_effect_candidate(id, model, d, ch);
     }
     let dw = d.with_cutoff(wide_hz);
-    let chw = TorqueChannel::new(model, &dw);
+    let relw = Released::of(model, &dw, None);
+    let chw = TorqueChannel::new(model, &dw, &relw);
     let wide = torque_effect_candidate(id, model, &dw, &chw)?;
     // a structure's mode is a resonance: lightly damped (a damping ratio of 0.3 or more is a
     // broad-band correction of the high frequencies, not a peak the spectrum shows)
@@ -625,7 +643,7 @@ fn mode_candidate(
     e.coef = vec![cv.theta.get(nb).copied().unwrap_or(0.0)];
     let params = flat(&e.to_table(d.kind, d.r));
     let (a, b) = d.range;
-    let red = (100.0 * (ch.e0 - cv.rms) / ch.e0).max(100.0 * (ch.cvb.rms - cv.rms) / ch.e0);
+    let red = (100.0 * (ch.e0 - cv.rms) / ch.e0).max(ch.cut_pct(&cv));
     Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
@@ -670,16 +688,21 @@ fn torque_effect_candidate(
     let mut params = flat(&e.to_table(d.kind, d.r));
     let mut ev = evidence(&e, d);
     if !held.is_empty() {
-        ev = format!("{ev}; {}", held_words(&held, &ch.free_keys));
+        ev = format!("{ev}; {}", held_words(&held, &ch.names));
     }
     if id == EffectId::CoulombFriction {
         if let Some(with_offset) = coulomb_with_offset(&e, &cv, d, ch) {
             (add, cv, params, ev) = with_offset;
         }
     }
-    let extra = 100.0 * (ch.cvb.rms - cv.rms) / ch.e0;
+    let extra = ch.cut_pct(&cv);
     let wins = fold_wins(&cv, &ch.cvb.fold_mse);
     let mut significant = extra >= ch.min_pct && wins >= MIN_FOLD_WINS;
+    if extra >= ch.min_pct && wins < MIN_FOLD_WINS {
+        ev = format!(
+            "{ev}; it lowers the cross-validated error in only {wins} of the record's {FOLDS} blocks ({MIN_FOLD_WINS} needed): not significant"
+        );
+    }
     let mut extra = extra;
     // its leading coefficient must lie outside its own confidence interval around zero
     let nb = ch.base_cols.len();
@@ -965,10 +988,30 @@ fn verdict(
             )
         }
         None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
-        None => format!(
-            "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more",
-            ac.first().copied().unwrap_or(0.0)
-        ),
+        None => {
+            let lag1 = ac.first().copied().unwrap_or(0.0);
+            // the largest cut of a candidate that is not significant, measured, with why
+            match cands
+                .iter()
+                .filter(|c| c.channel == "torque" && c.error_reduction_pct >= MIN_REDUCTION_PCT)
+                .max_by(|a, b| a.error_reduction_pct.total_cmp(&b.error_reduction_pct))
+            {
+                Some(c) => format!(
+                    "no missing effect found; the remaining misfit does not look like noise (whiteness test failed, lag-1 autocorrelation {lag1:.2}), and the largest cut, {:.1} % of the cross-validated error by {}, is not significant ({})",
+                    c.error_reduction_pct,
+                    c.effect,
+                    c.evidence
+                        .rsplit("; ")
+                        .next()
+                        .unwrap_or("")
+                        .trim_end_matches(": not significant")
+                        .trim_end_matches(" (not significant)")
+                ),
+                None => format!(
+                    "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {lag1:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more"
+                ),
+            }
+        }
         Some(top) if top.channel == "controller" && top.add.is_empty() => format!(
             "the controller channel: {} (class {}) explains {:.0} % of the recorded torque's departure from the controller law ({}); {}",
             top.effect,

@@ -311,6 +311,28 @@ impl Effect {
         })
     }
 
+    /// How many of its coefficients a refit changes (the first that many of [`Effect::columns`]):
+    /// all, but a symmetric Coulomb friction (no asymmetry fitted) keeps its symmetry.
+    pub fn free_count(&self) -> usize {
+        if self.id == EffectId::CoulombFriction && self.coef.get(1).copied().unwrap_or(0.0) == 0.0 {
+            1
+        } else {
+            self.coef.len()
+        }
+    }
+
+    /// Whether a refitted coefficient `j` may take the value `v`, from its current value: an
+    /// offset, an unbalance's or a ripple's sine and cosine parts take any sign; a level, a
+    /// slope or a mass keeps its sign (a friction that changes sign is no friction).
+    pub fn coef_in_range(&self, j: usize, v: f64) -> bool {
+        let now = self.coef.get(j).copied().unwrap_or(0.0);
+        let signed = matches!(
+            self.id,
+            EffectId::ConstantForce | EffectId::Unbalance | EffectId::Cogging
+        ) || (self.id == EffectId::CoulombFriction && j == 1);
+        signed || now == 0.0 || v * now >= 0.0
+    }
+
     /// The contribution `sum coef_i column_i`.
     pub fn contribution(&self, d: &AxisData) -> Vec<f64> {
         let mut out = vec![0.0; d.len()];

@@ -2,8 +2,10 @@
 //!
 //! By default the plant's base parameters are refitted together with the added effects
 //! (ordinary least squares on the inverse-dynamics equation, one nonlinear parameter per effect
-//! chosen by cross-validated grid search); `free` narrows the refitted base parameters. Effects
-//! already in the model and the controller are taken as given.
+//! chosen by cross-validated grid search), and so are the coefficients of the effects already in
+//! the model (their nonlinear parameters kept): what is added competes with the whole model
+//! refitted, as in `diagnose`. `free` narrows the refitted parameters (base keys, effect ids).
+//! The controller is taken as given.
 
 use std::collections::BTreeMap;
 
@@ -20,7 +22,7 @@ use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, normals};
 use super::refit::{
     best_effect, deflection, flat, held_words, inertias_now, moving_mask, spanned_base, Refit,
-    FOLDS,
+    Released, FOLDS,
 };
 use super::signal::nrmse_pct;
 use super::window::window_sim;
@@ -157,7 +159,7 @@ pub fn fit(
     // effect's coefficient, which then keeps its physical sign
     let original = model;
     let mut work = model.clone();
-    let free_keys = free_keys(model, d, free)?;
+    let (free_keys, free_effects) = free_keys(model, d, free)?;
     let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     for &id in add {
         for i in spanned_base(id, d, &cols) {
@@ -171,7 +173,11 @@ pub fn fit(
     update_plant(&mut work);
     let moved = work.base != model.base;
     let model = &work;
-    let base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+    let rel = Released::of(model, d, free_effects.as_deref());
+    let mut base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+    base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
+    let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
+    names.extend(rel.names(model));
     let bl = blocks(d.range, FOLDS);
     let moving = moving_mask(d);
     let mut effects = Vec::new();
@@ -235,8 +241,11 @@ pub fn fit(
                 if e.id == EffectId::CoulombFriction {
                     e.coef[1] = 0.0;
                 }
+                // the base parameters it held stay held in the joint refit (the model's own
+                // effects are refitted there again, beside the effect as it is added)
+                let held: Vec<usize> = held.into_iter().filter(|i| *i < free_keys.len()).collect();
                 if !held.is_empty() {
-                    warnings.push(format!("{id}: {}", held_words(&held, &free_keys)));
+                    warnings.push(format!("{id}: {}", held_words(&held, &names)));
                     held_all.extend(held.iter().filter_map(|i| free_keys.get(*i).copied()));
                 }
                 if let Some(why) = &doubtful {
@@ -250,10 +259,14 @@ pub fn fit(
     // the base parameters the effects' own refits held (what the data cannot tell apart from
     // them) stay held in the joint refit: the same refit that diagnose ranks by
     let narrowed: Option<Vec<String>> = (!held_all.is_empty()).then(|| {
+        let effects: Vec<EffectId> = free_effects
+            .clone()
+            .unwrap_or_else(|| model.effects.iter().map(|e| e.id).collect());
         free_keys
             .iter()
             .filter(|k| !held_all.contains(k))
             .map(|k| k.key().to_string())
+            .chain(effects.iter().map(|id| id.id().to_string()))
             .collect()
     });
     let free = narrowed.as_deref().or(free);
@@ -278,6 +291,10 @@ fn controller_clamp(model: &WbModel, d: &AxisData) -> Option<f64> {
     (after < 0.5 * cc.rms).then_some(l)
 }
 
+/// Most base parameters and model effects' coefficients whose subsets the constrained refit of
+/// [`fit_with`] tries holding (2^N refits of a small regression).
+const MAX_HELD_SEARCH: usize = 12;
+
 fn residual(model: &WbModel, d: &AxisData, y: &[f64]) -> Vec<f64> {
     let _ = y;
     let y_app = model.applied(d).unwrap_or_default();
@@ -285,34 +302,48 @@ fn residual(model: &WbModel, d: &AxisData, y: &[f64]) -> Vec<f64> {
     y_app.iter().zip(&n).map(|(a, b)| a - b).collect()
 }
 
+/// The parameters a refit changes: the base parameters, and the effects already in the model
+/// whose coefficients are refitted beside them (`None`: all of them). By default all; `free`
+/// narrows both (a base parameter's key, or the id of an effect of the model).
 fn free_keys(
     model: &WbModel,
     d: &AxisData,
     free: Option<&[String]>,
-) -> Result<Vec<BaseParam>, WorkbenchError> {
+) -> Result<(Vec<BaseParam>, Option<Vec<EffectId>>), WorkbenchError> {
     let keys = BaseParam::of_kind(model.kind());
     match free {
-        None => Ok(keys
-            .iter()
-            .copied()
-            .filter(|k| d.has_motor() || !k.on_load())
-            .collect()),
+        None => Ok((
+            keys.iter()
+                .copied()
+                .filter(|k| d.has_motor() || !k.on_load())
+                .collect(),
+            None,
+        )),
         Some(list) => {
             let mut out = Vec::new();
+            let mut ids = Vec::new();
             for s in comma_list(list) {
-                let Some(p) = BaseParam::parse(model.kind(), s) else {
-                    return Err(WorkbenchError::BadArgument {
-                        arg: format!("--free {s}"),
-                        reason: format!(
-                            "not a base parameter of a {} model (free parameters: {})",
-                            model.kind().id(),
-                            keys.iter().map(|k| k.key()).collect::<Vec<_>>().join(", ")
-                        ),
-                    });
-                };
-                out.push(p);
+                if let Some(p) = BaseParam::parse(model.kind(), s) {
+                    out.push(p);
+                    continue;
+                }
+                match EffectId::parse(s) {
+                    Some(id) if model.effects.iter().any(|e| e.id == id) => ids.push(id),
+                    _ => {
+                        let mut accepted: Vec<&str> = keys.iter().map(|k| k.key()).collect();
+                        accepted.extend(model.effects.iter().map(|e| e.id.id()));
+                        return Err(WorkbenchError::BadArgument {
+                            arg: format!("--free {s}"),
+                            reason: format!(
+                                "neither a base parameter of a {} model nor an effect of this model (free parameters: {})",
+                                model.kind().id(),
+                                accepted.join(", ")
+                            ),
+                        });
+                    }
+                }
             }
-            Ok(out)
+            Ok((out, Some(ids)))
         }
     }
 }
@@ -330,7 +361,8 @@ pub fn fit_with(
     window_s: f64,
 ) -> Result<FitResult, WorkbenchError> {
     let before = Errors::of(model, d, window_s);
-    let free_keys = free_keys(model, d, free)?;
+    let (free_keys, free_effects) = free_keys(model, d, free)?;
+    let rel = Released::of(model, d, free_effects.as_deref());
     let mut warnings: Vec<String> = Vec::new();
     let mut new = model.clone();
     // torque-path effects first: they change the target
@@ -355,15 +387,7 @@ pub fn fit_with(
             .enumerate()
             .filter(|(_, e)| channel(e.id) == Channel::Torque)
         {
-            let c = e.columns(d);
-            let nfree = if e.id == EffectId::CoulombFriction
-                && e.coef.get(1).copied().unwrap_or(0.0) == 0.0
-            {
-                1
-            } else {
-                c.len()
-            };
-            for (j, col) in c.into_iter().take(nfree).enumerate() {
+            for (j, col) in e.columns(d).into_iter().take(e.free_count()).enumerate() {
                 slots.push((i, j));
                 ecols.push(col);
             }
@@ -375,30 +399,44 @@ pub fn fit_with(
         // axis whose encoders travel together) swing to opposite extremes; holding whichever is
         // found first could hold the wrong one.
         let mut refs: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+        refs.extend(rel.cols.iter().map(|c| c.as_slice()));
         refs.extend(ecols.iter().map(|c| c.as_slice()));
         let all = normals(&refs, &target, &blocks(d.range, 1))
             .into_iter()
             .next()
             .expect("one block");
-        let nk = free_keys.len();
-        let in_range = |key: &BaseParam, delta: f64| {
-            let now = model.base_value(*key);
+        let (nk, nr) = (free_keys.len(), rel.cols.len());
+        // the parameters that may be held: the base parameters, and the coefficients of the
+        // model's own effects (all free beyond a count whose subsets are too many to try)
+        let nh = if nk + nr <= MAX_HELD_SEARCH {
+            nk + nr
+        } else {
+            nk
+        };
+        let in_range = |i: usize, delta: f64| {
+            if i >= nk {
+                return rel.in_range(model, i - nk, delta);
+            }
+            let key = free_keys[i];
+            let now = model.base_value(key);
             let v = now + delta;
             match key.class() {
                 BaseClass::Damping => v >= 0.0,
                 BaseClass::Inertia => v > 0.1 * now.max(0.0),
             }
         };
-        let mut best: Option<(u32, f64, Vec<BaseParam>, nalgebra::DVector<f64>)> = None;
-        for mask in 0u32..(1 << nk) {
-            let keep: Vec<usize> = (0..nk).filter(|i| mask & (1 << i) == 0).collect();
-            let idx: Vec<usize> = keep.iter().copied().chain(nk..refs.len()).collect();
-            let sub = all.select(&idx);
+        let mut best: Option<(u32, f64, Vec<usize>, nalgebra::DVector<f64>)> = None;
+        for mask in 0u32..(1 << nh) {
+            let keep: Vec<usize> = (0..nh)
+                .filter(|i| mask & (1 << i) == 0)
+                .chain(nh..refs.len())
+                .collect();
+            let sub = all.select(&keep);
             let th = sub.solve();
             if !keep
                 .iter()
                 .enumerate()
-                .all(|(k, i)| in_range(&free_keys[*i], th[k]))
+                .all(|(k, i)| *i >= nk + nr || in_range(*i, th[k]))
             {
                 continue;
             }
@@ -407,33 +445,39 @@ pub fn fit_with(
                 .as_ref()
                 .is_none_or(|b| (mask.count_ones(), sse) < (b.0, b.1));
             if better {
-                best = Some((
-                    mask.count_ones(),
-                    sse,
-                    keep.iter().map(|i| free_keys[*i]).collect(),
-                    th,
-                ));
+                best = Some((mask.count_ones(), sse, keep, th));
             }
         }
-        let (_, _, keys, th) = best.expect("holding every base parameter is always in range");
-        let held: Vec<BaseParam> = free_keys
-            .iter()
-            .copied()
-            .filter(|k| !keys.contains(k))
-            .collect();
-        for (k, key) in keys.iter().enumerate() {
-            let v = model.base_value(*key) + th[k];
+        let (_, _, keep, th) = best.expect("holding every base parameter is always in range");
+        // the change of every column, 0 for a held one
+        let mut delta = vec![0.0; refs.len()];
+        for (k, i) in keep.iter().enumerate() {
+            delta[*i] = th[k];
+        }
+        for (i, key) in free_keys.iter().enumerate() {
+            let v = model.base_value(*key) + delta[i];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
                 b.1 = v;
             }
         }
+        rel.apply(&mut new, &delta[nk..nk + nr]);
         for key in &free_keys {
             params.insert(key.key().to_string(), new.base_value(*key));
         }
+        let mut held: Vec<String> = (0..nk)
+            .filter(|i| !keep.contains(i))
+            .map(|i| free_keys[i].key().to_string())
+            .collect();
+        for (k, (e, _)) in rel.slots.iter().enumerate() {
+            let name = model.effects[*e].id.id().to_string();
+            if !keep.contains(&(nk + k)) && !held.contains(&name) {
+                held.push(name);
+            }
+        }
         if !held.is_empty() {
             warnings.push(format!(
-                "{} held at {} value: the joint refit took {} out of {} range (an inertia below a tenth of its value, or a negative damping), which these data cannot determine together with the added effects",
-                held.iter().map(|k| k.key()).collect::<Vec<_>>().join(", "),
+                "{} held at {} value: the joint refit took {} out of {} range (an inertia below a tenth of its value, a negative damping, or a friction level of the other sign), which these data cannot determine together with the added effects",
+                held.join(", "),
                 if held.len() == 1 { "its" } else { "their" },
                 if held.len() == 1 { "it" } else { "them" },
                 if held.len() == 1 { "its" } else { "their" },
@@ -441,7 +485,7 @@ pub fn fit_with(
         }
         let mut fitted = effects.clone();
         for (s, (i, j)) in slots.iter().enumerate() {
-            fitted[*i].coef[*j] = th[keys.len() + s];
+            fitted[*i].coef[*j] = delta[nk + nr + s];
         }
         for e in fitted
             .into_iter()
@@ -463,11 +507,9 @@ pub fn fit_with(
     let kind = new.kind();
     let r = new.file.plant.motor_per_load();
     let added: Vec<String> = effects.iter().map(|e| e.id.id().to_string()).collect();
-    for e in new
-        .effects
-        .iter()
-        .filter(|e| effects.iter().any(|a| a.id == e.id))
-    {
+    for (_, e) in new.effects.iter().enumerate().filter(|(i, e)| {
+        effects.iter().any(|a| a.id == e.id) || rel.slots.iter().any(|(r, _)| r == i)
+    }) {
         for (k, v) in flat(&e.to_table(kind, r)) {
             let key = if params.contains_key(&k) {
                 format!("effects.{}.{k}", e.id)

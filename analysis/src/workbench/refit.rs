@@ -11,7 +11,7 @@ use feedloop_model::model::AxisKind;
 use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::lsq::{blocks, cross_validate, normals, normals_masked, Cv};
+use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::signal::{quantile, span};
 use feedloop_model::units::sig;
 
@@ -184,6 +184,57 @@ pub fn inertias_now(model: &WbModel, keys: &[BaseParam]) -> Vec<f64> {
             BaseClass::Damping => 0.0,
         })
         .collect()
+}
+
+/// The coefficients of the effects already in a model, refitted beside the base parameters:
+/// whatever a diagnosis or a fit adds competes with the model refitted whole (its offsets and
+/// friction levels cross-validated too), not with values fitted once on all the samples.
+#[derive(Debug, Clone, Default)]
+pub struct Released {
+    /// Their regressor columns (torque needed per unit change of each coefficient).
+    pub cols: Vec<Vec<f64>>,
+    /// For each column: the index of the effect in the model and of the coefficient.
+    pub slots: Vec<(usize, usize)>,
+}
+
+impl Released {
+    /// The torque-channel effects of `model` whose ids `only` lists (all when `None`).
+    pub fn of(model: &WbModel, d: &AxisData, only: Option<&[EffectId]>) -> Self {
+        let mut r = Released::default();
+        for (i, e) in model.effects.iter().enumerate() {
+            if channel(e.id) != Channel::Torque || only.is_some_and(|o| !o.contains(&e.id)) {
+                continue;
+            }
+            for (j, c) in e.columns(d).into_iter().take(e.free_count()).enumerate() {
+                r.cols.push(c);
+                r.slots.push((i, j));
+            }
+        }
+        r
+    }
+
+    /// The name of each column's parameter in a sentence (`constant_force`).
+    pub fn names(&self, model: &WbModel) -> Vec<String> {
+        self.slots
+            .iter()
+            .map(|(i, _)| model.effects[*i].id.id().to_string())
+            .collect()
+    }
+
+    /// Whether change `delta` of column `k` keeps its coefficient in range (see
+    /// [`Effect::coef_in_range`]).
+    pub fn in_range(&self, model: &WbModel, k: usize, delta: f64) -> bool {
+        let (i, j) = self.slots[k];
+        let e = &model.effects[i];
+        e.coef_in_range(j, e.coef[j] + delta)
+    }
+
+    /// `model` with each coefficient changed by its `delta`.
+    pub fn apply(&self, model: &mut WbModel, delta: &[f64]) {
+        for ((i, j), dv) in self.slots.iter().zip(delta) {
+            model.effects[*i].coef[*j] += dv;
+        }
+    }
 }
 
 /// The best variant of one effect refitted with the base parameters: the effect with its
@@ -474,21 +525,25 @@ pub fn spanned_base(id: EffectId, d: &AxisData, base: &[&[f64]]) -> Vec<usize> {
     };
     let cols = Effect::new(id, default_side(d.kind), h).columns(d);
     let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    // over the rows the torque channel uses (an offset is a friction asymmetry while moving)
+    let mask = moving_mask(d);
     (0..base.len())
-        .filter(|i| spanned(base[*i], &refs, d.range))
+        .filter(|i| spanned(base[*i], &refs, d.range, mask.as_deref()))
         .collect()
 }
 
-/// Whether column `b` lies in the span of `cols` over `range` (a least-squares fit of it leaves
-/// less than 1e-6 of its energy).
-fn spanned(b: &[f64], cols: &[&[f64]], range: (usize, usize)) -> bool {
+/// Whether column `b` lies in the span of `cols` over `range` (the rows where `mask`, when
+/// given, is not 0): a least-squares fit of it leaves less than 1 % of its energy (a variance
+/// inflation of 100: the regression cannot share it out; an offset against a filtered friction
+/// asymmetry differs only in the filter's tails at the reversals).
+fn spanned(b: &[f64], cols: &[&[f64]], range: (usize, usize), mask: Option<&[f64]>) -> bool {
     if cols.is_empty() {
         return false;
     }
-    let ne = normals(cols, b, &blocks(range, 1));
+    let ne = normals_masked(cols, b, &blocks(range, 1), mask);
     let Some(n) = ne.first() else { return false };
     let th = n.solve();
-    n.yty > 0.0 && n.sse(&th) < 1e-6 * n.yty
+    n.yty > 0.0 && n.sse(&th) < 1e-2 * n.yty
 }
 
 /// `cv` of a fit without the base columns `held` (sorted), with a 0 coefficient (and standard
@@ -578,10 +633,10 @@ pub fn flat(t: &toml::Table) -> BTreeMap<String, f64> {
 
 /// `jm_kgm2 held at its value (the data cannot tell it apart from this effect ...)`, for the base
 /// parameters `held` (indices into `keys`).
-pub fn held_words(held: &[usize], keys: &[BaseParam]) -> String {
+pub fn held_words<S: AsRef<str>>(held: &[usize], keys: &[S]) -> String {
     let names: Vec<&str> = held
         .iter()
-        .filter_map(|i| keys.get(*i).map(|k| k.key()))
+        .filter_map(|i| keys.get(*i).map(|k| k.as_ref()))
         .collect();
     format!(
         "{} held at {} value (the data cannot tell {} apart from this effect: a joint refit would take an inertia below a tenth of its value, or the effect's own columns hold it)",
