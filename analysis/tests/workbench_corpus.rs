@@ -428,3 +428,47 @@ fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
     println!("long hold: {} {:.1} %", top.effect, top.error_reduction_pct);
     assert_eq!(top.class, "friction", "{}", dg.verdict);
 }
+
+/// Lost motion hidden at two sizes (and two transition travels, one given, one the default):
+/// named first with its size within 10 %, its fit cuts the windowed simulation error (where a
+/// motor-to-load offset shows) by at least 70 % without raising the equation error, and the
+/// guided loop adds it and nothing else.
+#[test]
+fn hidden_lost_motion_is_named_with_its_size_and_the_guided_loop_adds_only_it() {
+    for (lost, transition) in [(12e-6, Some(30e-6)), (30e-6, None)] {
+        let hidden = match transition {
+            Some(t) => {
+                format!("[effects.lost_motion]\nlost_motion_m = {lost}\ntransition_m = {t}\n")
+            }
+            None => format!("[effects.lost_motion]\nlost_motion_m = {lost}\n"),
+        };
+        let (m, d, dg) = run(&hidden, &base());
+        let top = &dg.candidates[0];
+        assert_eq!(top.effect, "lost_motion", "{lost}: {}", dg.verdict);
+        assert!(top.significant, "{}", top.evidence);
+        let l = top.params["lost_motion_m"];
+        assert!((l / lost - 1.0).abs() < 0.1, "lost motion {l} for {lost}");
+        let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
+        let (wb, wa) = (
+            r.before.window_sim_nrmse_pct.unwrap(),
+            r.after.window_sim_nrmse_pct.unwrap(),
+        );
+        let (eb, ea) = (
+            r.before.equation_nrmse_pct.unwrap(),
+            r.after.equation_nrmse_pct.unwrap(),
+        );
+        println!("lost motion {lost}: window {wb:.2} -> {wa:.2}, equation {eb:.3} -> {ea:.3}");
+        assert!(wa < 0.3 * wb, "windowed simulation NRMSE {wb} -> {wa}");
+        assert!(ea <= eb * 1.01, "equation NRMSE {eb} -> {ea}");
+        let a = feedloop_analysis::workbench::auto::auto(&m, &d, 0.05, 4).unwrap();
+        let added: Vec<String> = a.steps.iter().flat_map(|s| s.added.clone()).collect();
+        assert_eq!(added, vec!["lost_motion".to_string()], "{}", a.last.verdict);
+    }
+}
+
+/// Backlash and lost motion are told apart: a hidden backlash is not named lost motion.
+#[test]
+fn hidden_backlash_is_not_taken_for_lost_motion() {
+    let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", &base());
+    assert_eq!(dg.candidates[0].effect, "backlash", "{}", dg.verdict);
+}

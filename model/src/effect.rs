@@ -38,11 +38,13 @@ pub enum EffectId {
     Unbalance,
     /// `directional_friction`: dry and viscous friction that differ between the directions.
     DirectionalFriction,
+    /// `lost_motion`: a motor-to-load offset that flips with the direction of travel.
+    LostMotion,
 }
 
 impl EffectId {
     /// Every effect, in the order error messages list them.
-    pub const ALL: [EffectId; 13] = [
+    pub const ALL: [EffectId; 14] = [
         EffectId::ViscousFriction,
         EffectId::CoulombFriction,
         EffectId::StribeckFriction,
@@ -56,6 +58,7 @@ impl EffectId {
         EffectId::TorqueSaturation,
         EffectId::Unbalance,
         EffectId::DirectionalFriction,
+        EffectId::LostMotion,
     ];
 
     /// Name used in model files (`[effects.<id>]`) and on the command line.
@@ -74,6 +77,7 @@ impl EffectId {
             EffectId::TorqueSaturation => "torque_saturation",
             EffectId::Unbalance => "unbalance",
             EffectId::DirectionalFriction => "directional_friction",
+            EffectId::LostMotion => "lost_motion",
         }
     }
 

@@ -20,7 +20,7 @@ use crate::effects::coulomb_friction::DryLaw;
 use crate::effects::delay::DelayLine;
 use crate::effects::{
     self, backlash, current_lag, third_mass, torque_saturation, viscous_friction, CoggingHarmonic,
-    PitchError, Side, Unbalance, Viscous, MAX_COGGING_HARMONICS,
+    LostMotion, PitchError, Side, Unbalance, Viscous, MAX_COGGING_HARMONICS,
 };
 use crate::linear::{dot8, Bank, State, MAX_N, NU};
 use crate::sensor::{self, Sensor};
@@ -212,6 +212,10 @@ pub struct AxisPlant {
     gap_half: f64,
     contact: i8,
     pitch: Option<PitchError>,
+    /// Motor-to-load offset of the direction of travel (`lost_motion`), if any.
+    lost_motion: Option<LostMotion>,
+    /// Its current offset of the spring's rest point, motor units.
+    lost_e: f64,
     e_m: f64,
     cogging: [CoggingHarmonic; MAX_COGGING_HARMONICS],
     ncog: usize,
@@ -382,6 +386,8 @@ impl AxisPlant {
             gap_half: fx.backlash_gap.unwrap_or(0.0) * 0.5,
             contact: 0,
             pitch: fx.pitch,
+            lost_motion: fx.lost_motion,
+            lost_e: 0.0,
             e_m: 0.0,
             cogging,
             ncog,
@@ -440,6 +446,7 @@ impl AxisPlant {
         let th_l = lp * self.motor_per_load;
         let mut th_m = th_l;
         self.e_m = 0.0;
+        self.lost_e = 0.0;
         if let Some(p) = self.pitch {
             for _ in 0..8 {
                 self.e_m = p.eval(th_m / self.motor_per_load).0 * self.motor_per_load;
@@ -531,6 +538,11 @@ impl AxisPlant {
         if let Some(p) = self.pitch {
             self.e_m = p.eval(mp * self.load_per_motor).0 * self.motor_per_load;
         }
+        self.lost_e = 0.0;
+        if let Some(l) = &self.lost_motion {
+            self.lost_e = l.settled(mv);
+            self.e_m += self.lost_e;
+        }
         self.contact = 0;
         if self.backlash && self.st.two_mass {
             let d = self.x[0] + self.e_m - self.x[2];
@@ -571,6 +583,28 @@ impl AxisPlant {
             };
             (self.x[i] / r, self.x[i + 1] / r)
         })
+    }
+
+    /// The lost-motion offsets of the spring's rest point (motor units) that the recorded motor
+    /// positions `motor` (motor units, one per period, oldest first) lead to from a centred
+    /// start; `None` without lost motion. A window restarted from measured positions takes its
+    /// offset from here ([`AxisPlant::set_lost_motion_offset`]).
+    pub fn lost_motion_series(&self, motor: &[f64]) -> Option<Vec<f64>> {
+        self.lost_motion.as_ref().map(|l| l.series(motor))
+    }
+
+    /// Sets the lost-motion offset (motor units, e.g. from [`AxisPlant::lost_motion_series`])
+    /// after [`AxisPlant::set_state`]; no effect without lost motion or for a non-finite value.
+    pub fn set_lost_motion_offset(&mut self, e: f64) {
+        if self.lost_motion.is_none() || !e.is_finite() {
+            return;
+        }
+        self.e_m += e - self.lost_e;
+        self.lost_e = e;
+        if self.backlash && self.st.two_mass {
+            let d = self.x[0] + self.e_m - self.x[2];
+            self.contact = backlash::contact(d, self.gap_half);
+        }
     }
 
     /// Puts the third mass (if present) at position `pos` and velocity `vel` in load units
@@ -744,6 +778,16 @@ impl AxisPlant {
                 (self.st.kl, self.st.cl),
             );
         }
+        if let Some(l) = &self.lost_motion {
+            self.lost_e = l.advance(self.lost_e, self.x[1], self.period_s);
+            let e = self.lost_e;
+            self.e_m = if self.pitch.is_some() {
+                self.e_m + e
+            } else {
+                e
+            };
+            pt += self.st.kl * e;
+        }
         let mut lt = self.load_torque;
         if let Some(u) = &self.unbalance {
             let (lp, lv) = self.st.load_idx();
@@ -808,6 +852,7 @@ impl AxisPlant {
     fn needs_settle(&self) -> bool {
         let settle = |b: &Body| b.dry && (b.stuck || self.x[b.vel] == 0.0);
         self.pitch.is_some()
+            || (self.lost_motion.is_some() && self.backlash)
             || settle(&self.bodies[0])
             || (self.nbodies > 1 && settle(&self.bodies[1]))
     }

@@ -10,9 +10,10 @@
 use serde_json::{json, Value};
 
 use super::data::AxisData;
-use super::diagnose::{diagnose, DiagOptions, Diagnosis};
+use super::diagnose::{diagnose, material_cut, DiagOptions, Diagnosis};
+use super::effects::EffectId;
 use super::effects::WbModel;
-use super::fit::{fit_with, Errors};
+use super::fit::{fit, fit_with, Errors};
 use super::WorkbenchError;
 use crate::plot::{Axis, Plot, Series, PALETTE};
 
@@ -81,7 +82,6 @@ pub fn auto(
                 }
             }
         }
-        let m_in = if replaced.is_empty() { &m } else { &base_m };
         let res = if top.is_param {
             let mut free = vec![top.effect.clone()];
             for o in &top.same_as {
@@ -89,9 +89,23 @@ pub fn auto(
                     free.push(o.clone());
                 }
             }
-            fit_with(&m, d, vec![], Some(&free), window_s)?
+            fit_with(&m, d, vec![], Some(&free), window_s)
         } else {
-            fit_with(m_in, d, top.add.clone(), None, window_s)?
+            // the fit the diagnosis confirmed its recommendation with (`fit --add IDS`: it
+            // replaces what the effect contains and carries the base parameters it spans)
+            let mut ids: Vec<EffectId> = top.add.iter().map(|e| e.id).collect();
+            ids.dedup();
+            fit(&m, d, &ids, None, window_s)
+        };
+        let res = match res {
+            Ok(r) => r,
+            Err(e) => {
+                last.verdict = format!(
+                    "{}; the guided loop stopped: fitting {} was refused ({e})",
+                    last.verdict, top.effect
+                );
+                break;
+            }
         };
         // an effect of the transmission (backlash, lead error) barely shows in the torque
         // balance: it must lower the windowed simulation error instead
@@ -107,7 +121,7 @@ pub fn auto(
             _ => (res.before.equation_nrmse_pct, res.after.equation_nrmse_pct),
         };
         let better = match (b, a) {
-            (Some(b), Some(a)) => a < b,
+            (Some(b), Some(a)) => material_cut(b, a),
             _ => true,
         };
         if !better {

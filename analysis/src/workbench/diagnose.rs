@@ -41,6 +41,13 @@ use feedloop_model::units::sig;
 
 /// Smallest cross-validated error reduction that counts, % of the model's error.
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
+/// Whether a fit that takes its channel's error from `before` to `after` (%) cuts it
+/// materially: by at least [`MIN_REDUCTION_PCT`] % of it (a step that moves the error in its
+/// second decimal is no finding, whatever its cross-validated score).
+pub fn material_cut(before: f64, after: f64) -> bool {
+    after < before * (1.0 - MIN_REDUCTION_PCT / 100.0)
+}
+
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
 pub const MIN_FOLD_WINS: usize = 4;
 /// Smallest error reduction that counts on the torque channel, as a fraction of the applied
@@ -391,7 +398,7 @@ fn effect_candidates(
             ));
             continue;
         }
-        if matches!(id, EffectId::Backlash | EffectId::PitchError) {
+        if channel(id) == Channel::Deflection {
             if kind == AxisKind::Rigid {
                 untested.push((id.to_string(), "not defined on a rigid axis".to_string()));
                 continue;
@@ -667,12 +674,39 @@ fn mode_candidate(
 
 /// An effect of the torque channel, refitted together with every base parameter. It is
 /// credited with all it achieves (with the base refit) when it is significant beyond a base
-/// refit, else only with what it adds to the base refit.
+/// refit, else only with what it adds to the base refit. An effect that contains one the model
+/// has (directional or Stribeck friction and a Coulomb friction) replaces it: it is refitted on
+/// the model without it and scored against the model with it, refitted.
 fn torque_effect_candidate(
     id: EffectId,
     model: &WbModel,
     d: &AxisData,
     ch: &TorqueChannel<'_>,
+) -> Result<Candidate, Untestable> {
+    let Some(old) = id
+        .supersedes()
+        .filter(|s| model.effects.iter().any(|e| e.id == *s))
+    else {
+        return scored_candidate(id, model, d, ch, ch);
+    };
+    let mut reduced = model.clone();
+    reduced.effects.retain(|e| e.id != old);
+    let rel = Released::of(&reduced, d, None);
+    let ch_r = TorqueChannel::new(&reduced, d, &rel);
+    scored_candidate(id, &reduced, d, &ch_r, ch).map(|mut c| {
+        c.evidence = format!("{}; it replaces the model's {old}", c.evidence);
+        c
+    })
+}
+
+/// [`torque_effect_candidate`] refitted on channel `ch` (of `model`) and scored against
+/// `reference` (the channel of the model it would change).
+fn scored_candidate(
+    id: EffectId,
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+    reference: &TorqueChannel<'_>,
 ) -> Result<Candidate, Untestable> {
     let (a, b) = d.range;
     let mk = ch.mask.as_deref();
@@ -695,10 +729,10 @@ fn torque_effect_candidate(
             (add, cv, params, ev) = with_offset;
         }
     }
-    let extra = ch.cut_pct(&cv);
-    let wins = fold_wins(&cv, &ch.cvb.fold_mse);
-    let mut significant = extra >= ch.min_pct && wins >= MIN_FOLD_WINS;
-    if extra >= ch.min_pct && wins < MIN_FOLD_WINS {
+    let extra = reference.cut_pct(&cv);
+    let wins = fold_wins(&cv, &reference.cvb.fold_mse);
+    let mut significant = extra >= reference.min_pct && wins >= MIN_FOLD_WINS;
+    if extra >= reference.min_pct && wins < MIN_FOLD_WINS {
         ev = format!(
             "{ev}; it lowers the cross-validated error in only {wins} of the record's {FOLDS} blocks ({MIN_FOLD_WINS} needed): not significant"
         );
@@ -732,7 +766,7 @@ fn torque_effect_candidate(
         ev = format!("{ev}; {why}: doubtful, not significant");
     }
     let red = if significant {
-        (100.0 * (ch.e0 - cv.rms) / ch.e0).max(extra)
+        (100.0 * (reference.e0 - cv.rms) / reference.e0).max(extra)
     } else {
         extra
     };
@@ -941,7 +975,7 @@ fn confirm(
         fit(model, d, &ids, None, window_s)
     };
     match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
-        Some((b, a, name)) if a < b => Ok(Confirmed {
+        Some((b, a, name)) if material_cut(b, a) => Ok(Confirmed {
             effect: c.effect.clone(),
             before_pct: b,
             after_pct: a,
@@ -952,8 +986,13 @@ fn confirm(
                 100.0 * (b - a) / b.max(1e-300)
             ),
         }),
-        Some((b, a, name)) => Err(format!(
+        Some((b, a, name)) if a >= b => Err(format!(
             "fitting it raises the {name} from {} % to {} %: not recommended",
+            sig(b),
+            sig(a)
+        )),
+        Some((b, a, name)) => Err(format!(
+            "fitting it lowers the {name} only from {} % to {} % (less than {MIN_REDUCTION_PCT} % of it): not recommended",
             sig(b),
             sig(a)
         )),
@@ -965,6 +1004,29 @@ fn confirm(
             }
         )),
     }
+}
+
+/// The part of a candidate's evidence that says why it is not significant: from the clause of
+/// the last of the reasons a diagnosis gives (a refused or weak fit, a confidence interval, too
+/// few winning blocks, an estimate at an edge) to the end.
+fn why_not_significant(evidence: &str) -> &str {
+    let at = [
+        "its fit is refused",
+        "fitting it ",
+        "inside its own confidence interval",
+        "it lowers the cross-validated error in only",
+        "edge of the range searched",
+        "too few reversals",
+        "not significant",
+    ]
+    .iter()
+    .filter_map(|m| evidence.find(m))
+    .min();
+    let Some(at) = at else { return "" };
+    let start = evidence[..at].rfind("; ").map(|i| i + 2).unwrap_or(0);
+    evidence[start..]
+        .trim_end_matches(": not significant")
+        .trim_end_matches(" (not significant)")
 }
 
 fn verdict(
@@ -1000,12 +1062,7 @@ fn verdict(
                     "no missing effect found; the remaining misfit does not look like noise (whiteness test failed, lag-1 autocorrelation {lag1:.2}), and the largest cut, {:.1} % of the cross-validated error by {}, is not significant ({})",
                     c.error_reduction_pct,
                     c.effect,
-                    c.evidence
-                        .rsplit("; ")
-                        .next()
-                        .unwrap_or("")
-                        .trim_end_matches(": not significant")
-                        .trim_end_matches(" (not significant)")
+                    why_not_significant(&c.evidence)
                 ),
                 None => format!(
                     "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {lag1:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more"

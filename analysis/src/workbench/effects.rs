@@ -18,7 +18,7 @@ use feedloop_model::params::read_toml_file;
 use feedloop_plant::effects::{
     read_effects, BacklashParams, CoggingParams, CoggingPeriod, ConstantForceParams,
     CoulombFrictionParams, Ctx, CurrentLagParams, DelayParams, DirectionalFrictionParams,
-    EffectParams, PitchErrorParams, StribeckFrictionParams, ThirdMassParams,
+    EffectParams, LostMotionParams, PitchErrorParams, StribeckFrictionParams, ThirdMassParams,
     TorqueSaturationParams, UnbalanceParams, ViscousFrictionParams,
 };
 
@@ -57,7 +57,7 @@ pub enum Channel {
 pub fn channel(id: EffectId) -> Channel {
     match id {
         EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => Channel::TorquePath,
-        EffectId::Backlash | EffectId::PitchError => Channel::Deflection,
+        EffectId::Backlash | EffectId::PitchError | EffectId::LostMotion => Channel::Deflection,
         EffectId::ViscousFriction
         | EffectId::CoulombFriction
         | EffectId::StribeckFriction
@@ -98,6 +98,27 @@ fn directional_columns(eps: f64) -> [Box<dyn Fn(f64) -> f64>; 4] {
     ]
 }
 
+/// The lost-motion state of a motor position series `q` (motor units), in units of half the lost
+/// motion: it starts centred (0) and relaxes toward the sign of each step's travel by `1 -
+/// exp(-|dq| / travel)`, so it holds at rest and flips over a travel of a few `travel`s, the law
+/// the plant integrates (`plant/src/effects/lost_motion.rs`).
+pub fn lost_motion_column(q: &[f64], travel: f64) -> Vec<f64> {
+    let travel = travel.abs().max(1e-300);
+    let mut z = 0.0f64;
+    let mut out = Vec::with_capacity(q.len());
+    let mut prev = q.first().copied().unwrap_or(0.0);
+    for &x in q {
+        let dq = x - prev;
+        prev = x;
+        if dq != 0.0 && dq.is_finite() {
+            let target = dq.signum();
+            z = target + (z - target) * (-dq.abs() / travel).exp();
+        }
+        out.push(z);
+    }
+    out
+}
+
 /// The block means of `sin(w x)` and `cos(w x)` for a position `x` held at the centres of blocks
 /// of `sub` recorded instants and moving linearly through each block (by the central slope): a
 /// sum of sines over evenly spaced phases is the sine at the centre times the Dirichlet kernel
@@ -134,7 +155,8 @@ impl Effect {
             EffectId::ViscousFriction
             | EffectId::ConstantForce
             | EffectId::ThirdMass
-            | EffectId::Backlash => 1,
+            | EffectId::Backlash
+            | EffectId::LostMotion => 1,
             EffectId::CoulombFriction | EffectId::StribeckFriction | EffectId::Cogging => 2,
             EffectId::PitchError | EffectId::Unbalance => 3,
             EffectId::DirectionalFriction => 4,
@@ -161,7 +183,11 @@ impl Effect {
     ///   (half gap), `T = torque - JM aM - DM vM` the torque the screw transmits, 0 within the
     ///   dead band; without hyper (or torque) `[sign vM]`;
     /// - `pitch_error` (hyper `[period_m]`): `[sin, cos, x]` in the deflection (which carries
-    ///   minus the lead error: the motor angle makes up for it).
+    ///   minus the lead error: the motor angle makes up for it);
+    /// - `lost_motion` (hyper `[s_t]`, motor units): `[z]` in the deflection (half the lost
+    ///   motion), `z` relaxing toward the sign of the motor's travel over a travel `s_t` and
+    ///   holding at rest (see [`lost_motion_column`]): it follows the direction of travel,
+    ///   backlash the transmitted torque.
     pub fn columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
         let cols = self.raw_columns(d);
         if d.torque_filtered
@@ -259,6 +285,12 @@ impl Effect {
                     vec![1.0; d.len()],
                 ]
             }
+            EffectId::LostMotion => {
+                vec![lost_motion_column(
+                    &d.qm,
+                    self.hyper.first().copied().unwrap_or(1.0),
+                )]
+            }
             // the torque-path effects transform the recorded torque instead
             EffectId::Delay | EffectId::CurrentLag | EffectId::TorqueSaturation => vec![],
         }
@@ -307,7 +339,8 @@ impl Effect {
             | EffectId::Delay
             | EffectId::CurrentLag
             | EffectId::TorqueSaturation
-            | EffectId::Unbalance => return None,
+            | EffectId::Unbalance
+            | EffectId::LostMotion => return None,
         })
     }
 
@@ -394,7 +427,8 @@ impl Effect {
             | EffectId::ConstantForce
             | EffectId::ThirdMass
             | EffectId::Unbalance
-            | EffectId::DirectionalFriction => y.to_vec(),
+            | EffectId::DirectionalFriction
+            | EffectId::LostMotion => y.to_vec(),
         }
     }
 
@@ -469,6 +503,7 @@ impl Effect {
             EffectId::Backlash => EffectParams::Backlash(self.backlash_params(kind, r)),
             EffectId::PitchError => EffectParams::PitchError(self.pitch_params(r)),
             EffectId::Unbalance => EffectParams::Unbalance(self.unbalance_params(r)),
+            EffectId::LostMotion => EffectParams::LostMotion(self.lost_motion_params(kind, r)),
             EffectId::DirectionalFriction => {
                 let c = &self.coef;
                 EffectParams::DirectionalFriction(DirectionalFrictionParams {
@@ -502,6 +537,25 @@ impl Effect {
                 AxisKind::BallScrew | AxisKind::Rotary => (2.0 * self.coef[0] / r).max(0.0),
                 AxisKind::Rigid => (2.0 * self.coef[0]).max(0.0),
             },
+        }
+    }
+
+    /// The model file's form of a `lost_motion` effect: the full offset and the transition
+    /// velocity at the load.
+    fn lost_motion_params(&self, kind: AxisKind, r: f64) -> LostMotionParams {
+        let r = match kind {
+            AxisKind::BallScrew | AxisKind::Rotary => r,
+            AxisKind::Rigid => 1.0,
+        };
+        LostMotionParams {
+            lost: (2.0 * self.coef[0] / r).max(0.0),
+            transition: self
+                .hyper
+                .first()
+                .copied()
+                .unwrap_or(2.0 * self.coef[0])
+                .abs()
+                / r,
         }
     }
 
@@ -577,6 +631,14 @@ impl Effect {
                     AxisKind::BallScrew | AxisKind::Rotary => 0.5 * p.gap * r,
                     AxisKind::Rigid => 0.5 * p.gap,
                 }];
+            }
+            EffectParams::LostMotion(p) => {
+                let r = match kind {
+                    AxisKind::BallScrew | AxisKind::Rotary => r,
+                    AxisKind::Rigid => 1.0,
+                };
+                e.hyper = vec![p.transition * r];
+                e.coef = vec![0.5 * p.lost * r];
             }
             EffectParams::DirectionalFriction(p) => {
                 e.coef = vec![
@@ -988,6 +1050,15 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
             },
             reversals(d)
         ),
+        EffectId::LostMotion => {
+            let p = e.lost_motion_params(kind, d.r);
+            let u = if kind == AxisKind::BallScrew { "m" } else { "rad" };
+            format!(
+                "motor minus load position shifts by about {} {u} between the two directions of travel, following the direction of travel (lost motion), not the transmitted torque (backlash), over about {} {u} of travel",
+                fmt(round_sig(p.lost)),
+                fmt(p.transition)
+            )
+        }
         EffectId::PitchError => format!(
             "motor minus load position varies with load position, period {} m, amplitude {} m",
             fmt(e.hyper[0]),
@@ -1044,6 +1115,7 @@ pub fn class_of(id: EffectId) -> &'static str {
         EffectId::Delay | EffectId::CurrentLag => "delay",
         EffectId::TorqueSaturation => "saturation",
         EffectId::Backlash => "backlash",
+        EffectId::LostMotion => "lost_motion",
         EffectId::PitchError => "pitch",
         EffectId::Unbalance => "gravity",
         EffectId::DirectionalFriction => "friction",

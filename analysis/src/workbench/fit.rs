@@ -159,6 +159,17 @@ pub fn fit(
     // effect's coefficient, which then keeps its physical sign
     let original = model;
     let mut work = model.clone();
+    // an added effect that contains one the model has (directional or Stribeck friction and a
+    // Coulomb friction) replaces it instead of being fitted as a correction of it
+    for &id in add {
+        if let Some(old) = id
+            .supersedes()
+            .filter(|s| work.effects.iter().any(|e| e.id == *s) && !add.contains(s))
+        {
+            work.effects.retain(|e| e.id != old);
+            warnings.push(format!("{id} replaces the model's {old} (it contains it)"));
+        }
+    }
     let (free_keys, free_effects) = free_keys(model, d, free)?;
     let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     for &id in add {
@@ -171,7 +182,7 @@ pub fn fit(
         }
     }
     update_plant(&mut work);
-    let moved = work.base != model.base;
+    let moved = work.base != model.base || work.effects.len() != model.effects.len();
     let model = &work;
     let rel = Released::of(model, d, free_effects.as_deref());
     let mut base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();

@@ -133,6 +133,15 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
         | EffectId::ConstantForce
         | EffectId::Backlash
         | EffectId::DirectionalFriction => vec![vec![]],
+        // the motor travel over which the offset flips: from a millionth of the travel
+        // recorded (a step) to a hundredth of it
+        EffectId::LostMotion => {
+            let travel = span(&d.qm[a..b]).max(1e-12);
+            logspace(travel * 1e-6, travel * 1e-2, 16)
+                .into_iter()
+                .map(|w| vec![w])
+                .collect()
+        }
         // one load revolution first (a tie keeps it), then the periods a load column referred
         // through a gear shows: from half the travel to a thousand times it
         EffectId::Unbalance => {
@@ -385,6 +394,17 @@ pub fn best_effect(
                     .into(),
             );
         }
+        // lost motion is a play the motor crosses by travelling it: not negative, and not
+        // crossed in less travel than its own size (a negative stiffness of the spring)
+        if id == EffectId::LostMotion {
+            let half = cv.theta.get(nb).copied().unwrap_or(0.0);
+            if half < 0.0 {
+                return Err("its offset fits the wrong way (the load ahead of the motor in the direction of travel) at every transition searched".into());
+            }
+            if e.hyper.first().is_some_and(|t| *t < 2.0 * half) {
+                return Err("it fits only with a transition shorter than the play itself, which no transmission has".into());
+            }
+        }
         let mut e = e;
         for (i, c) in e.coef.iter_mut().enumerate() {
             *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
@@ -476,6 +496,7 @@ fn at_edge(id: EffectId, grid: &[Vec<f64>], hyper: &[f64]) -> Option<String> {
         EffectId::CurrentLag => ("time constant", false, false),
         EffectId::TorqueSaturation => ("limit", false, false),
         EffectId::Unbalance => ("period", false, true),
+        EffectId::LostMotion => ("transition travel", true, false),
         EffectId::ViscousFriction
         | EffectId::CoulombFriction
         | EffectId::ConstantForce

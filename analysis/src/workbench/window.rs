@@ -151,6 +151,7 @@ impl Body {
                 // in the transmission or on the torque path: not part of the load balance
                 EffectId::Backlash
                 | EffectId::PitchError
+                | EffectId::LostMotion
                 | EffectId::Delay
                 | EffectId::CurrentLag => {}
             }
@@ -202,11 +203,20 @@ impl Body {
     }
 }
 
+/// The plant's states that no encoder measures, per sample, for restarting a window there.
+struct Hidden {
+    /// The third mass's position and velocity (motor units), from the load's motion through
+    /// its own spring (as in its regressor).
+    third: Option<(Vec<f64>, Vec<f64>)>,
+    /// The lost-motion offset (motor units), replayed from the motor's travel.
+    lost: Option<Vec<f64>>,
+}
+
 /// The simulated axis: the plant simulator's, or the one-body approximation.
 enum Sim {
-    /// The simulator's axis, the friction dead bands of motor and load velocity, and the
-    /// third mass's motion estimated from the measured load motion (motor units), if any.
-    Plant(Box<AxisPlant>, f64, f64, Option<(Vec<f64>, Vec<f64>)>),
+    /// The simulator's axis, the friction dead bands of motor and load velocity, and the states
+    /// no encoder measures, estimated from the measured motion (see [`Hidden`]).
+    Plant(Box<AxisPlant>, f64, f64, Hidden),
     Body {
         body: Body,
         q: f64,
@@ -230,8 +240,14 @@ impl Sim {
                         let (x, v, _) = third_mass_track(d, e.hyper[0], e.hyper[1]);
                         (x, v)
                     });
+                let lost = p.lost_motion_series(&d.qm);
                 (
-                    Sim::Plant(Box::new(p), dead_band(d, &d.vm), dead_band(d, &d.vl), third),
+                    Sim::Plant(
+                        Box::new(p),
+                        dead_band(d, &d.vm),
+                        dead_band(d, &d.vl),
+                        Hidden { third, lost },
+                    ),
                     "plant".to_string(),
                 )
             }
@@ -256,13 +272,16 @@ impl Sim {
     fn restart(&mut self, d: &AxisData, k: usize, past: &[f64], load_ref: bool) {
         let still = |v: f64, eps: f64| if v.abs() <= eps { 0.0 } else { v };
         match self {
-            Sim::Plant(p, em, el, third) => {
+            Sim::Plant(p, em, el, hidden) => {
                 p.set_state(
                     (d.qm[k], still(d.vm[k], *em)),
                     (d.ql[k] / d.r, still(d.vl[k], *el) / d.r),
                     past,
                 );
-                if let Some((x, v)) = third {
+                if let Some(e) = &hidden.lost {
+                    p.set_lost_motion_offset(e[k]);
+                }
+                if let Some((x, v)) = &hidden.third {
                     let f = if p.kind() == feedloop_model::model::AxisKind::Rigid {
                         1.0
                     } else {

@@ -18,6 +18,7 @@ pub mod coulomb_friction;
 pub mod current_lag;
 pub mod delay;
 pub mod directional_friction;
+pub mod lost_motion;
 pub mod pitch_error;
 pub mod stribeck_friction;
 pub mod third_mass;
@@ -36,6 +37,7 @@ pub use coulomb_friction::CoulombFrictionParams;
 pub use current_lag::CurrentLagParams;
 pub use delay::DelayParams;
 pub use directional_friction::DirectionalFrictionParams;
+pub use lost_motion::LostMotionParams;
 pub use pitch_error::PitchErrorParams;
 pub use stribeck_friction::StribeckFrictionParams;
 pub use third_mass::ThirdMassParams;
@@ -45,6 +47,7 @@ pub use viscous_friction::ViscousFrictionParams;
 
 pub(crate) use cogging::CoggingHarmonic;
 pub(crate) use coulomb_friction::DryFriction;
+pub(crate) use lost_motion::LostMotion;
 pub(crate) use pitch_error::PitchError;
 pub(crate) use third_mass::ThirdMass;
 pub(crate) use unbalance::Unbalance;
@@ -280,6 +283,8 @@ pub enum EffectParams {
     Unbalance(UnbalanceParams),
     /// `directional_friction`.
     DirectionalFriction(DirectionalFrictionParams),
+    /// `lost_motion`.
+    LostMotion(LostMotionParams),
 }
 
 impl EffectParams {
@@ -299,6 +304,7 @@ impl EffectParams {
             EffectParams::TorqueSaturation(_) => EffectId::TorqueSaturation,
             EffectParams::Unbalance(_) => EffectId::Unbalance,
             EffectParams::DirectionalFriction(_) => EffectId::DirectionalFriction,
+            EffectParams::LostMotion(_) => EffectId::LostMotion,
         }
     }
 
@@ -317,7 +323,8 @@ impl EffectParams {
             | EffectParams::Delay(_)
             | EffectParams::CurrentLag(_)
             | EffectParams::TorqueSaturation(_)
-            | EffectParams::Unbalance(_) => None,
+            | EffectParams::Unbalance(_)
+            | EffectParams::LostMotion(_) => None,
         }
     }
 
@@ -356,6 +363,9 @@ impl EffectParams {
             EffectId::DirectionalFriction => {
                 EffectParams::DirectionalFriction(DirectionalFrictionParams::read(f, table, ctx)?)
             }
+            EffectId::LostMotion => {
+                EffectParams::LostMotion(LostMotionParams::read(f, table, ctx)?)
+            }
         })
     }
 
@@ -375,6 +385,7 @@ impl EffectParams {
             EffectParams::TorqueSaturation(p) => p.to_table(ctx),
             EffectParams::Unbalance(p) => p.to_table(),
             EffectParams::DirectionalFriction(p) => p.to_table(ctx),
+            EffectParams::LostMotion(p) => p.to_table(ctx),
         }
     }
 }
@@ -404,6 +415,8 @@ pub(crate) struct EffectSet {
     pub limit: Option<f64>,
     /// Load torque of the load angle.
     pub unbalance: Option<Unbalance>,
+    /// Motor-to-load offset of the direction of travel.
+    pub lost_motion: Option<LostMotion>,
 }
 
 impl EffectSet {
@@ -435,6 +448,7 @@ impl EffectSet {
                 self.dry[b] = Some(dry);
                 self.viscous[b] = Some(visc);
             }
+            EffectParams::LostMotion(p) => self.lost_motion = p.motor(ctx),
         }
     }
 }
@@ -538,7 +552,8 @@ pub fn read_effects(model: &ModelFile) -> Result<Vec<EffectParams>, ConfigError>
                 | EffectId::Delay
                 | EffectId::CurrentLag
                 | EffectId::TorqueSaturation
-                | EffectId::Unbalance => (false, false),
+                | EffectId::Unbalance
+                | EffectId::LostMotion => (false, false),
             };
             if let Some(side) = p.side() {
                 let b = side.body(ctx.kind);
@@ -652,6 +667,10 @@ mod tests {
                     fc_neg: 30.0,
                 }));
                 all.push(EffectParams::Backlash(BacklashParams { gap: 1e-5 }));
+                all.push(EffectParams::LostMotion(LostMotionParams {
+                    lost: 2e-5,
+                    transition: 3e-3,
+                }));
             }
             if ctx.kind == AxisKind::Rotary {
                 all.push(EffectParams::Unbalance(UnbalanceParams {
