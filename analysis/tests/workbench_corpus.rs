@@ -136,6 +136,12 @@ fn simulate_cmd(plant_text: &str, cmd: Vec<f64>) -> Trace {
             ..Default::default()
         };
         io.reference[0] = c * r;
+        // the command's velocity and acceleration (central differences), for a drive's
+        // feed-forwards; 0 effect unless the model's [controller] asks for them
+        let at = |j: usize| cmd[j.min(n - 1)] * r;
+        let (km, kp1) = (k.saturating_sub(1), k + 1);
+        io.reference[1] = (at(kp1) - at(km)) / ((kp1 - km) as f64 * DT);
+        io.reference[2] = (at(kp1) - 2.0 * at(k) + at(km)) / (DT * DT);
         pos.step(&ctx, &mut io);
         vel.step(&ctx, &mut io);
         for (j, v) in [
@@ -471,4 +477,30 @@ fn hidden_lost_motion_is_named_with_its_size_and_the_guided_loop_adds_only_it() 
 fn hidden_backlash_is_not_taken_for_lost_motion() {
     let (_, _, dg) = run("[effects.backlash]\ngap_m = 20.0e-6\n", &base());
     assert_eq!(dg.candidates[0].effect, "backlash", "{}", dg.verdict);
+}
+
+/// A drive with velocity and torque feed-forward: with `[controller] velocity_ff` and
+/// `torque_ff_kgm2` in the model the controller channel reads the drive (the record follows the
+/// law within its noise); without them the same record departs from the law by far more.
+#[test]
+fn a_drive_with_velocity_and_torque_feed_forward_is_read_by_the_controller_channel() {
+    use feedloop_analysis::workbench::controller::ControllerChannel;
+    let ff = "velocity_ff = 1.0\ntorque_ff_kgm2 = 4.5e-3\n";
+    let with_ff = controllers_util::xy_x_model(&format!("torque_limit_nm = 30.0\n{ff}"));
+    let tr = simulate(&format!("{with_ff}{SENSOR}"));
+    let nrmse = |model: &str| {
+        let t: toml::Table = model.parse().unwrap();
+        let m = WbModel::from_parts(ModelFile::from_table(&t, Path::new("m.toml")).unwrap(), t)
+            .unwrap();
+        let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();
+        let c = ControllerChannel::new(&m, &d).unwrap();
+        (c.nrmse_pct, c.fails())
+    };
+    let (right, right_fails) = nrmse(&with_ff);
+    let (without, _) = nrmse(&base());
+    println!(
+        "controller channel NRMSE: with the feed-forwards {right:.3} %, without {without:.3} %"
+    );
+    assert!(!right_fails && right < 1.0, "with: {right} %");
+    assert!(without > 10.0 * right.max(1.0), "without: {without} %");
 }

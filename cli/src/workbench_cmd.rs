@@ -112,7 +112,7 @@ pub struct Common {
     window_s: f64,
     /// A trace column holding a known input added to the controller's output after the
     /// controller (torque units, included in the recorded torque), e.g. `x.pulses`; default
-    /// `A.torque_add` when the trace has it.
+    /// `A.torque_add`, else `A.tau_ff` (a drive's feed-forward torque), when the trace has it.
     #[arg(long)]
     added_input: Option<String>,
     /// Print pure JSON on standard output.

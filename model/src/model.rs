@@ -19,6 +19,8 @@
 //! kv_nms_per_rad = 5.0
 //! tv_s = 0.005
 //! torque_limit_nm = 30.0
+//! velocity_ff = 1.0         # optional: share of the command velocity fed forward
+//! torque_ff_kgm2 = 5.0e-3   # optional: inertia times command acceleration fed forward
 //! ```
 
 use std::f64::consts::PI;
@@ -153,6 +155,13 @@ pub struct ControllerParams {
     pub tv_s: Option<f64>,
     /// Output limit: N m (`torque_limit_nm`) or N (`force_limit_n`).
     pub torque_limit: Option<f64>,
+    /// Velocity feed-forward (`velocity_ff`): the share of the commanded velocity added to the
+    /// velocity command, V = Kp (th - thL) + velocity_ff dth/dt. 0 (absent) .. 1 (full); every
+    /// CNC drive has it.
+    pub velocity_ff: Option<f64>,
+    /// Torque feed-forward: the inertia the commanded acceleration is multiplied by and added to
+    /// the velocity loop's output, kg m^2 (`torque_ff_kgm2`, motor side) or kg (`force_ff_kg`).
+    pub torque_ff: Option<f64>,
 }
 
 /// One parsed model file.
@@ -236,15 +245,17 @@ fn controller_params(
     kind: AxisKind,
 ) -> Result<ControllerParams, ConfigError> {
     let mut f = Fields::new(t, path, "controller");
-    let (kv_key, lim_key) = match kind {
-        AxisKind::Rigid => ("kv_ns_per_m", "force_limit_n"),
-        _ => ("kv_nms_per_rad", "torque_limit_nm"),
+    let (kv_key, lim_key, ff_key) = match kind {
+        AxisKind::Rigid => ("kv_ns_per_m", "force_limit_n", "force_ff_kg"),
+        _ => ("kv_nms_per_rad", "torque_limit_nm", "torque_ff_kgm2"),
     };
     let p = ControllerParams {
         kp_per_s: f.opt_f64("kp_per_s", Range::NonNegative)?,
         kv: f.opt_f64(kv_key, Range::Positive)?,
         tv_s: f.opt_f64("tv_s", Range::NonNegative)?,
         torque_limit: f.opt_f64(lim_key, Range::Positive)?,
+        velocity_ff: f.opt_f64("velocity_ff", Range::Within(0.0, 1.5))?,
+        torque_ff: f.opt_f64(ff_key, Range::NonNegative)?,
     };
     f.finish()?;
     Ok(p)

@@ -11,6 +11,12 @@
 //! velocity command, V = LP(Kp (th - thL)), discretised bilinearly with prewarp at the corner
 //! (see [`crate::filters`]); feedforward stages added after it are not filtered. Must be below
 //! 0.45 / period. Its state is the snapshot.
+//!
+//! The drive's own feed-forwards, as every CNC drive has them (defaults from the model's
+//! `[controller]`, 0 when absent): `velocity_ff` adds that share of the commanded velocity to V
+//! (`V += velocity_ff dth/dt`), and `torque_ff_kgm2` (`force_ff_kg` on a rigid axis) adds that
+//! inertia times the commanded acceleration to the torque feed-forward the velocity loop adds to
+//! its output. Neither is filtered.
 
 use std::path::Path;
 
@@ -31,6 +37,11 @@ pub struct PositionPParams {
     pub vel_filter_hz: Option<f64>,
     /// Sampling period the filter is discretised for, s.
     pub period_s: f64,
+    /// Share of the commanded velocity fed forward (`velocity_ff`), 0 = off.
+    pub velocity_ff: f64,
+    /// Inertia the commanded acceleration is fed forward with (`torque_ff_kgm2` /
+    /// `force_ff_kg`), 0 = off.
+    pub torque_ff: f64,
 }
 
 impl PositionPParams {
@@ -43,12 +54,26 @@ impl PositionPParams {
         let mut f = Fields::new(params, file, "");
         let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
         let vel_filter_hz = read_hz(&mut f, "vel_filter_hz", axis.period_s)?.flatten();
+        let ff_key = match axis.plant.kind() {
+            feedloop_model::model::AxisKind::Rigid => "force_ff_kg",
+            _ => "torque_ff_kgm2",
+        };
+        let velocity_ff = f
+            .opt_f64("velocity_ff", Range::Within(0.0, 1.5))?
+            .or(axis.defaults.velocity_ff)
+            .unwrap_or(0.0);
+        let torque_ff = f
+            .opt_f64(ff_key, Range::NonNegative)?
+            .or(axis.defaults.torque_ff)
+            .unwrap_or(0.0);
         f.finish()?;
         let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         Ok(Self {
             kp_per_s,
             vel_filter_hz,
             period_s: axis.period_s,
+            velocity_ff,
+            torque_ff,
         })
     }
 }
@@ -103,6 +128,15 @@ impl Controller for PositionP {
             None => 0.0,
         };
         io.vel_cmd += v;
+        // the drive's feed-forwards (not filtered; 0 when the model gives none)
+        let vff = self.params.velocity_ff * io.reference[1];
+        if vff.is_finite() {
+            io.vel_cmd += vff;
+        }
+        let tff = self.params.torque_ff * io.reference[2];
+        if tff.is_finite() {
+            io.torque_ff += tff;
+        }
     }
 
     fn snapshot(&self) -> ControllerState {
@@ -133,6 +167,8 @@ mod tests {
     #[test]
     fn velocity_command_is_gain_times_position_error() {
         let mut c = PositionP::new(PositionPParams {
+            velocity_ff: 0.0,
+            torque_ff: 0.0,
             kp_per_s: 40.0,
             vel_filter_hz: None,
             period_s: 1e-4,
@@ -149,6 +185,37 @@ mod tests {
         };
         c.step(&ctx, &mut io);
         assert!((io.vel_cmd - 20.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_drives_feed_forwards_come_from_the_model_and_add_to_both_commands() {
+        let mut axis = crate::test_util::ballscrew_axis(1e-4);
+        axis.defaults.velocity_ff = Some(0.8);
+        axis.defaults.torque_ff = Some(4e-3);
+        let p =
+            PositionPParams::from_table(&toml::Table::new(), &axis, Path::new("j.toml")).unwrap();
+        assert_eq!((p.velocity_ff, p.torque_ff), (0.8, 4e-3));
+        // a job's plugin parameters override the model's
+        let t: toml::Table = "velocity_ff = 0.5".parse().unwrap();
+        let q = PositionPParams::from_table(&t, &axis, Path::new("j.toml")).unwrap();
+        assert_eq!(q.velocity_ff, 0.5);
+        let mut c = PositionP::new(p);
+        let mut io = AxisSignals {
+            reference: [0.0, 10.0, 2000.0, 0.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        let ctx = CycleContext {
+            period_s: 1e-4,
+            cycle: 0,
+            t_s: 0.0,
+        };
+        c.step(&ctx, &mut io);
+        assert!((io.vel_cmd - 8.0).abs() < 1e-12, "{}", io.vel_cmd);
+        assert!((io.torque_ff - 8.0).abs() < 1e-12, "{}", io.torque_ff);
+        // out of range is refused with the key
+        let bad: toml::Table = "velocity_ff = 3.0".parse().unwrap();
+        let e = PositionPParams::from_table(&bad, &axis, Path::new("j.toml")).unwrap_err();
+        assert!(e.to_string().contains("velocity_ff"), "{e}");
     }
 
     #[test]

@@ -41,6 +41,7 @@ pub fn ballscrew_axis_with(
             kv: Some(kv),
             tv_s: Some(tv_s),
             torque_limit: Some(torque_limit),
+            ..ControllerParams::default()
         },
         period_s,
     }
@@ -80,6 +81,7 @@ pub fn rigid_axis(period_s: f64) -> AxisContext {
             kv: Some(8000.0),
             tv_s: Some(0.005),
             torque_limit: Some(5000.0),
+            ..ControllerParams::default()
         },
         period_s,
     }

@@ -19,6 +19,11 @@ use super::signal::{
 };
 use super::WorkbenchError;
 
+/// The trace columns (after `A.`) taken as a known input added after the controller when no
+/// `--added-input` is given, in this order: `torque_add` (a test injection) and `tau_ff` (a
+/// feed-forward torque the drive adds after its feedback law, as robot and CNC drives log it).
+pub const ADDED_INPUT_COLUMNS: [&str; 2] = ["torque_add", "tau_ff"];
+
 /// How the trace is prepared.
 #[derive(Debug, Clone)]
 pub struct Prep {
@@ -29,7 +34,8 @@ pub struct Prep {
     /// residual compares like with like and is not dominated by torque noise above the cut-off).
     pub filter_torque: bool,
     /// Column holding a known input added to the controller's output after the controller
-    /// (`None`: `A.torque_add` when the trace has it). Same units as `A.torque`; the recorded
+    /// (`None`: `A.torque_add`, else `A.tau_ff`, when the trace has it; see
+    /// [`ADDED_INPUT_COLUMNS`]). Same units as `A.torque`; the recorded
     /// torque is taken to include it, as a drive reports the total command.
     pub added_input: Option<String>,
 }
@@ -341,10 +347,10 @@ pub fn load_axis(
                 .map(<[f64]>::to_vec)
                 .ok_or_else(|| missing(trace, name, "the declared added input (--added-input)"))?,
         )),
-        None => {
-            let name = format!("{axis}.torque_add");
-            trace.column(&name).map(|c| (name, c.to_vec()))
-        }
+        None => ADDED_INPUT_COLUMNS.iter().find_map(|c| {
+            let name = format!("{axis}.{c}");
+            trace.column(&name).map(|col| (name, col.to_vec()))
+        }),
     };
     let n = trace.len();
     if n < 50 {
@@ -531,7 +537,10 @@ pub fn load_axis_held(
                 "the declared added input (--added-input)",
             ))
         }
-        None => Some(name("torque_add")).filter(|n| trace.has(n)),
+        None => ADDED_INPUT_COLUMNS
+            .iter()
+            .map(|c| name(c))
+            .find(|n| trace.has(n)),
     };
     let n = trace.len();
     if n < 50 * q {

@@ -21,6 +21,10 @@ pub struct Law {
     pub tv: f64,
     /// Output limit of the law, torque units (infinite when the model gives none).
     pub lim: f64,
+    /// Share of the commanded velocity fed forward into the velocity command (0: none).
+    pub vff: f64,
+    /// Inertia the commanded acceleration is fed forward with into the torque (0: none).
+    pub tff: f64,
 }
 
 impl Law {
@@ -32,7 +36,42 @@ impl Law {
             kv: c.kv?,
             tv: c.tv_s.unwrap_or(0.0),
             lim: c.torque_limit.unwrap_or(f64::INFINITY),
+            vff: c.velocity_ff.unwrap_or(0.0),
+            tff: c.torque_ff.unwrap_or(0.0),
         })
+    }
+
+    /// The command's velocity and acceleration (central differences, motor units), when the
+    /// law feeds either forward (empty otherwise).
+    fn command_derivatives(&self, cmd: &[f64], dt: f64) -> (Vec<f64>, Vec<f64>) {
+        if self.vff == 0.0 && self.tff == 0.0 {
+            return (Vec::new(), Vec::new());
+        }
+        let n = cmd.len();
+        let d1 = |x: &[f64], k: usize| -> f64 {
+            if n < 2 {
+                0.0
+            } else if k == 0 {
+                (x[1] - x[0]) / dt
+            } else if k + 1 >= n {
+                (x[k] - x[k - 1]) / dt
+            } else {
+                (x[k + 1] - x[k - 1]) / (2.0 * dt)
+            }
+        };
+        let v: Vec<f64> = (0..n).map(|k| d1(cmd, k)).collect();
+        // the three-point second difference (the most local estimate of the acceleration)
+        let a: Vec<f64> = (0..n)
+            .map(|k| {
+                let (lo, hi) = (k.saturating_sub(1), (k + 1).min(n.saturating_sub(1)));
+                if hi >= lo + 2 {
+                    (cmd[hi] - 2.0 * cmd[k] + cmd[lo]) / (dt * dt)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        (v, a)
     }
 
     /// The law's output at every sample, for the recorded position `x` (motor units), command
@@ -55,20 +94,23 @@ impl Law {
         let mut out = vec![0.0; n];
         let use_i = self.tv > 0.0;
         let mut integ = 0.0;
+        let (vcmd, acmd) = self.command_derivatives(cmd, dt);
+        let ff = |c: &[f64], k: usize, g: f64| if g == 0.0 { 0.0 } else { g * c[k] };
         for k in 0..n {
-            let e = self.kp * (cmd[k] - x[k]) - vel[k];
+            let e = self.kp * (cmd[k] - x[k]) + ff(&vcmd, k, self.vff) - vel[k];
             let e = if e.is_finite() { e } else { 0.0 };
             let prev = integ;
             if use_i && k == 0 {
                 // bumpless: the first output is the first recorded one
-                integ = (first / self.kv - e) * self.tv;
+                integ = ((first - ff(&acmd, 0, self.tff)) / self.kv - e) * self.tv;
                 if !integ.is_finite() {
                     integ = 0.0;
                 }
             } else if use_i && !disc.integrate_after_output {
                 integ += dt * e;
             }
-            let raw = self.kv * (e + if use_i { integ / self.tv } else { 0.0 });
+            let raw =
+                self.kv * (e + if use_i { integ / self.tv } else { 0.0 }) + ff(&acmd, k, self.tff);
             let u = raw.clamp(-self.lim, self.lim);
             if use_i && k > 0 && disc.integrate_after_output {
                 integ += dt * e;
