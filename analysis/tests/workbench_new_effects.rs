@@ -132,3 +132,89 @@ fn an_unbalanced_rotary_load_is_named_and_fitted() {
     assert!((p["period_rad"] - 2.0 * PI).abs() < 1e-6, "{p:?}");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// What no library effect explains is described by what it follows: a quadratic drag (no
+/// effect of the library has it) is named as the velocity squared with its sign; a torque that
+/// follows another signal of the machine is named by that column once the user adds it to the
+/// dictionary; on a right model no term counts and the sparse peer keeps no term.
+#[test]
+fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
+    use feedloop_analysis::workbench::diagnose::DiagOptions;
+    let dir = scratch("dictionary");
+    let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
+    // a drag of 40 N s^2/m^2 |v| v on a 20 kg mass
+    let trace = record(&dir, 20.0, 12.0, drive, |_, v| 40.0 * v.abs() * v);
+    let (m, d) = setup(&trace, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    let first = &dg.residual_terms[0];
+    assert_eq!(first.term, "velocity_squared", "{:?}", dg.residual_terms);
+    assert!(first.significant && first.cut_pct > 70.0, "{first:?}");
+    assert!(dg
+        .sparse_peer
+        .terms
+        .contains(&"velocity_squared".to_string()));
+
+    // a torque of 30 N times another signal of the machine (an unrelated slow sine)
+    let other = |t: f64| (2.0 * PI * 0.07 * t + 1.0).sin();
+    let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let mut out = String::new();
+    for line in text.lines() {
+        if line.starts_with('#') {
+            out.push_str(line);
+        } else if line.starts_with("t,") {
+            out.push_str(&format!("{line},x.other"));
+        } else {
+            let t: f64 = line.split(',').next().unwrap().parse().unwrap();
+            // the recorded force carries the other signal's torque the model does not know
+            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+            let f: f64 = cells[3].parse().unwrap();
+            cells[3] = format!("{}", f + 30.0 * other(t));
+            out.push_str(&format!("{},{}", cells.join(","), other(t)));
+        }
+        out.push('\n');
+    }
+    let path = dir.join("other.csv");
+    std::fs::write(&path, out).unwrap();
+    let (m, d) = setup(&path, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
+    let col = Trace::read(&path)
+        .unwrap()
+        .column("x.other")
+        .unwrap()
+        .to_vec();
+    let plain = diagnose(&m, &d, &DiagOptions::default());
+    let with = diagnose(
+        &m,
+        &d,
+        &DiagOptions {
+            extra_terms: vec![("x.other".into(), col)],
+            ..DiagOptions::default()
+        },
+    );
+    assert_eq!(
+        with.residual_terms[0].term, "column:x.other",
+        "{:?}",
+        with.residual_terms
+    );
+    assert!(with.residual_terms[0].significant);
+    assert!(
+        !plain
+            .residual_terms
+            .iter()
+            .any(|t| t.term == "column:x.other"),
+        "{:?}",
+        plain.residual_terms
+    );
+
+    // a right model: nothing follows, the peer keeps nothing
+    let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
+    let (m, d) = setup(&trace, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    assert!(
+        dg.residual_terms.iter().all(|t| !t.significant),
+        "{:?}",
+        dg.residual_terms
+    );
+    assert!(dg.sparse_peer.terms.is_empty(), "{:?}", dg.sparse_peer);
+    std::fs::remove_dir_all(dir).ok();
+}

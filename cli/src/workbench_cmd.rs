@@ -68,6 +68,10 @@ pub enum WorkbenchCmd {
         /// Most additions of the guided loop.
         #[arg(long, default_value_t = 6)]
         max_steps: usize,
+        /// A trace column added to the dictionary of terms the remaining residual is described
+        /// by (e.g. another joint's angle `j3.load`); repeatable or comma-separated.
+        #[arg(long, value_delimiter = ',')]
+        dictionary_column: Vec<String>,
         #[command(flatten)]
         common: Common,
     },
@@ -421,6 +425,7 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             out,
             auto: guided,
             max_steps,
+            dictionary_column,
             common,
         } => {
             let (m, d, warnings) = load(
@@ -436,7 +441,8 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
                 let out = out.ok_or_else(|| anyhow::anyhow!("diagnose --auto: --out DIR is required (the final model and report are written there)"))?;
                 diagnose_auto(&m, &d, &out, max_steps, &common, &warnings)?;
             } else {
-                diagnose_once(&m, &d, out.as_deref(), &common, &warnings)?;
+                let extra = dictionary_columns(&trace, &dictionary_column, &d)?;
+                diagnose_once(&m, &d, out.as_deref(), &common, &warnings, extra)?;
             }
         }
         WorkbenchCmd::Fit {
@@ -610,14 +616,52 @@ fn diagnose_auto(
 }
 
 /// `feedloop diagnose` without `--auto`: ranks the candidates once (report files with `--out`).
+/// The trace columns `names` at the samples of axis `d` (block means of a long trace held in
+/// them), for the dictionary of `diagnose`; a missing column is refused with the columns there.
+fn dictionary_columns(
+    trace: &Path,
+    names: &[String],
+    d: &AxisData,
+) -> Result<Vec<(String, Vec<f64>)>, WorkbenchError> {
+    if names.is_empty() {
+        return Ok(Vec::new());
+    }
+    let tr = Trace::read_columns(trace, &|n: &str| names.iter().any(|x| x == n))?;
+    names
+        .iter()
+        .map(|n| {
+            let c = tr.column(n).ok_or_else(|| WorkbenchError::MissingColumn {
+                path: trace.to_path_buf(),
+                column: n.clone(),
+                needed_for: "--dictionary-column".into(),
+                present: Trace::read_header(trace)
+                    .map(|h| h.join(", "))
+                    .unwrap_or_default(),
+            })?;
+            let mut v = if d.sub > 1 {
+                feedloop_analysis::workbench::signal::block_means(c, d.sub)
+            } else {
+                c.to_vec()
+            };
+            v.resize(d.len(), v.last().copied().unwrap_or(0.0));
+            Ok((n.clone(), v))
+        })
+        .collect()
+}
+
 fn diagnose_once(
     m: &WbModel,
     d: &AxisData,
     out: Option<&Path>,
     common: &Common,
     warnings: &[String],
+    extra_terms: Vec<(String, Vec<f64>)>,
 ) -> anyhow::Result<()> {
-    let dg = diagnose(m, d, &DiagOptions::default());
+    let opts = DiagOptions {
+        extra_terms,
+        ..DiagOptions::default()
+    };
+    let dg = diagnose(m, d, &opts);
     let mut j = dg.to_json();
     j["warnings"] = serde_json::json!(warnings);
     if d.sub > 1 {
@@ -653,6 +697,29 @@ fn diagnose_once(
             c.evidence
         );
     }
+    for t in &dg.residual_terms {
+        println!(
+            "residual follows   {:<20} {:>6.1} %  {}  {}",
+            t.term,
+            t.cut_pct,
+            if t.significant {
+                "significant"
+            } else {
+                "-          "
+            },
+            t.words
+        );
+    }
+    let p = &dg.sparse_peer;
+    println!(
+        "sparse regression on the same dictionary (the generic peer): equation NRMSE {} % with {}",
+        sig(p.equation_nrmse_pct),
+        if p.terms.is_empty() {
+            "no term".to_string()
+        } else {
+            p.terms.join(", ")
+        }
+    );
     println!("{}", dg.verdict);
     if let Some(h) = j.get("held_in_block_means") {
         println!("note: {}", h["why"].as_str().unwrap_or_default());

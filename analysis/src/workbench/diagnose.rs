@@ -25,6 +25,7 @@ use serde_json::{json, Value};
 use super::base::BaseParam;
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
+use super::dictionary::{self, SparsePeer, TermCut};
 use super::effects::{
     channel, class_of, constant_force_value, constant_force_words, evidence, fmt, reversals,
     round_sig, Channel, Effect, EffectId, Side, WbModel,
@@ -83,7 +84,8 @@ pub struct Candidate {
     pub class: String,
     /// Significant under cross-validation.
     pub significant: bool,
-    /// Cross-validated RMS reduction, % of the model's error.
+    /// Cross-validated RMS reduction, % of the model's error (within -100 .. 100: a candidate
+    /// that raises the error more than doubles it is shown at -100).
     pub error_reduction_pct: f64,
     /// Fitted parameters (model-file keys).
     pub params: BTreeMap<String, f64>,
@@ -116,6 +118,11 @@ pub struct Diagnosis {
     pub untested: Vec<(String, String)>,
     /// The controller channel's figures (JSON), when the model has a controller law.
     pub controller: Option<Value>,
+    /// What the torque residual follows beyond the base refit, from the dictionary of terms:
+    /// the terms that count, then the best one that did not.
+    pub residual_terms: Vec<TermCut>,
+    /// The generic peer: a sparse regression of the residual on the same dictionary.
+    pub sparse_peer: SparsePeer,
 }
 
 fn corr(a: &[f64], b: &[f64]) -> f64 {
@@ -154,6 +161,9 @@ pub struct DiagOptions {
     pub skip: Vec<String>,
     /// Length of the simulation windows of the fit that confirms a recommendation, s.
     pub window_s: f64,
+    /// Trace columns (name, values at the axis' samples) added to the dictionary of terms the
+    /// residual is described by (see [`super::dictionary`]), e.g. another joint's angle.
+    pub extra_terms: Vec<(String, Vec<f64>)>,
 }
 
 impl Default for DiagOptions {
@@ -161,6 +171,7 @@ impl Default for DiagOptions {
         Self {
             skip: Vec::new(),
             window_s: 0.05,
+            extra_terms: Vec::new(),
         }
     }
 }
@@ -226,7 +237,19 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         }
     };
     let (white, ac) = residual_whiteness(d, &ch);
-    let verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
+    let (residual_terms, sparse_peer) = dictionary_of(model, d, &ch, &opts.extra_terms);
+    let mut verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
+    let follows: Vec<String> = residual_terms
+        .iter()
+        .filter(|t| t.significant)
+        .map(|t| format!("{} (a cut of {:.1} %)", t.words, t.cut_pct))
+        .collect();
+    if !follows.is_empty() && !cands.iter().any(|c| c.significant) {
+        verdict = format!(
+            "{verdict}. What no effect of the library explains follows {}",
+            follows.join(", then ")
+        );
+    }
     Diagnosis {
         candidates: cands,
         verdict,
@@ -235,6 +258,8 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         whiteness_passed: white,
         untested,
         controller: cc.as_ref().map(|c| c.to_json(d)),
+        residual_terms,
+        sparse_peer,
     }
 }
 
@@ -347,7 +372,7 @@ fn base_parameter_candidates(
             is_param: true,
             class: k.class().id().to_string(),
             significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && outside,
-            error_reduction_pct: red.min(100.0),
+            error_reduction_pct: red.clamp(-100.0, 100.0),
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({:+.1} %, +-{} at {CI_SIGMAS} standard errors{})",
                 fmt(old),
@@ -554,7 +579,7 @@ fn deflection_candidate(
             && wins >= MIN_FOLD_WINS
             && resolvable
             && doubtful.is_none(),
-        error_reduction_pct: red.min(100.0),
+        error_reduction_pct: red.clamp(-100.0, 100.0),
         evidence: ev,
         params,
         same_as: vec![],
@@ -581,7 +606,7 @@ fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candidate {
         is_param: false,
         class: "damping".into(),
         significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS,
-        error_reduction_pct: red.min(100.0),
+        error_reduction_pct: red.clamp(-100.0, 100.0),
         evidence: evidence(&e, d),
         params,
         same_as: vec![],
@@ -657,7 +682,7 @@ fn mode_candidate(
         class: class_of(id).into(),
         significant: true,
         // a mode that the data single out ranks before the inertia refit it also explains
-        error_reduction_pct: red.min(100.0),
+        error_reduction_pct: red.clamp(-100.0, 100.0),
         evidence: format!(
             "{}; in the band up to {} Hz it lowers the error by {:.1} % beyond a refit of the base parameters",
             evidence(&e, d),
@@ -798,7 +823,7 @@ fn scored_candidate(
         is_param: false,
         class: class_of(id).into(),
         significant,
-        error_reduction_pct: red.min(100.0),
+        error_reduction_pct: red.clamp(-100.0, 100.0),
         evidence: ev,
         params,
         same_as: vec![],
@@ -897,6 +922,42 @@ fn mark_indistinguishable(cands: &mut [Candidate]) {
             }
         }
     }
+}
+
+/// The residual's description by the dictionary and the sparse peer on it, on at most 200,000
+/// evenly spread samples (a long trace is thinned: the terms are smooth or held).
+fn dictionary_of(
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+    extra: &[(String, Vec<f64>)],
+) -> (Vec<TermCut>, SparsePeer) {
+    let step = d.len().div_ceil(200_000).max(1);
+    let run = |d: &AxisData, ch: &TorqueChannel<'_>, extra: &[(String, Vec<f64>)]| {
+        let terms = dictionary::terms(d, &ch.y_app, extra);
+        let cuts = dictionary::explain(
+            &terms,
+            &ch.base_cols,
+            &ch.res,
+            &ch.bl,
+            ch.mask.as_deref(),
+            ch.min_pct,
+            MIN_FOLD_WINS,
+        );
+        let peer = dictionary::sparse_peer(&terms, &ch.base_cols, &ch.res, &ch.y_app, d.range);
+        (cuts, peer)
+    };
+    if step == 1 {
+        return run(d, ch, extra);
+    }
+    let dd = d.decimated(step);
+    let rel = Released::of(model, &dd, None);
+    let chd = TorqueChannel::new(model, &dd, &rel);
+    let thin: Vec<(String, Vec<f64>)> = extra
+        .iter()
+        .map(|(n, c)| (n.clone(), c.iter().step_by(step).copied().collect()))
+        .collect();
+    run(&dd, &chd, &thin)
 }
 
 /// Whiteness of the torque residual after the base refit: whether at most one of its first 20
@@ -1340,7 +1401,7 @@ fn controller_candidates(
                 is_param: false,
                 class: class_of(EffectId::TorqueSaturation).into(),
                 significant: true,
-                error_reduction_pct: red.min(100.0),
+                error_reduction_pct: red.clamp(-100.0, 100.0),
                 evidence: format!(
                     "the recorded torque sits at +-{} {tu} in {} samples ({:.1} % of the time) where the controller law asks for more{}: the drive clamps and records the clamped value",
                     fmt(l),
@@ -1412,7 +1473,7 @@ fn controller_candidates(
             is_param: false,
             class: "input".into(),
             significant: true,
-            error_reduction_pct: red.min(100.0),
+            error_reduction_pct: red.clamp(-100.0, 100.0),
             evidence: format!(
                 "the recorded torque departs from the controller law in {} stretches ({:.0} % of the time, {:.0} % of the departure), by about {} {tu} each, switching on and off at once: {}{}{}; the controller law ignores it, so something is added after the controller",
                 events.len(),
@@ -1487,6 +1548,17 @@ impl Diagnosis {
             "whiteness_passed": self.whiteness_passed,
             "controller": self.controller,
             "untested": self.untested.iter().map(|(k, r)| json!({"effect": k, "reason": r})).collect::<Vec<_>>(),
+            "residual_terms": self.residual_terms.iter().map(|t| json!({
+                "term": t.term,
+                "follows": t.words,
+                "cut_pct": (t.cut_pct * 100.0).round() / 100.0,
+                "significant": t.significant,
+            })).collect::<Vec<_>>(),
+            "sparse_peer": {
+                "terms": self.sparse_peer.terms,
+                "threshold": self.sparse_peer.threshold,
+                "equation_nrmse_pct": self.sparse_peer.equation_nrmse_pct,
+            },
         })
     }
 }

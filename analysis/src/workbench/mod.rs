@@ -17,6 +17,7 @@ pub mod compare;
 pub mod controller;
 pub mod data;
 pub mod diagnose;
+pub mod dictionary;
 pub mod effects;
 pub mod fit;
 pub mod import;
