@@ -10,10 +10,10 @@
 use serde_json::{json, Value};
 
 use super::data::AxisData;
-use super::diagnose::{diagnose, material_cut, DiagOptions, Diagnosis};
+use super::diagnose::{diagnose, material_cut, Candidate, DiagOptions, Diagnosis};
 use super::effects::EffectId;
 use super::effects::WbModel;
-use super::fit::{fit, fit_with, Errors};
+use super::fit::{fit, fit_with, Errors, FitResult};
 use super::WorkbenchError;
 use crate::plot::{Axis, Plot, Series, PALETTE};
 
@@ -67,36 +67,8 @@ pub fn auto(
         {
             break;
         }
-        // an effect that contains another (Stribeck friction contains Coulomb friction)
-        // replaces it on the same body instead of adding a second one
-        let mut base_m = m.clone();
-        let mut replaced = Vec::new();
-        for e in &top.add {
-            if let Some(old) = e.id.supersedes() {
-                let before = base_m.effects.len();
-                base_m
-                    .effects
-                    .retain(|x| !(x.id == old && x.side == e.side));
-                if base_m.effects.len() < before {
-                    replaced.push(old.to_string());
-                }
-            }
-        }
-        let res = if top.is_param {
-            let mut free = vec![top.effect.clone()];
-            for o in &top.same_as {
-                if last.candidates.iter().any(|c| &c.effect == o && c.is_param) {
-                    free.push(o.clone());
-                }
-            }
-            fit_with(&m, d, vec![], Some(&free), window_s)
-        } else {
-            // the fit the diagnosis confirmed its recommendation with (`fit --add IDS`: it
-            // replaces what the effect contains and carries the base parameters it spans)
-            let mut ids: Vec<EffectId> = top.add.iter().map(|e| e.id).collect();
-            ids.dedup();
-            fit(&m, d, &ids, None, window_s)
-        };
+        let replaced = replaced_by(&m, &top);
+        let res = fit_step(&m, d, &top, &last, window_s);
         let res = match res {
             Ok(r) => r,
             Err(e) => {
@@ -149,6 +121,45 @@ pub fn auto(
         model: m,
         last,
     })
+}
+
+/// The effects of `m` that the candidate's effects contain and so replace on the same body
+/// (Stribeck or directional friction contains Coulomb friction).
+fn replaced_by(m: &WbModel, top: &Candidate) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in &top.add {
+        if let Some(old) = e.id.supersedes() {
+            if m.effects.iter().any(|x| x.id == old && x.side == e.side) {
+                out.push(old.to_string());
+            }
+        }
+    }
+    out
+}
+
+/// The fit of one step: a base parameter refitted (with those the diagnosis cannot tell from
+/// it), or the effects added through the fit the diagnosis confirmed its recommendation with
+/// (`fit --add IDS`: it replaces what the effect contains and carries the base parameters it
+/// spans).
+fn fit_step(
+    m: &WbModel,
+    d: &AxisData,
+    top: &Candidate,
+    last: &Diagnosis,
+    window_s: f64,
+) -> Result<FitResult, WorkbenchError> {
+    if top.is_param {
+        let mut free = vec![top.effect.clone()];
+        for o in &top.same_as {
+            if last.candidates.iter().any(|c| &c.effect == o && c.is_param) {
+                free.push(o.clone());
+            }
+        }
+        return fit_with(m, d, vec![], Some(&free), window_s);
+    }
+    let mut ids: Vec<EffectId> = top.add.iter().map(|e| e.id).collect();
+    ids.dedup();
+    fit(m, d, &ids, None, window_s)
 }
 
 impl AutoResult {

@@ -795,21 +795,7 @@ fn scored_candidate(
     } else {
         extra
     };
-    let mut contribution = vec![0.0; d.len()];
-    for e in &add {
-        if channel(e.id) == Channel::TorquePath {
-            let mut with = model.clone();
-            with.effects.push(e.clone());
-            let t = with.applied(d).unwrap_or_else(|| ch.y_app.clone());
-            for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&ch.y_app)) {
-                *c += x - z;
-            }
-        } else {
-            for (c, x) in contribution.iter_mut().zip(e.contribution(d)) {
-                *c += x;
-            }
-        }
-    }
+    let contribution = contribution_of(&add, model, d, ch);
     // a friction law needs reversals to be told from an offset and a slope: say so where that
     // is why it is not named
     let turns = reversals(d);
@@ -831,6 +817,32 @@ fn scored_candidate(
         contribution: decimate(&contribution, a, b),
         channel: "torque",
     })
+}
+
+/// What the effects `add` change in the torque balance of `model` on `d`: their contribution to
+/// the torque needed, or the change of the applied torque for a torque-path effect.
+fn contribution_of(
+    add: &[Effect],
+    model: &WbModel,
+    d: &AxisData,
+    ch: &TorqueChannel<'_>,
+) -> Vec<f64> {
+    let mut contribution = vec![0.0; d.len()];
+    for e in add {
+        if channel(e.id) == Channel::TorquePath {
+            let mut with = model.clone();
+            with.effects.push(e.clone());
+            let t = with.applied(d).unwrap_or_else(|| ch.y_app.clone());
+            for (c, (x, z)) in contribution.iter_mut().zip(t.iter().zip(&ch.y_app)) {
+                *c += x - z;
+            }
+        } else {
+            for (c, x) in contribution.iter_mut().zip(e.contribution(d)) {
+                *c += x;
+            }
+        }
+    }
+    contribution
 }
 
 /// What [`coulomb_with_offset`] returns: the effects to add, their cross-validation, the

@@ -108,30 +108,7 @@ pub fn terms(d: &AxisData, y_app: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<T
             cols: vec![d.am.clone()],
         },
     ];
-    // the position: over one motor revolution (a ripple) and over the travel (a slow shape)
-    let travel = span(&d.qm[a..b]);
-    let mut periods = Vec::new();
-    if d.kind != feedloop_model::model::AxisKind::Rigid {
-        periods.push(("position_rev", 2.0 * PI, "one motor revolution".to_string()));
-    }
-    if travel > 0.0 {
-        periods.push((
-            "position_travel",
-            2.0 * travel,
-            "twice the travel (a slow shape of the position)".to_string(),
-        ));
-    }
-    for (id, p, what) in periods {
-        let w = 2.0 * PI / p;
-        out.push(Term {
-            id: id.into(),
-            words: format!("the position, periodic over {what}"),
-            cols: vec![
-                filt(d.qm.iter().map(|q| (w * q).sin()).collect()),
-                filt(d.qm.iter().map(|q| (w * q).cos()).collect()),
-            ],
-        });
-    }
+    out.extend(position_terms(d, &filt));
     let t0 = mean(&d.t[a..b]);
     out.push(Term {
         id: "time".into(),
@@ -157,6 +134,38 @@ pub fn terms(d: &AxisData, y_app: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<T
         }
     }
     out
+}
+
+/// The position terms: periodic over one motor revolution (a ripple; not on a rigid axis) and
+/// over twice the travel (a slow shape), each a sine and a cosine filtered by `filt`.
+fn position_terms(d: &AxisData, filt: &dyn Fn(Vec<f64>) -> Vec<f64>) -> Vec<Term> {
+    let (a, b) = d.range;
+    let travel = span(&d.qm[a..b]);
+    let mut periods = Vec::new();
+    if d.kind != feedloop_model::model::AxisKind::Rigid {
+        periods.push(("position_rev", 2.0 * PI, "one motor revolution"));
+    }
+    if travel > 0.0 {
+        periods.push((
+            "position_travel",
+            2.0 * travel,
+            "twice the travel (a slow shape of the position)",
+        ));
+    }
+    periods
+        .into_iter()
+        .map(|(id, p, what)| {
+            let w = 2.0 * PI / p;
+            Term {
+                id: id.into(),
+                words: format!("the position, periodic over {what}"),
+                cols: vec![
+                    filt(d.qm.iter().map(|q| (w * q).sin()).collect()),
+                    filt(d.qm.iter().map(|q| (w * q).cos()).collect()),
+                ],
+            }
+        })
+        .collect()
 }
 
 /// What the residual `res` follows beyond the `base` columns: forward selection of at most

@@ -143,24 +143,20 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
     Ok(out)
 }
 
-/// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits.
-pub fn fit(
+/// The model an addition of `add` starts from: an added effect that contains one the model
+/// has (directional or Stribeck friction and a Coulomb friction) replaces it instead of being
+/// fitted as a correction of it; an added effect whose columns hold a base parameter's (the
+/// damping beside a friction with viscous slopes) carries that parameter whole: it is set to
+/// zero and refitted as the effect's coefficient, which then keeps its physical sign. Each
+/// change is said in `warnings`.
+fn prepared(
     model: &WbModel,
     d: &AxisData,
     add: &[EffectId],
-    free: Option<&[String]>,
-    window_s: f64,
-) -> Result<FitResult, WorkbenchError> {
-    let kind = d.kind;
-    let mut warnings: Vec<String> = Vec::new();
-    let mut held_all: Vec<BaseParam> = Vec::new();
-    // an added effect whose columns hold a base parameter's (the damping beside a friction with
-    // viscous slopes) carries that parameter whole: it is set to zero here and refitted as the
-    // effect's coefficient, which then keeps its physical sign
-    let original = model;
+    free_keys: &[BaseParam],
+    warnings: &mut Vec<String>,
+) -> WbModel {
     let mut work = model.clone();
-    // an added effect that contains one the model has (directional or Stribeck friction and a
-    // Coulomb friction) replaces it instead of being fitted as a correction of it
     for &id in add {
         if let Some(old) = id
             .supersedes()
@@ -170,7 +166,6 @@ pub fn fit(
             warnings.push(format!("{id} replaces the model's {old} (it contains it)"));
         }
     }
-    let (free_keys, free_effects) = free_keys(model, d, free)?;
     let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
     for &id in add {
         for i in spanned_base(id, d, &cols) {
@@ -182,6 +177,23 @@ pub fn fit(
         }
     }
     update_plant(&mut work);
+    work
+}
+
+/// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits.
+pub fn fit(
+    model: &WbModel,
+    d: &AxisData,
+    add: &[EffectId],
+    free: Option<&[String]>,
+    window_s: f64,
+) -> Result<FitResult, WorkbenchError> {
+    let kind = d.kind;
+    let mut warnings: Vec<String> = Vec::new();
+    let mut held_all: Vec<BaseParam> = Vec::new();
+    let original = model;
+    let (free_keys, free_effects) = free_keys(model, d, free)?;
+    let work = prepared(model, d, add, &free_keys, &mut warnings);
     let moved = work.base != model.base || work.effects.len() != model.effects.len();
     let model = &work;
     let rel = Released::of(model, d, free_effects.as_deref());
@@ -338,21 +350,22 @@ fn free_keys(
                     out.push(p);
                     continue;
                 }
-                match EffectId::parse(s) {
-                    Some(id) if model.effects.iter().any(|e| e.id == id) => ids.push(id),
-                    _ => {
-                        let mut accepted: Vec<&str> = keys.iter().map(|k| k.key()).collect();
-                        accepted.extend(model.effects.iter().map(|e| e.id.id()));
-                        return Err(WorkbenchError::BadArgument {
-                            arg: format!("--free {s}"),
-                            reason: format!(
-                                "neither a base parameter of a {} model nor an effect of this model (free parameters: {})",
-                                model.kind().id(),
-                                accepted.join(", ")
-                            ),
-                        });
-                    }
+                if let Some(id) =
+                    EffectId::parse(s).filter(|id| model.effects.iter().any(|e| e.id == *id))
+                {
+                    ids.push(id);
+                    continue;
                 }
+                let mut accepted: Vec<&str> = keys.iter().map(|k| k.key()).collect();
+                accepted.extend(model.effects.iter().map(|e| e.id.id()));
+                return Err(WorkbenchError::BadArgument {
+                    arg: format!("--free {s}"),
+                    reason: format!(
+                        "neither a base parameter of a {} model nor an effect of this model (free parameters: {})",
+                        model.kind().id(),
+                        accepted.join(", ")
+                    ),
+                });
             }
             Ok((out, Some(ids)))
         }
@@ -417,54 +430,7 @@ pub fn fit_with(
             .next()
             .expect("one block");
         let (nk, nr) = (free_keys.len(), rel.cols.len());
-        // the parameters that may be held: the base parameters, and the coefficients of the
-        // model's own effects (all free beyond a count whose subsets are too many to try)
-        let nh = if nk + nr <= MAX_HELD_SEARCH {
-            nk + nr
-        } else {
-            nk
-        };
-        let in_range = |i: usize, delta: f64| {
-            if i >= nk {
-                return rel.in_range(model, i - nk, delta);
-            }
-            let key = free_keys[i];
-            let now = model.base_value(key);
-            let v = now + delta;
-            match key.class() {
-                BaseClass::Damping => v >= 0.0,
-                BaseClass::Inertia => v > 0.1 * now.max(0.0),
-            }
-        };
-        let mut best: Option<(u32, f64, Vec<usize>, nalgebra::DVector<f64>)> = None;
-        for mask in 0u32..(1 << nh) {
-            let keep: Vec<usize> = (0..nh)
-                .filter(|i| mask & (1 << i) == 0)
-                .chain(nh..refs.len())
-                .collect();
-            let sub = all.select(&keep);
-            let th = sub.solve();
-            if !keep
-                .iter()
-                .enumerate()
-                .all(|(k, i)| *i >= nk + nr || in_range(*i, th[k]))
-            {
-                continue;
-            }
-            let sse = sub.sse(&th);
-            let better = best
-                .as_ref()
-                .is_none_or(|b| (mask.count_ones(), sse) < (b.0, b.1));
-            if better {
-                best = Some((mask.count_ones(), sse, keep, th));
-            }
-        }
-        let (_, _, keep, th) = best.expect("holding every base parameter is always in range");
-        // the change of every column, 0 for a held one
-        let mut delta = vec![0.0; refs.len()];
-        for (k, i) in keep.iter().enumerate() {
-            delta[*i] = th[k];
-        }
+        let (keep, delta) = constrained(&all, model, &free_keys, &rel);
         for (i, key) in free_keys.iter().enumerate() {
             let v = model.base_value(*key) + delta[i];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
@@ -570,6 +536,68 @@ pub fn fit_with(
         after,
         warnings,
     })
+}
+
+/// The constrained least squares of [`fit_with`] on the normal equations `all`, whose columns
+/// are the free base parameters, then the model's own effects' coefficients ([`Released`]),
+/// then the added effects': every subset of the first two groups is held at its values in turn
+/// (the released ones only while their subsets are few enough to try), a fit counts when every
+/// free one stays in range, and the one with the fewest held, then the smallest residual, wins.
+/// Returns the columns kept and the change of every column (0 for a held one).
+fn constrained(
+    all: &super::lsq::Normal,
+    model: &WbModel,
+    free_keys: &[BaseParam],
+    rel: &Released,
+) -> (Vec<usize>, Vec<f64>) {
+    let p = all.xty.len();
+    let (nk, nr) = (free_keys.len(), rel.cols.len());
+    let nh = if nk + nr <= MAX_HELD_SEARCH {
+        nk + nr
+    } else {
+        nk
+    };
+    let in_range = |i: usize, delta: f64| {
+        if i >= nk {
+            return rel.in_range(model, i - nk, delta);
+        }
+        let key = free_keys[i];
+        let now = model.base_value(key);
+        let v = now + delta;
+        match key.class() {
+            BaseClass::Damping => v >= 0.0,
+            BaseClass::Inertia => v > 0.1 * now.max(0.0),
+        }
+    };
+    let mut best: Option<(u32, f64, Vec<usize>, nalgebra::DVector<f64>)> = None;
+    for mask in 0u32..(1 << nh) {
+        let keep: Vec<usize> = (0..nh)
+            .filter(|i| mask & (1 << i) == 0)
+            .chain(nh..p)
+            .collect();
+        let sub = all.select(&keep);
+        let th = sub.solve();
+        if !keep
+            .iter()
+            .enumerate()
+            .all(|(k, i)| *i >= nk + nr || in_range(*i, th[k]))
+        {
+            continue;
+        }
+        let sse = sub.sse(&th);
+        if best
+            .as_ref()
+            .is_none_or(|b| (mask.count_ones(), sse) < (b.0, b.1))
+        {
+            best = Some((mask.count_ones(), sse, keep, th));
+        }
+    }
+    let (_, _, keep, th) = best.expect("holding every base parameter is always in range");
+    let mut delta = vec![0.0; p];
+    for (k, i) in keep.iter().enumerate() {
+        delta[*i] = th[k];
+    }
+    (keep, delta)
 }
 
 /// The error of `fit --add ID` when the effect cannot be fitted.
