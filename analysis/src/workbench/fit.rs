@@ -191,6 +191,7 @@ pub fn fit(
     let kind = d.kind;
     let mut warnings: Vec<String> = Vec::new();
     let mut held_all: Vec<BaseParam> = Vec::new();
+    let mut held_effects: Vec<EffectId> = Vec::new();
     let original = model;
     let (free_keys, free_effects) = free_keys(model, d, free)?;
     let work = prepared(model, d, add, &free_keys, &mut warnings);
@@ -261,12 +262,22 @@ pub fn fit(
                     ..
                 } = best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
                     .map_err(|why| refused(id, why))?;
-                if e.id == EffectId::CoulombFriction {
+                // a Coulomb friction is added symmetric: its level alone spans no offset, so the
+                // model's own effects it held are refitted beside it; any other effect keeps
+                // them held (an offset beside a friction with a level per direction)
+                let symmetric = e.id == EffectId::CoulombFriction;
+                if symmetric {
                     e.coef[1] = 0.0;
                 }
-                // the base parameters it held stay held in the joint refit (the model's own
-                // effects are refitted there again, beside the effect as it is added)
-                let held: Vec<usize> = held.into_iter().filter(|i| *i < free_keys.len()).collect();
+                let nk = free_keys.len();
+                if !symmetric {
+                    held_effects.extend(
+                        held.iter()
+                            .filter(|i| **i >= nk)
+                            .map(|i| model.effects[rel.slots[*i - nk].0].id),
+                    );
+                }
+                let held: Vec<usize> = held.into_iter().filter(|i| *i < nk || !symmetric).collect();
                 if !held.is_empty() {
                     warnings.push(format!("{id}: {}", held_words(&held, &names)));
                     held_all.extend(held.iter().filter_map(|i| free_keys.get(*i).copied()));
@@ -281,17 +292,21 @@ pub fn fit(
     let _ = kind;
     // the base parameters the effects' own refits held (what the data cannot tell apart from
     // them) stay held in the joint refit: the same refit that diagnose ranks by
-    let narrowed: Option<Vec<String>> = (!held_all.is_empty()).then(|| {
-        let effects: Vec<EffectId> = free_effects
-            .clone()
-            .unwrap_or_else(|| model.effects.iter().map(|e| e.id).collect());
-        free_keys
-            .iter()
-            .filter(|k| !held_all.contains(k))
-            .map(|k| k.key().to_string())
-            .chain(effects.iter().map(|id| id.id().to_string()))
-            .collect()
-    });
+    let narrowed: Option<Vec<String>> =
+        (!held_all.is_empty() || !held_effects.is_empty()).then(|| {
+            let effects: Vec<EffectId> = free_effects
+                .clone()
+                .unwrap_or_else(|| model.effects.iter().map(|e| e.id).collect())
+                .into_iter()
+                .filter(|id| !held_effects.contains(id))
+                .collect();
+            free_keys
+                .iter()
+                .filter(|k| !held_all.contains(k))
+                .map(|k| k.key().to_string())
+                .chain(effects.iter().map(|id| id.id().to_string()))
+                .collect()
+        });
     let free = narrowed.as_deref().or(free);
     let mut r = fit_with(model, d, effects, free, window_s)?;
     if moved {
