@@ -13,8 +13,10 @@
 
 pub mod auto;
 pub mod base;
+mod candidates;
 pub mod compare;
 pub mod controller;
+mod controller_candidates;
 pub mod data;
 pub mod diagnose;
 pub mod dictionary;
@@ -25,7 +27,9 @@ pub mod law;
 pub mod lsq;
 pub mod refit;
 pub mod report;
+mod scoring;
 pub mod signal;
+mod verdict;
 pub mod window;
 
 use std::path::PathBuf;

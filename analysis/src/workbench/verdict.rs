@@ -1,0 +1,214 @@
+//! The verdict of a diagnosis: the recommendation confirmed by running the fit it recommends
+//! (the figures quoted are the measured ones), and the sentence that says what to do, or why
+//! nothing was found.
+
+use super::controller::ControllerChannel;
+use super::controller_candidates::*;
+use super::data::AxisData;
+use super::effects::{fmt, EffectId, WbModel};
+use super::fit::{fit, fit_with, FitResult};
+use super::scoring::*;
+use feedloop_model::units::sig;
+
+/// The one-sentence verdict: the first significant candidate with what to do about it, or why
+/// nothing was found.
+/// What the fit of the recommended candidate delivers, measured.
+#[derive(Debug, Clone)]
+pub struct Confirmed {
+    /// The candidate's name.
+    pub effect: String,
+    /// The error in its channel before the fit, %.
+    pub before_pct: f64,
+    /// The error in its channel after the fit, %.
+    pub after_pct: f64,
+    /// The sentence the verdict ends with.
+    pub words: String,
+}
+
+/// The error of `f` in the channel `channel` before and after, %, and the channel's words.
+pub(super) fn channel_errors(f: &FitResult, channel: &str) -> Option<(f64, f64, &'static str)> {
+    let (b, a, name) = match channel {
+        "deflection" => (
+            f.before.window_sim_nrmse_pct,
+            f.after.window_sim_nrmse_pct,
+            "windowed simulation error",
+        ),
+        "controller" => (
+            f.before.controller_nrmse_pct,
+            f.after.controller_nrmse_pct,
+            "controller channel's error",
+        ),
+        _ => (
+            f.before.equation_nrmse_pct,
+            f.after.equation_nrmse_pct,
+            "equation error",
+        ),
+    };
+    Some((b?, a?, name))
+}
+
+/// Fits candidate `c` as the verdict would tell the user to (`fit --free KEY` or `fit --add
+/// IDS`) and measures the error of the channel it was scored on: what the fit delivers, or why it
+/// is not recommended (its fit is refused or raises that error), in words for its evidence.
+pub(super) fn confirm(
+    c: &Candidate,
+    model: &WbModel,
+    d: &AxisData,
+    window_s: f64,
+) -> Result<Confirmed, String> {
+    let res = if c.is_param {
+        let free = [c.effect.clone()];
+        fit_with(model, d, vec![], Some(&free), window_s)
+    } else {
+        let mut ids: Vec<EffectId> = c.add.iter().map(|e| e.id).collect();
+        ids.dedup();
+        fit(model, d, &ids, None, window_s)
+    };
+    match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
+        Some((b, a, name)) if material_cut(b, a) => Ok(Confirmed {
+            effect: c.effect.clone(),
+            before_pct: b,
+            after_pct: a,
+            words: format!(
+                "fitting it takes the {name} from {} % to {} % (a cut of {:.0} %)",
+                sig(b),
+                sig(a),
+                100.0 * (b - a) / b.max(1e-300)
+            ),
+        }),
+        Some((b, a, name)) if a >= b => Err(format!(
+            "fitting it raises the {name} from {} % to {} %: not recommended",
+            sig(b),
+            sig(a)
+        )),
+        Some((b, a, name)) => Err(format!(
+            "fitting it lowers the {name} only from {} % to {} % (less than {MIN_REDUCTION_PCT} % of it): not recommended",
+            sig(b),
+            sig(a)
+        )),
+        None => Err(format!(
+            "its fit is refused ({})",
+            match res {
+                Err(e) => e.to_string(),
+                Ok(_) => "its channel's error cannot be measured on this trace".into(),
+            }
+        )),
+    }
+}
+
+/// The part of a candidate's evidence that says why it is not significant: from the clause of
+/// the last of the reasons a diagnosis gives (a refused or weak fit, a confidence interval, too
+/// few winning blocks, an estimate at an edge) to the end.
+pub(super) fn why_not_significant(evidence: &str) -> &str {
+    let at = [
+        "its fit is refused",
+        "fitting it ",
+        "inside its own confidence interval",
+        "it lowers the cross-validated error in only",
+        "edge of the range searched",
+        "too few reversals",
+        "not significant",
+    ]
+    .iter()
+    .filter_map(|m| evidence.find(m))
+    .min();
+    let Some(at) = at else { return "" };
+    let start = evidence[..at].rfind("; ").map(|i| i + 2).unwrap_or(0);
+    evidence[start..]
+        .trim_end_matches(": not significant")
+        .trim_end_matches(" (not significant)")
+}
+
+pub(super) fn verdict(
+    cands: &[Candidate],
+    white: bool,
+    ac: &[f64],
+    cc: Option<&ControllerChannel>,
+    d: &AxisData,
+    fitted: Option<&Confirmed>,
+) -> String {
+    let sig: Vec<&Candidate> = cands.iter().filter(|c| c.significant).collect();
+    let cc_fails = cc.filter(|c| c.fails());
+    match sig.first() {
+        None if cc_fails.is_some() => {
+            let c = cc_fails.expect("checked");
+            format!(
+                "the torque balance shows no missing effect, but the recorded torque departs from the controller law (controller channel NRMSE {:.1} %, {:.0} times its noise floor; largest at t = {} s): the drive does something the model's [controller] does not say",
+                c.nrmse_pct,
+                c.rms / c.noise_rms.max(1e-300),
+                fmt(largest_at(c, d))
+            )
+        }
+        None if white => "no missing effect found; the remaining misfit looks like noise (whiteness test passed)".to_string(),
+        None => {
+            let lag1 = ac.first().copied().unwrap_or(0.0);
+            // the largest cut of a candidate that is not significant, measured, with why
+            match cands
+                .iter()
+                .filter(|c| c.channel == "torque" && c.error_reduction_pct >= MIN_REDUCTION_PCT)
+                .max_by(|a, b| a.error_reduction_pct.total_cmp(&b.error_reduction_pct))
+            {
+                Some(c) => format!(
+                    "no missing effect found; the remaining misfit does not look like noise (whiteness test failed, lag-1 autocorrelation {lag1:.2}), and the largest cut, {:.1} % of the cross-validated error by {}, is not significant ({})",
+                    c.error_reduction_pct,
+                    c.effect,
+                    why_not_significant(&c.evidence)
+                ),
+                None => format!(
+                    "no missing effect found; the remaining misfit does not look like noise (whiteness test failed): its lag-1 autocorrelation is {lag1:.2}, but no candidate lowers the cross-validated error by {MIN_REDUCTION_PCT} % or more"
+                ),
+            }
+        }
+        Some(top) if top.channel == "controller" && top.add.is_empty() => format!(
+            "the controller channel: {} (class {}) explains {:.0} % of the recorded torque's departure from the controller law ({}); {}",
+            top.effect,
+            top.class,
+            top.error_reduction_pct,
+            top.evidence,
+            if top.effect == "added_input" {
+                format!("declare it as a known input (`--added-input COLUMN`, or a trace column `{}.torque_add`) so that the equation and the simulation use it", d.axis)
+            } else {
+                "check the drive's gains and filters against the model's [controller]".to_string()
+            }
+        ),
+        Some(top) => {
+            let mut names = vec![top.effect.clone()];
+            names.extend(top.same_as.iter().cloned());
+            let what = if top.is_param { "a wrong base parameter" } else { "a missing effect" };
+            let of = if top.channel == "controller" {
+                "of the recorded torque's departure from the controller law"
+            } else {
+                "of the error"
+            };
+            // the figure is what fitting it delivers where that was measured, else the
+            // cross-validated estimate, said as such
+            let explains = match fitted.filter(|f| f.effect == top.effect) {
+                Some(f) => f.words.clone(),
+                None => format!(
+                    "lowers the cross-validated error by {:.0} % {of}",
+                    top.error_reduction_pct
+                ),
+            };
+            format!(
+                "{what}: {} (class {}): {explains} ({}); {}",
+                names.join(" / "),
+                top.class,
+                top.evidence,
+                if top.is_param && top.class == "inertia" {
+                    format!(
+                        "refit it with `feedloop fit --free {}`{}",
+                        top.effect,
+                        excitation_99_hz(d)
+                            .map(|f| format!("; an inertia refit and a mass on its own spring whose mode these moves barely excite look the same (99 % of the commanded acceleration lies below {} Hz): to tell them apart, move with acceleration steps or a sweep", fmt(f)))
+                            .unwrap_or_default()
+                    )
+                } else if top.is_param {
+                    format!("refit it with `feedloop fit --free {}`", top.effect)
+                } else {
+                    let ids: Vec<&str> = top.add.iter().map(|e| e.id.id()).collect();
+                    format!("add it with `feedloop fit --add {}`", ids.join(","))
+                }
+            )
+        }
+    }
+}
