@@ -21,9 +21,10 @@ use feedloop_analysis::workbench::{
     base::BaseParam,
     data::{load_axis, AxisData, Prep},
     diagnose::{diagnose, DiagOptions, Diagnosis},
-    effects::{class_of, EffectId, WbModel},
+    effects::{EffectId, WbModel},
     fit::{fit_with, Errors},
     window::window_sim,
+    words::class_of,
 };
 use feedloop_trace::Trace;
 use heldout::*;

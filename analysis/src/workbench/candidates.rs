@@ -7,8 +7,7 @@ use std::collections::BTreeMap;
 
 use super::data::AxisData;
 use super::effects::{
-    channel, class_of, constant_force_value, constant_force_words, evidence, fmt, reversals,
-    round_sig, Channel, Effect, EffectId, WbModel,
+    channel, constant_force_value, round_sig, Channel, Effect, EffectId, WbModel,
 };
 use super::lsq::Cv;
 use super::refit::{
@@ -17,6 +16,7 @@ use super::refit::{
 };
 use super::scoring::*;
 use super::signal::rms;
+use super::words::{class_of, constant_force_words, evidence, fmt, reversals};
 use feedloop_model::model::AxisKind;
 
 /// One candidate per base parameter, refitted alone.

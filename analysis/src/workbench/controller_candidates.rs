@@ -6,11 +6,12 @@ use std::collections::BTreeMap;
 
 use super::controller::{at_limit, ControllerChannel};
 use super::data::AxisData;
-use super::effects::{class_of, fmt, Effect, EffectId, Side, WbModel};
+use super::effects::{Effect, EffectId, Side, WbModel};
 use super::lsq::blocks;
 use super::refit::{cv_cols, flat, FOLDS};
 use super::scoring::*;
 use super::signal::quantile;
+use super::words::{class_of, fmt};
 use feedloop_model::model::AxisKind;
 
 /// The frequency below which 99 % of the commanded acceleration's energy lies, Hz: what the

@@ -26,7 +26,7 @@ pub use super::controller_candidates::excitation_99_hz;
 use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
-use super::effects::{channel, evidence, Channel, WbModel};
+use super::effects::{channel, Channel, WbModel};
 use super::refit::{best_effect, cv_cols_masked, flat, inertias_now, Refit, Released};
 use super::scoring::*;
 pub use super::scoring::{
@@ -36,6 +36,7 @@ pub use super::scoring::{
 use super::signal::autocorrelation;
 pub use super::verdict::Confirmed;
 use super::verdict::*;
+use super::words::evidence;
 
 /// A diagnosis.
 #[derive(Debug, Clone)]

@@ -20,6 +20,7 @@ mod controller_candidates;
 pub mod data;
 pub mod diagnose;
 pub mod dictionary;
+pub mod effect_params;
 pub mod effects;
 pub mod fit;
 pub mod import;
@@ -31,6 +32,7 @@ mod scoring;
 pub mod signal;
 mod verdict;
 pub mod window;
+pub mod words;
 
 use std::path::PathBuf;
 

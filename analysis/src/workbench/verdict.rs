@@ -5,9 +5,10 @@
 use super::controller::ControllerChannel;
 use super::controller_candidates::*;
 use super::data::AxisData;
-use super::effects::{fmt, EffectId, WbModel};
+use super::effects::{EffectId, WbModel};
 use super::fit::{fit, fit_with, FitResult};
 use super::scoring::*;
+use super::words::fmt;
 use feedloop_model::units::sig;
 
 /// The one-sentence verdict: the first significant candidate with what to do about it, or why
