@@ -504,3 +504,84 @@ fn a_drive_with_velocity_and_torque_feed_forward_is_read_by_the_controller_chann
     assert!(!right_fails && right < 1.0, "with: {right} %");
     assert!(without > 10.0 * right.max(1.0), "without: {without} %");
 }
+
+/// A drive of its own (P position on the scale, PI velocity on the motor, Kv 5, Tv 5 ms) clamping
+/// at `limit` with an anti-windup of its own form: the integrator held while clamped, or wound
+/// back by back-calculation. It records the clamped torque.
+fn simulate_drive(limit: f64, back_calculation: bool) -> Trace {
+    let mf = model_file(&format!("{}{SENSOR}", base()));
+    let r = mf.plant.motor_per_load();
+    let cmd = command();
+    let mut plant = AxisPlant::new(&mf, DT).unwrap();
+    plant.set_initial_position(cmd[0]);
+    let (kp, kv, tv) = (50.0, 5.0, 0.005);
+    let mut integ = 0.0f64;
+    let mut cols: Vec<Vec<f64>> = (0..6).map(|_| Vec::new()).collect();
+    for (k, &c) in cmd.iter().enumerate() {
+        let s = plant.sense_axis();
+        let e = kp * (c * r - s.load_pos * r) - s.motor_vel;
+        let prev = integ;
+        integ += DT * e;
+        let raw = kv * (e + integ / tv);
+        let u = raw.clamp(-limit, limit);
+        if u != raw {
+            if back_calculation {
+                integ += DT * (u - raw) / kv;
+            } else if e * raw > 0.0 {
+                integ = prev;
+            }
+        }
+        for (j, v) in [k as f64 * DT, c, s.load_pos, s.motor_pos, s.motor_vel, u]
+            .into_iter()
+            .enumerate()
+        {
+            cols[j].push(v);
+        }
+        plant.step_axis(u);
+    }
+    let names = ["t", "x.cmd", "x.load", "x.motor", "x.motor_vel", "x.torque"]
+        .map(String::from)
+        .to_vec();
+    Trace::from_columns(Path::new("drive.csv"), vec![], names, cols).unwrap()
+}
+
+/// A clamp below the model's limit, with the integrator held or wound back, is named
+/// saturation with its limit and its anti-windup form, not an input added after the controller.
+#[test]
+fn a_drive_clamp_is_named_saturation_with_its_anti_windup_form() {
+    for (back, words) in [(false, "held while clamped"), (true, "back-calculation")] {
+        let tr = simulate_drive(6.0, back);
+        let (_, _, dg) = diagnose_trace(&tr, &base());
+        let sat = dg
+            .candidates
+            .iter()
+            .find(|c| c.channel == "controller" && c.effect == "torque_saturation");
+        let table: Vec<String> = dg
+            .candidates
+            .iter()
+            .take(5)
+            .map(|c| {
+                format!(
+                    "{} {} {:.1} {}",
+                    c.effect, c.channel, c.error_reduction_pct, c.significant
+                )
+            })
+            .collect();
+        let sat = sat.unwrap_or_else(|| panic!("back {back}: {table:?}; {}", dg.verdict));
+        assert!(sat.significant, "{}", sat.evidence);
+        assert!(
+            sat.evidence.contains(words),
+            "back {back}: {}",
+            sat.evidence
+        );
+        let l = sat.params.values().next().copied().unwrap_or(0.0);
+        assert!((l - 6.0).abs() < 0.05, "limit {l}: {:?}", sat.params);
+        assert!(
+            !dg.candidates
+                .iter()
+                .any(|c| c.significant
+                    && (c.effect == "added_input" || c.effect == "controller_law")),
+            "back {back}: {table:?}"
+        );
+    }
+}

@@ -27,7 +27,7 @@ use serde_json::{json, Value};
 
 use super::data::AxisData;
 use super::effects::WbModel;
-use super::law::{best_law, Discretisation, Law};
+use super::law::{best_law, AntiWindup, Discretisation, Law};
 use super::signal::{densest_quarter, nrmse_pct, quantile, rms};
 
 /// A stretch of time where the controller residual stands out of its noise.
@@ -78,6 +78,8 @@ pub struct ControllerChannel {
     pub added_gain: Option<f64>,
     /// First and one-past-last sample compared.
     pub range: (usize, usize),
+    /// The law evaluated (its gains, limit and anti-windup form).
+    pub law_of: Law,
 }
 
 /// Noise floor of a residual: the larger of two robust spreads, that of its first difference
@@ -130,9 +132,40 @@ impl ControllerChannel {
     /// The channel of `model` on `d`: `None` without a torque column or without a controller
     /// law in the model.
     pub fn new(model: &WbModel, d: &AxisData) -> Option<Self> {
+        Self::with_anti_windup(model, d, None)
+    }
+
+    /// [`ControllerChannel::new`] with the drive's clamp inside the law: at the model's
+    /// `torque_saturation` limit (when below the controller's own), the integrator doing what
+    /// `anti_windup` says while clamped (`None`: held, feedloop's own form). A long trace held
+    /// in block means keeps the law it was read with.
+    pub fn with_anti_windup(
+        model: &WbModel,
+        d: &AxisData,
+        anti_windup: Option<AntiWindup>,
+    ) -> Option<Self> {
         let limit = model.drive_limit();
         let law_p = Law::of(&model.file)?;
         let add = channel_add(d);
+        // the laws tried: the controller's own; with a drive clamp below its limit, that clamp
+        // inside the law with the anti-windup form given, or each form when none is given (the
+        // one the record agrees with best is kept, as the discretisation is)
+        let mut laws = vec![law_p];
+        if let Some(l) = limit.filter(|l| *l < law_p.lim) {
+            let forms: Vec<AntiWindup> = match anti_windup {
+                Some(aw) => vec![aw],
+                None => AntiWindup::ALL.to_vec(),
+            };
+            if anti_windup.is_some() {
+                laws.clear();
+            }
+            laws.extend(forms.into_iter().map(|aw| Law {
+                lim: l,
+                anti_windup: aw,
+                ..law_p
+            }));
+        }
+        let mut chosen = law_p;
         let (rec, velocity, discretisation, law) = match &d.held_law {
             // a long trace: the law was evaluated at the recording's rate when it was read
             Some(h) if h.law_of == law_p => (
@@ -146,16 +179,29 @@ impl ControllerChannel {
                 let rec = d.torque_raw.clone()?;
                 let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
                 let q = d.motor_raw.as_deref().unwrap_or(&x);
-                let (velocity, discretisation, law) = best_law(
-                    &law_p,
-                    &d.cmd,
-                    &x,
-                    q,
-                    d.motor_vel_raw.as_deref(),
-                    &rec,
-                    add,
-                    d.dt,
-                )?;
+                let (fa, fb) = d.range;
+                let mut best: Option<(f64, Law, &'static str, Discretisation, Vec<f64>)> = None;
+                for lw in &laws {
+                    let Some((velocity, disc, law)) = best_law(
+                        lw,
+                        &d.cmd,
+                        &x,
+                        q,
+                        d.motor_vel_raw.as_deref(),
+                        &rec,
+                        add,
+                        d.dt,
+                    ) else {
+                        continue;
+                    };
+                    let p = predict(&law, add, &rec, limit);
+                    let score = rms(&(fa..fb).map(|k| rec[k] - p[k]).collect::<Vec<f64>>());
+                    if best.as_ref().is_none_or(|b| score < b.0 * (1.0 - 1e-9)) {
+                        best = Some((score, *lw, velocity, disc, law));
+                    }
+                }
+                let (_, lw, velocity, discretisation, law) = best?;
+                chosen = lw;
                 (rec, velocity, discretisation, law)
             }
         };
@@ -215,6 +261,7 @@ impl ControllerChannel {
             discretisation,
             added_gain,
             range: (fa, fb),
+            law_of: chosen,
         })
     }
 
@@ -234,9 +281,11 @@ impl ControllerChannel {
     }
 
     /// A clamp of the drive that the record shows: the limit (the largest recorded magnitude,
-    /// where a clamped record sits) and the residual's RMS with it. `None` when it does not
-    /// lower the residual.
-    pub fn clamp_fit(&self, d: &AxisData) -> Option<(f64, f64)> {
+    /// where a clamped record sits), the residual's RMS with it, and what the drive's integrator
+    /// does while clamped (the anti-windup form the record agrees with best: the law is run
+    /// again with the clamp inside, so an integrator held or wound back at the drive's limit is
+    /// part of the law, not a departure from it). `None` when it does not lower the residual.
+    pub fn clamp_fit(&self, d: &AxisData) -> Option<(f64, f64, Option<AntiWindup>)> {
         let (a, b) = self.range;
         let l = self.recorded[a..b]
             .iter()
@@ -245,10 +294,41 @@ impl ControllerChannel {
             return None;
         }
         let add = self.scaled_input(d);
-        let p = predict(&self.law, add.as_deref(), &self.recorded, Some(l));
-        let r: Vec<f64> = (a..b).map(|k| self.recorded[k] - p[k]).collect();
-        let after = rms(&r);
-        (after < self.rms).then_some((l, after))
+        let score = |law: &[f64]| {
+            let p = predict(law, add.as_deref(), &self.recorded, Some(l));
+            rms(&(a..b)
+                .map(|k| self.recorded[k] - p[k])
+                .collect::<Vec<f64>>())
+        };
+        // (`None`: the law as evaluated, the clamp applied to its output only)
+        let mut best = (score(&self.law), None);
+        // the law again with the drive's clamp inside it (not on a long trace held in block
+        // means: its law was evaluated at the recording's rate when it was read)
+        let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+        let q = d.motor_raw.as_deref().unwrap_or(&x);
+        let vel = (d.held_law.is_none())
+            .then(|| super::law::velocity_named(self.velocity, q, d.motor_vel_raw.as_deref(), d.dt))
+            .flatten();
+        if let Some(vel) = vel {
+            // (the rounding floor of a record the law reproduces exactly)
+            let scale = rms(&self.recorded[a..b]);
+            let first = self.recorded[0] - add.as_ref().map_or(0.0, |ad| ad[0]);
+            for aw in AntiWindup::ALL {
+                let law = Law {
+                    lim: l.min(self.law_of.lim),
+                    anti_windup: aw,
+                    ..self.law_of
+                };
+                let out = law.run_as(&d.cmd, &x, &vel, d.dt, first, self.discretisation);
+                // a form counts only when the clamped law then reads the record within its
+                // noise (bounding an unrelated law's output lowers any error; it is no clamp)
+                let r = score(&out);
+                if r < best.0 * (1.0 - 1e-9) && r <= 3.0 * self.noise_rms + 1e-9 * scale {
+                    best = (r, Some(aw));
+                }
+            }
+        }
+        (best.0 < self.rms).then_some((l, best.0, best.1))
     }
 
     /// Stretches where the residual stands out of its noise (above six times the noise floor

@@ -77,7 +77,7 @@ pub(super) fn controller_candidates(
     let (a, b) = cc.range;
     let mut rest = cc.clone();
     let noise2 = 9.0 * cc.noise_rms * cc.noise_rms;
-    if let Some((l, after)) = cc.clamp_fit(d) {
+    if let Some((l, after, aw)) = cc.clamp_fit(d) {
         let red = 100.0 * (cc.rms - after) / cc.rms;
         if red >= MIN_REDUCTION_PCT && cc.rms * cc.rms - after * after > noise2 {
             let mut e = Effect::new(EffectId::TorqueSaturation, Side::Motor, vec![l]);
@@ -93,12 +93,13 @@ pub(super) fn controller_candidates(
                 significant: true,
                 error_reduction_pct: red.clamp(-100.0, 100.0),
                 evidence: format!(
-                    "the recorded torque sits at +-{} {tu} in {} samples ({:.1} % of the time) where the controller law asks for more{}: the drive clamps and records the clamped value",
+                    "the recorded torque sits at +-{} {tu} in {} samples ({:.1} % of the time) where the controller law asks for more{}: the drive clamps and records the clamped value, {}",
                     fmt(l),
                     at_limit,
                     100.0 * at_limit as f64 / (b - a) as f64,
                     lc.map(|x| format!(" (the controller's own limit is {} {tu})", fmt(x)))
-                        .unwrap_or_default()
+                        .unwrap_or_default(),
+                    aw.map(|aw| format!("with {}", aw.words())).unwrap_or_else(|| "the law otherwise unchanged".into())
                 ),
                 params,
                 same_as: vec![],
@@ -112,7 +113,7 @@ pub(super) fn controller_candidates(
                 Side::Motor,
                 vec![l],
             ));
-            if let Some(c2) = ControllerChannel::new(&with, d) {
+            if let Some(c2) = ControllerChannel::with_anti_windup(&with, d, aw) {
                 rest = c2;
             }
         }

@@ -325,7 +325,7 @@ fn controller_clamp(model: &WbModel, d: &AxisData) -> Option<f64> {
     if !cc.fails() {
         return None;
     }
-    let (l, after) = cc.clamp_fit(d)?;
+    let (l, after, _) = cc.clamp_fit(d)?;
     (after < 0.5 * cc.rms).then_some(l)
 }
 

@@ -25,6 +25,40 @@ pub struct Law {
     pub vff: f64,
     /// Inertia the commanded acceleration is fed forward with into the torque (0: none).
     pub tff: f64,
+    /// What the integrator does while the output is clamped.
+    pub anti_windup: AntiWindup,
+}
+
+/// What a velocity loop's integrator does while its output sits at the limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AntiWindup {
+    /// Held while the clamp is active and the error pushes further into it (conditional
+    /// integration; feedloop's `pi_velocity`).
+    Held,
+    /// Wound back by the clamped part of the output (back-calculation, tracking time Tv).
+    BackCalculation,
+    /// Integrates on (no anti-windup).
+    None,
+}
+
+impl AntiWindup {
+    /// All the forms tried.
+    pub const ALL: [AntiWindup; 3] = [
+        AntiWindup::Held,
+        AntiWindup::BackCalculation,
+        AntiWindup::None,
+    ];
+
+    /// Its words in a diagnosis.
+    pub fn words(self) -> &'static str {
+        match self {
+            AntiWindup::Held => "its velocity integrator held while clamped (conditional anti-windup)",
+            AntiWindup::BackCalculation => {
+                "its velocity integrator wound back by the clamped part (back-calculation anti-windup)"
+            }
+            AntiWindup::None => "its velocity integrator running on while clamped (no anti-windup)",
+        }
+    }
 }
 
 impl Law {
@@ -38,6 +72,7 @@ impl Law {
             lim: c.torque_limit.unwrap_or(f64::INFINITY),
             vff: c.velocity_ff.unwrap_or(0.0),
             tff: c.torque_ff.unwrap_or(0.0),
+            anti_windup: AntiWindup::Held,
         })
     }
 
@@ -115,8 +150,14 @@ impl Law {
             if use_i && k > 0 && disc.integrate_after_output {
                 integ += dt * e;
             }
-            if k > 0 && u != raw && e * raw > 0.0 {
-                integ = prev;
+            if k > 0 && u != raw {
+                match self.anti_windup {
+                    AntiWindup::Held if e * raw > 0.0 => integ = prev,
+                    AntiWindup::BackCalculation if use_i => {
+                        integ += dt * (u - raw) / self.kv;
+                    }
+                    AntiWindup::Held | AntiWindup::BackCalculation | AntiWindup::None => {}
+                }
             }
             out[k] = u;
         }
@@ -221,6 +262,20 @@ fn velocity_source<'a>(
         _ => "a two-sample average of the position's differences",
     };
     Some((name, Cow::Owned(v)))
+}
+
+/// The velocity estimate named `name` (as [`best_law`] names it) from the position `q` (motor
+/// units) or the recorded motor velocity.
+pub fn velocity_named(
+    name: &str,
+    q: &[f64],
+    motor_vel: Option<&[f64]>,
+    dt: f64,
+) -> Option<Vec<f64>> {
+    (0..VELOCITY_SOURCES)
+        .filter_map(|i| velocity_source(i, q, motor_vel, dt))
+        .find(|(n, _)| *n == name)
+        .map(|(_, v)| v.into_owned())
 }
 
 /// The velocity estimate and discretisation of `law_p` the record `rec` agrees with best, and
