@@ -454,6 +454,14 @@ fn hidden_lost_motion_is_named_with_its_size_and_the_guided_loop_adds_only_it() 
         assert!(top.significant, "{}", top.evidence);
         let l = top.params["lost_motion_m"];
         assert!((l / lost - 1.0).abs() < 0.1, "lost motion {l} for {lost}");
+        // a lead error or a gap that only re-explains part of its misfit is not named beside it
+        let beside: Vec<&str> = dg
+            .candidates
+            .iter()
+            .filter(|c| c.significant && c.channel == "deflection" && c.effect != "lost_motion")
+            .map(|c| c.effect.as_str())
+            .collect();
+        assert!(beside.is_empty(), "{lost}: also significant {beside:?}");
         let r = fit_with(&m, &d, top.add.clone(), None, 0.05).unwrap();
         let (wb, wa) = (
             r.before.window_sim_nrmse_pct.unwrap(),
@@ -584,4 +592,24 @@ fn a_drive_clamp_is_named_saturation_with_its_anti_windup_form() {
             "back {back}: {table:?}"
         );
     }
+}
+
+/// On a circle the x axis' position and its direction of travel go together, so a lead error
+/// (periodic in position) can re-explain part of a lost motion's misfit: it is not named beside
+/// it unless it lowers the deflection error further once the lost motion is refitted.
+#[test]
+fn a_lead_error_is_not_named_beside_the_lost_motion_it_only_re_explains() {
+    let (r, w) = (0.01, 0.0333 / 0.01);
+    let n = (5.0 * 2.0 * PI / w / DT) as usize;
+    let cmd: Vec<f64> = (0..n).map(|k| r * (w * k as f64 * DT).cos()).collect();
+    let hidden = "[effects.lost_motion]\nlost_motion_m = 10.0e-6\ntransition_m = 30.0e-6\n";
+    let tr = simulate_cmd(&format!("{}{hidden}{SENSOR}", base()), cmd);
+    let (_, _, dg) = diagnose_trace(&tr, &base());
+    assert_eq!(dg.candidates[0].effect, "lost_motion", "{}", dg.verdict);
+    let pitch = dg
+        .candidates
+        .iter()
+        .find(|c| c.effect == "pitch_error")
+        .unwrap();
+    assert!(!pitch.significant, "{}", pitch.evidence);
 }

@@ -135,7 +135,54 @@ pub(super) fn effect_candidates(
             &mut untested,
         );
     }
+    if let Some((rd, dcols)) = &defl {
+        condition_deflection(cands, d, rd, dcols, &ch.bl);
+    }
     untested
+}
+
+/// Forward selection on the deflection channel: once its best candidate (the largest cut of the
+/// motor-minus-load misfit) is known, every other deflection candidate keeps its significance
+/// only if it lowers the deflection's cross-validated error further, with the first one's
+/// columns refitted beside it, by [`MIN_REDUCTION_PCT`] in [`MIN_FOLD_WINS`] blocks: a lead error
+/// that only re-explains part of a gap's misfit is credited with its extra only.
+fn condition_deflection(
+    cands: &mut [Candidate],
+    d: &AxisData,
+    rd: &[f64],
+    dcols: &[Vec<f64>],
+    bl: &[(usize, usize)],
+) {
+    let Some(ti) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.channel == "deflection")
+        .max_by(|a, b| a.1.error_reduction_pct.total_cmp(&b.1.error_reduction_pct))
+        .map(|(i, _)| i)
+    else {
+        return;
+    };
+    let top_name = cands[ti].effect.clone();
+    let top_cols: Vec<Vec<f64>> = cands[ti].add.iter().flat_map(|e| e.columns(d)).collect();
+    let mut base: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
+    base.extend(top_cols.iter().map(|c| c.as_slice()));
+    let reference = cv_cols(&base, &[], rd, bl);
+    for (i, c) in cands.iter_mut().enumerate() {
+        if i == ti || c.channel != "deflection" || !c.significant {
+            continue;
+        }
+        let cols: Vec<Vec<f64>> = c.add.iter().flat_map(|e| e.columns(d)).collect();
+        let refs: Vec<&[f64]> = cols.iter().map(|x| x.as_slice()).collect();
+        let cv = cv_cols(&base, &refs, rd, bl);
+        let extra = 100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300);
+        if extra < MIN_REDUCTION_PCT || fold_wins(&cv, &reference.fold_mse) < MIN_FOLD_WINS {
+            c.significant = false;
+            c.evidence = format!(
+                "{}; beyond {top_name} it lowers the deflection's cross-validated error by only {extra:.1} % (not significant)",
+                c.evidence
+            );
+        }
+    }
 }
 
 /// `directional_friction` is Coulomb friction with levels and slopes of their own in each
