@@ -128,6 +128,64 @@ fn predict(law: &[f64], add: Option<&[f64]>, rec: &[f64], limit: Option<f64>) ->
         .collect()
 }
 
+/// The laws tried on a record: the controller's own; with a drive clamp below its limit, that
+/// clamp inside the law with the anti-windup form given, or each form when none is given (the
+/// one the record agrees with best is kept, as the discretisation is).
+fn laws_tried(law_p: Law, limit: Option<f64>, anti_windup: Option<AntiWindup>) -> Vec<Law> {
+    let mut laws = vec![law_p];
+    if let Some(l) = limit.filter(|l| *l < law_p.lim) {
+        let forms: Vec<AntiWindup> = match anti_windup {
+            Some(aw) => vec![aw],
+            None => AntiWindup::ALL.to_vec(),
+        };
+        if anti_windup.is_some() {
+            laws.clear();
+        }
+        laws.extend(forms.into_iter().map(|aw| Law {
+            lim: l,
+            anti_windup: aw,
+            ..law_p
+        }));
+    }
+    laws
+}
+
+/// Of the laws `laws`, the one (with its velocity estimate and discretisation, see
+/// [`best_law`]) whose output, through the drive's `limit` where the record `rec` sits at it,
+/// reads the record best over the fit range; and that output.
+fn best_of(
+    laws: &[Law],
+    d: &AxisData,
+    rec: &[f64],
+    add: Option<&[f64]>,
+    limit: Option<f64>,
+) -> Option<(Law, &'static str, Discretisation, Vec<f64>)> {
+    let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+    let q = d.motor_raw.as_deref().unwrap_or(&x);
+    let (fa, fb) = d.range;
+    let mut best: Option<(f64, Law, &'static str, Discretisation, Vec<f64>)> = None;
+    for lw in laws {
+        let Some((velocity, disc, law)) = best_law(
+            lw,
+            &d.cmd,
+            &x,
+            q,
+            d.motor_vel_raw.as_deref(),
+            rec,
+            add,
+            d.dt,
+        ) else {
+            continue;
+        };
+        let p = predict(&law, add, rec, limit);
+        let score = rms(&(fa..fb).map(|k| rec[k] - p[k]).collect::<Vec<f64>>());
+        if best.as_ref().is_none_or(|b| score < b.0 * (1.0 - 1e-9)) {
+            best = Some((score, *lw, velocity, disc, law));
+        }
+    }
+    best.map(|(_, lw, v, disc, law)| (lw, v, disc, law))
+}
+
 impl ControllerChannel {
     /// The channel of `model` on `d`: `None` without a torque column or without a controller
     /// law in the model.
@@ -147,24 +205,7 @@ impl ControllerChannel {
         let limit = model.drive_limit();
         let law_p = Law::of(&model.file)?;
         let add = channel_add(d);
-        // the laws tried: the controller's own; with a drive clamp below its limit, that clamp
-        // inside the law with the anti-windup form given, or each form when none is given (the
-        // one the record agrees with best is kept, as the discretisation is)
-        let mut laws = vec![law_p];
-        if let Some(l) = limit.filter(|l| *l < law_p.lim) {
-            let forms: Vec<AntiWindup> = match anti_windup {
-                Some(aw) => vec![aw],
-                None => AntiWindup::ALL.to_vec(),
-            };
-            if anti_windup.is_some() {
-                laws.clear();
-            }
-            laws.extend(forms.into_iter().map(|aw| Law {
-                lim: l,
-                anti_windup: aw,
-                ..law_p
-            }));
-        }
+        let laws = laws_tried(law_p, limit, anti_windup);
         let mut chosen = law_p;
         let (rec, velocity, discretisation, law) = match &d.held_law {
             // a long trace: the law was evaluated at the recording's rate when it was read
@@ -177,30 +218,7 @@ impl ControllerChannel {
             Some(_) => return None,
             None => {
                 let rec = d.torque_raw.clone()?;
-                let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
-                let q = d.motor_raw.as_deref().unwrap_or(&x);
-                let (fa, fb) = d.range;
-                let mut best: Option<(f64, Law, &'static str, Discretisation, Vec<f64>)> = None;
-                for lw in &laws {
-                    let Some((velocity, disc, law)) = best_law(
-                        lw,
-                        &d.cmd,
-                        &x,
-                        q,
-                        d.motor_vel_raw.as_deref(),
-                        &rec,
-                        add,
-                        d.dt,
-                    ) else {
-                        continue;
-                    };
-                    let p = predict(&law, add, &rec, limit);
-                    let score = rms(&(fa..fb).map(|k| rec[k] - p[k]).collect::<Vec<f64>>());
-                    if best.as_ref().is_none_or(|b| score < b.0 * (1.0 - 1e-9)) {
-                        best = Some((score, *lw, velocity, disc, law));
-                    }
-                }
-                let (_, lw, velocity, discretisation, law) = best?;
+                let (lw, velocity, discretisation, law) = best_of(&laws, d, &rec, add, limit)?;
                 chosen = lw;
                 (rec, velocity, discretisation, law)
             }
