@@ -12,9 +12,10 @@
 use std::f64::consts::PI;
 
 use super::data::AxisData;
-use super::effects::dead_band;
+use super::effects::{dead_band, sgn};
 use super::lsq::{blocks, cross_validate, normals, normals_masked, Cv};
 use super::refit::FOLDS;
+use super::scoring::fold_wins;
 use super::signal::{filtfilt_butter4, mean, nrmse_pct, quantile, rms, span};
 
 /// Most terms the forward selection names.
@@ -62,15 +63,7 @@ pub fn terms(d: &AxisData, y_app: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<T
         }
     };
     let map = |f: &dyn Fn(f64) -> f64| v.iter().map(|x| f(*x)).collect::<Vec<f64>>();
-    let sign = move |x: f64| {
-        if x > eps {
-            1.0
-        } else if x < -eps {
-            -1.0
-        } else {
-            0.0
-        }
-    };
+    let sign = move |x: f64| sgn(x, eps);
     let mut out = vec![
         Term {
             id: "constant".into(),
@@ -197,12 +190,7 @@ pub fn explain(
             .min_by(|x, y| x.1.rms.total_cmp(&y.1.rms));
         let Some((i, cv)) = best else { break };
         let cut = 100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300);
-        let wins = cv
-            .fold_mse
-            .iter()
-            .zip(&reference.fold_mse)
-            .filter(|(x, r)| **x < **r * 0.999)
-            .count();
+        let wins = fold_wins(&cv, &reference.fold_mse);
         let significant = cut >= min_pct && wins >= min_wins;
         out.push(TermCut {
             term: terms[i].id.clone(),

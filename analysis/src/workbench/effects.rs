@@ -71,7 +71,8 @@ pub fn dead_band(d: &AxisData, v: &[f64]) -> f64 {
     1e-3 * vmax.max(1e-12)
 }
 
-fn sgn(v: f64, eps: f64) -> f64 {
+/// The sign of `v` outside the dead band `eps`, 0 inside it.
+pub(crate) fn sgn(v: f64, eps: f64) -> f64 {
     if v > eps {
         1.0
     } else if v < -eps {

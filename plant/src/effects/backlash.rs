@@ -20,10 +20,9 @@
 //! Integration: three exactly discretised linear modes (contact +, gap, contact -); contact
 //! changes are located by bisection inside a period (to period/1024).
 
-use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, table_error, Ctx};
+use super::{check_keys, needs_transmission, put, Ctx};
 
 /// Contact state at deflection `d` (motor units) with half gap `gap_half`: +1 driving in +, -1
 /// driving in -, 0 inside the gap.
@@ -87,12 +86,7 @@ impl BacklashParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        if ctx.kind == AxisKind::Rigid {
-            return Err(table_error(
-                f,
-                "backlash needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none",
-            ));
-        }
+        needs_transmission(f, ctx, "backlash")?;
         let key = format!("gap_{}", ctx.load_units().pos);
         check_keys(f, table, &[&key])?;
         let gap = f.f64(&key, Range::NonNegative)?;

@@ -31,10 +31,9 @@
 //! (velocity at the period start times the period, exactly for the exponential law) and held,
 //! as the pitch error's; the spring torque it adds enters as a held input.
 
-use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, table_error, Ctx};
+use super::{check_keys, needs_transmission, put, Ctx};
 
 /// `[effects.lost_motion]` as the model file gives it (load units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,12 +51,7 @@ impl LostMotionParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        if ctx.kind == AxisKind::Rigid {
-            return Err(table_error(
-                f,
-                "lost_motion needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none",
-            ));
-        }
+        needs_transmission(f, ctx, "lost_motion")?;
         let u = ctx.load_units();
         let (lost_key, tr_key) = (
             format!("lost_motion_{}", u.pos),

@@ -176,6 +176,20 @@ pub(crate) fn check_keys(
 }
 
 /// An error about the whole table `f` reads (key = the table's dotted path).
+/// The error of an effect of the transmission (`what`) on a rigid axis, which has none; `Ok` on
+/// a ball-screw or rotary axis.
+pub(crate) fn needs_transmission(f: &Fields<'_>, ctx: &Ctx, what: &str) -> Result<(), ConfigError> {
+    if ctx.kind == AxisKind::Rigid {
+        return Err(table_error(
+            f,
+            format!(
+                "{what} needs a transmission (kind = \"ballscrew\" or \"rotary\"); a rigid axis has none"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 pub(crate) fn table_error(f: &Fields<'_>, reason: impl Into<String>) -> ConfigError {
     let mut e = f.error("", reason);
     if e.key.ends_with('.') {
