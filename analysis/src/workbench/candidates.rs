@@ -188,7 +188,7 @@ fn condition_deflection(
 /// `directional_friction` is Coulomb friction with levels and slopes of their own in each
 /// direction: it is credited only with what it lowers the error by beyond `coulomb_friction`
 /// (with its offset), and is significant only when that is material, so the simpler law is named
-/// unless the data ask for the richer one.
+/// unless the data ask for the richer one. The same holds for `stribeck_friction` (see below).
 pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
     let Some(coulomb) = cands
         .iter()
@@ -215,6 +215,28 @@ pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
                 ""
             }
         );
+    }
+    // Stribeck friction is Coulomb friction with a rise at low speed: beside a Coulomb friction
+    // the data name, it keeps its own cut where that rise lowers the error materially beyond
+    // it (a rise the data show ranks it first), else it is credited with what it adds and not
+    // named
+    let coulomb_named = cands
+        .iter()
+        .any(|c| c.effect == EffectId::CoulombFriction.id() && c.significant);
+    for c in cands
+        .iter_mut()
+        .filter(|c| coulomb_named && c.effect == EffectId::StribeckFriction.id() && c.significant)
+    {
+        let extra = c.error_reduction_pct - coulomb;
+        if extra < min_pct {
+            // credited, as directional friction is, with what it adds: it ranks below
+            c.error_reduction_pct = extra;
+            c.significant = false;
+            c.evidence = format!(
+                "{}; beyond coulomb_friction it lowers the cross-validated error by only {extra:.1} % (not significant)",
+                c.evidence
+            );
+        }
     }
 }
 

@@ -26,7 +26,7 @@ pub use super::controller_candidates::excitation_99_hz;
 use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
-use super::effects::{channel, Channel, WbModel};
+use super::effects::{channel, Channel, Effect, WbModel};
 use super::refit::{best_effect, cv_cols_masked, flat, inertias_now, Refit, Released};
 use super::scoring::*;
 pub use super::scoring::{
@@ -103,6 +103,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         controller_candidates(model, d, cc, &mut cands);
     }
     refine_of_coulomb(&mut cands, ch.min_pct);
+    note_immaterial(&mut cands, ch.min_pct);
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
     let now = inertias_now(model, &ch.free_keys);
     let tf = TorqueFit {
@@ -144,6 +145,10 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
             }
         }
     };
+    let mut cands = cands;
+    if let Some(e) = fitted.as_ref().and_then(|f| f.resized.clone()) {
+        resize_candidate(&mut cands, e, d);
+    }
     let (white, ac) = residual_whiteness(d, &ch);
     let (residual_terms, sparse_peer) = dictionary_of(model, d, &ch, &opts.extra_terms);
     let mut verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
@@ -169,6 +174,49 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         residual_terms,
         sparse_peer,
     }
+}
+
+/// A torque-channel candidate that cuts the error by more than [`MIN_REDUCTION_PCT`] but less
+/// than the channel's smallest cut that counts (the model's error already within
+/// [`MATERIAL_FRACTION`] of the torque) says so: otherwise it would read as not significant with
+/// no reason.
+fn note_immaterial(cands: &mut [Candidate], min_pct: f64) {
+    for c in cands.iter_mut().filter(|c| {
+        c.channel == "torque"
+            && !c.significant
+            && c.error_reduction_pct >= MIN_REDUCTION_PCT
+            && c.error_reduction_pct < min_pct
+    }) {
+        let counts = if min_pct > 100.0 {
+            "no cut in the torque balance counts".to_string()
+        } else {
+            format!("a cut counts only from {min_pct:.0} % of it")
+        };
+        c.evidence = format!(
+            "{}; the model's torque error is already below {} % of the recorded torque's RMS, so {counts}: not significant",
+            c.evidence,
+            100.0 * MATERIAL_FRACTION
+        );
+    }
+}
+
+/// The candidate whose effect its confirming fit sized on another channel takes that size:
+/// what the verdict names is what `fit` writes.
+fn resize_candidate(cands: &mut [Candidate], e: Effect, d: &AxisData) {
+    let Some(c) = cands
+        .iter_mut()
+        .find(|c| c.add.iter().any(|a| a.id == e.id))
+    else {
+        return;
+    };
+    let before = c.add.iter().find(|a| a.id == e.id).map(|a| evidence(a, d));
+    c.params = flat(&e.to_table(d.kind, d.r));
+    c.evidence = format!(
+        "{}; sized on the windowed simulation, which integrates the gap (the deflection's least squares: {})",
+        evidence(&e, d),
+        before.unwrap_or_default()
+    );
+    c.add = vec![e];
 }
 
 /// Candidates the data cannot tell apart (same channel, scores within 10 % of each other,

@@ -19,6 +19,7 @@ use super::compare::{classify, equation_error, SegKind};
 use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
+use super::gap_sizing::size_gaps_on_window;
 use super::lsq::{blocks, normals};
 use super::refit::{
     best_effect, deflection, flat, held_words, inertias_now, moving_mask, spanned_base, Refit,
@@ -495,6 +496,11 @@ pub fn fit_with(
         .filter(|e| channel(e.id) == Channel::Deflection)
     {
         new.effects.push(e.clone());
+    }
+    if effects.iter().any(|e| e.id == EffectId::Backlash) {
+        // the simulation runs on the parsed plant: bring the refitted base values there first
+        update_plant(&mut new);
+        size_gaps_on_window(&mut new, d, window_s);
     }
     let kind = new.kind();
     let r = new.file.plant.motor_per_load();

@@ -23,6 +23,7 @@ pub mod dictionary;
 pub mod effect_params;
 pub mod effects;
 pub mod fit;
+mod gap_sizing;
 pub mod import;
 pub mod law;
 pub mod lsq;

@@ -5,7 +5,7 @@
 use super::controller::ControllerChannel;
 use super::controller_candidates::*;
 use super::data::AxisData;
-use super::effects::{EffectId, WbModel};
+use super::effects::{Effect, EffectId, WbModel};
 use super::fit::{fit, fit_with, FitResult};
 use super::scoring::*;
 use super::words::fmt;
@@ -24,6 +24,20 @@ pub struct Confirmed {
     pub after_pct: f64,
     /// The sentence the verdict ends with.
     pub words: String,
+    /// The candidate's effect as the fit sized it, where the fit sizes it on another channel
+    /// than the candidate's score (a backlash gap sized on the windowed simulation).
+    pub resized: Option<Effect>,
+}
+
+/// The backlash of fit `f` when candidate `c` adds one and the fit sized it otherwise.
+fn resized_gap(c: &Candidate, f: &FitResult) -> Option<Effect> {
+    let before = c.add.iter().find(|e| e.id == EffectId::Backlash)?;
+    let after = f
+        .model
+        .effects
+        .iter()
+        .find(|e| e.id == EffectId::Backlash)?;
+    (after.coef != before.coef).then(|| after.clone())
 }
 
 /// The error of `f` in the channel `channel` before and after, %, and the channel's words.
@@ -67,6 +81,7 @@ pub(super) fn confirm(
     };
     match res.as_ref().ok().and_then(|f| channel_errors(f, c.channel)) {
         Some((b, a, name)) if material_cut(b, a) => Ok(Confirmed {
+            resized: res.as_ref().ok().and_then(|f| resized_gap(c, f)),
             effect: c.effect.clone(),
             before_pct: b,
             after_pct: a,
