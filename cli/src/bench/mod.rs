@@ -4,7 +4,7 @@
 //!
 //! `job` writes the benchmark's job and runs its processes (both benches use it), `pingpong`
 //! measures the bare iceoryx2 floor, `latency` and `scope` are the two benches, `report` prints
-//! their figures.
+//! `bench latency`'s summary and `bench table`.
 
 mod job;
 mod latency;
