@@ -84,9 +84,7 @@ use feedloop_analysis::workbench::{
 use feedloop_trace::Trace;
 use heldout::*;
 
-#[path = "../../tests/src/scratch.rs"]
-mod scratch;
-use scratch::Scratch;
+use feedloop_test_support::Scratch;
 
 /// A fresh scratch folder for test `name` (removed when the test passes).
 fn tmp(name: &str) -> Scratch {

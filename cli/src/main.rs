@@ -5,11 +5,9 @@
 //! logs of hand-started processes).
 
 mod bench;
-mod bench_run;
-mod bench_scope;
 mod choice;
 mod control;
-mod identify_cmd;
+mod identify;
 mod learn;
 mod processes;
 mod scope;
@@ -97,11 +95,11 @@ enum Command {
     Scope(scope::ScopeArgs),
     /// Identification of seeds 000/001: load inertia, screw stiffness.
     #[command(subcommand)]
-    Identify(identify_cmd::IdentifyCmd),
+    Identify(identify::IdentifyCmd),
     /// Grid search of control parameters on the ramp test of seed 001.
-    Tune(identify_cmd::TuneArgs),
+    Tune(identify::TuneArgs),
     /// Write an excitation command (seed 001) as a trace a job can play.
-    Excite(identify_cmd::ExciteArgs),
+    Excite(identify::ExciteArgs),
     /// Learning compensators (seed 004's quadrant compensator).
     #[command(subcommand)]
     Learn(learn::LearnCmd),
@@ -153,9 +151,9 @@ fn main() -> ExitCode {
         Command::Scheduler { args } => processes::scheduler(&args),
         Command::Bench(cmd) => bench::run(cmd),
         Command::Learn(cmd) => learn::run(cmd),
-        Command::Identify(c) => identify_cmd::identify(c),
-        Command::Tune(a) => identify_cmd::tune(a),
-        Command::Excite(a) => identify_cmd::excite(a),
+        Command::Identify(c) => identify::identify(c),
+        Command::Tune(a) => identify::tune(a),
+        Command::Excite(a) => identify::excite(a),
         Command::Swap(a) => control::swap(&a),
         Command::Scope(a) => scope::run(&a),
         Command::Status {

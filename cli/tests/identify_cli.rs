@@ -15,9 +15,7 @@ fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
 }
 
-#[path = "../../tests/src/scratch.rs"]
-mod scratch;
-use scratch::Scratch;
+use feedloop_test_support::Scratch;
 
 /// A fresh scratch folder for test `name` (removed when the test passes).
 fn scratch(name: &str) -> Scratch {

@@ -12,9 +12,7 @@ fn examples() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples")
 }
 
-#[path = "../../tests/src/scratch.rs"]
-mod scratch;
-use scratch::Scratch;
+use feedloop_test_support::Scratch;
 
 /// A fresh scratch folder for test `name` (removed when the test passes).
 fn scratch(name: &str) -> Scratch {

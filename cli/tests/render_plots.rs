@@ -14,8 +14,11 @@ fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
 }
 
-#[path = "support/browser.rs"]
-mod browser;
+/// The browser, or `None` after saying the test `what` is skipped (on CI a missing one fails).
+fn browser_or_skip(what: &str) -> Option<PathBuf> {
+    let missing = format!("{}: {what}", feedloop_cli::browser::NOT_FOUND);
+    feedloop_test_support::found_or_skip(feedloop_cli::browser::on_path(), missing)
+}
 
 /// The SVG's `width` and `height` attributes, px.
 fn svg_size(svg: &str) -> (u32, u32) {
@@ -59,7 +62,7 @@ fn render(browser: &Path, svg: &Path, png: &Path) -> ((u32, u32), usize) {
 
 #[test]
 fn the_heat_map_and_the_bode_plot_render_to_pngs_of_their_size() {
-    let Some(browser) = browser::browser_or_skip("plots not rendered") else {
+    let Some(browser) = browser_or_skip("plots not rendered") else {
         return;
     };
     let d = std::env::temp_dir().join(format!("feedloop-render-{}", std::process::id()));

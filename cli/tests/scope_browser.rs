@@ -23,8 +23,11 @@ fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
 }
 
-#[path = "support/browser.rs"]
-mod browser;
+/// The browser, or `None` after saying the test `what` is skipped (on CI a missing one fails).
+fn browser_or_skip(what: &str) -> Option<PathBuf> {
+    let missing = format!("{}: {what}", feedloop_cli::browser::NOT_FOUND);
+    feedloop_test_support::found_or_skip(feedloop_cli::browser::on_path(), missing)
+}
 
 /// Kills a child process when dropped (a failing test leaves nothing running).
 struct Proc(Child);
@@ -279,7 +282,7 @@ fn start_scope(args: &[&str]) -> (Proc, String, std::sync::mpsc::Receiver<String
 
 #[test]
 fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_its_capture() {
-    let Some(browser) = browser::browser_or_skip("scope not tested in a browser") else {
+    let Some(browser) = browser_or_skip("scope not tested in a browser") else {
         return;
     };
     let shots = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scope-e2e");

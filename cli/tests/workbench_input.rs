@@ -8,9 +8,7 @@ fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_feedloop")
 }
 
-#[path = "../../tests/src/scratch.rs"]
-mod scratch;
-use scratch::Scratch;
+use feedloop_test_support::Scratch;
 
 /// A fresh scratch folder for test `name` (removed when the test passes).
 fn scratch(name: &str) -> Scratch {

@@ -90,8 +90,7 @@ pub fn feedloop(args: &[&str]) -> Output {
         .expect("running feedloop")
 }
 
-mod scratch;
-pub use scratch::Scratch;
+pub use feedloop_test_support::Scratch;
 
 /// A fresh scratch folder unique to this process and `name` (removed when the test passes).
 pub fn scratch(name: &str) -> Scratch {

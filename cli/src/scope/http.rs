@@ -170,25 +170,34 @@ fn attach(sh: &mut Shared, token: &str, addr: &str, takeover: bool) -> Result<()
     Ok(())
 }
 
-fn handle(ctx: &Ctx, mut rq: Request) {
+/// Answers one request: the page's files and the stats need no session, the rest of the API
+/// the page's.
+fn handle(ctx: &Ctx, rq: Request) {
     let url = rq.url().to_string();
     let path = url.split('?').next().unwrap_or("").to_string();
     let q = query(&url);
-    match (rq.method().clone(), path.as_str()) {
+    let Some(rq) = open_route(ctx, rq, &path) else {
+        return;
+    };
+    let Some((rq, body)) = admit(ctx, rq, &path) else {
+        return;
+    };
+    api(ctx, rq, &path, &q, &body);
+}
+
+/// Answers the page's files, the stats and a path outside the API; hands back any other request.
+fn open_route(ctx: &Ctx, rq: Request, path: &str) -> Option<Request> {
+    match (rq.method().clone(), path) {
         (Method::Get, "/") | (Method::Get, "/index.html") => {
-            return reply(rq, 200, "text/html; charset=utf-8", INDEX.to_string())
+            reply(rq, 200, "text/html; charset=utf-8", INDEX.to_string())
         }
-        (Method::Get, "/scope.js") => {
-            return reply(
-                rq,
-                200,
-                "text/javascript; charset=utf-8",
-                SCRIPT.to_string(),
-            )
-        }
-        (Method::Get, "/scope.css") => {
-            return reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string())
-        }
+        (Method::Get, "/scope.js") => reply(
+            rq,
+            200,
+            "text/javascript; charset=utf-8",
+            SCRIPT.to_string(),
+        ),
+        (Method::Get, "/scope.css") => reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string()),
         (Method::Get, "/api/stats") => {
             // for benchmarks and scripts: no page session needed, nothing changes
             let sh = ctx.lock();
@@ -199,13 +208,19 @@ fn handle(ctx: &Ctx, mut rq: Request) {
                 "running": sh.running,
             });
             drop(sh);
-            return reply_json(rq, 200, &v);
+            reply_json(rq, 200, &v)
         }
         (_, p) if !p.starts_with("/api/") => {
-            return reply_json(rq, 404, &json!({"error": format!("no page at {p}")}))
+            reply_json(rq, 404, &json!({"error": format!("no page at {p}")}))
         }
-        _ => {}
+        _ => return Some(rq),
     }
+    None
+}
+
+/// Attaches the request's page session (or refuses a second page) and reads a POST's body;
+/// hands back the request with its body, or `None` after answering an error.
+fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
     let token = rq
         .headers()
         .iter()
@@ -221,7 +236,8 @@ fn handle(ctx: &Ctx, mut rq: Request) {
         if !takeover {
             eprintln!("feedloop scope: refused a second page from {addr}");
         }
-        return reply_json(rq, 409, &json!({"error": e, "busy": true}));
+        reply_json(rq, 409, &json!({"error": e, "busy": true}));
+        return None;
     }
     let mut body = String::new();
     if *rq.method() == Method::Post {
@@ -230,52 +246,51 @@ fn handle(ctx: &Ctx, mut rq: Request) {
             .take(MAX_UPLOAD + 1)
             .read_to_string(&mut body)
         {
-            return reply_json(
+            reply_json(
                 rq,
                 400,
                 &json!({"error": format!("reading the request: {e}")}),
             );
+            return None;
         }
         if body.len() as u64 > MAX_UPLOAD {
-            return reply_json(
+            reply_json(
                 rq,
                 413,
                 &json!({"error": format!("more than {} MB", MAX_UPLOAD >> 20)}),
             );
+            return None;
         }
     }
+    Some((rq, body))
+}
+
+/// Answers an API request of the attached page.
+fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str) {
     let name = rq
         .headers()
         .iter()
         .find(|h| h.field.equiv("x-trace-name"))
         .map(|h| h.value.as_str().to_string())
         .unwrap_or_else(|| "uploaded.csv".into());
-    let out: Result<Value> = match path.as_str() {
+    let out: Result<Value> = match path {
         "/api/takeover" => Ok(json!({"ok": true})),
         "/api/state" => Ok(state(ctx)),
-        "/api/view" if param(&q, "fmt") == Some("bin") => {
+        "/api/view" if param(q, "fmt") == Some("bin") => {
             ctx.views.fetch_add(1, Ordering::Relaxed);
-            return match view_bin(ctx, &q) {
-                Ok(bytes) => {
-                    let r = Response::from_data(bytes)
-                        .with_header(header("Content-Type", "application/octet-stream"))
-                        .with_header(header("Cache-Control", "no-store"));
-                    let _ = rq.respond(r);
-                }
-                Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
-            };
+            return reply_view_bin(ctx, rq, q);
         }
         "/api/view" => {
             ctx.views.fetch_add(1, Ordering::Relaxed);
-            view(ctx, &q)
+            view(ctx, q)
         }
-        "/api/trigger" => arm(ctx, &body),
+        "/api/trigger" => arm(ctx, body),
         "/api/trigger/cancel" => {
             let mut sh = ctx.lock();
             sh.store.trigger = None;
             Ok(json!({"ok": true}))
         }
-        "/api/swap" => serde_json::from_str::<Value>(&body)
+        "/api/swap" => serde_json::from_str::<Value>(body)
             .map_err(|e| anyhow!("the swap request is not JSON: {e}"))
             .and_then(|b| super::page_swap(ctx, &b))
             .and_then(|a| Ok(serde_json::to_value(a)?)),
@@ -288,32 +303,48 @@ fn handle(ctx: &Ctx, mut rq: Request) {
                 None => Err(anyhow!("no capture yet: arm a trigger first")),
             }
         }
-        "/api/capture.csv" => {
-            let cap = ctx.lock().capture.clone();
-            let Some(c) = cap else {
-                return reply_json(rq, 404, &json!({"error": "no capture yet"}));
-            };
-            let text = super::capture_trace(
-                &c,
-                std::path::Path::new("capture.csv"),
-                ctx.instance.as_deref(),
-            )
-            .and_then(|t| {
-                let v = t.write_to(Vec::new())?;
-                Ok(String::from_utf8_lossy(&v).into_owned())
-            });
-            return match text {
-                Ok(t) => reply(rq, 200, "text/csv", t),
-                Err(e) => reply_json(rq, 500, &json!({"error": format!("{e:#}")})),
-            };
-        }
-        "/api/open" => open_upload(ctx, &name, &body),
-        "/api/trace" => open_listed(ctx, &q),
+        "/api/capture.csv" => return reply_capture_csv(ctx, rq),
+        "/api/open" => open_upload(ctx, &name, body),
+        "/api/trace" => open_listed(ctx, q),
         p => Err(anyhow!("no API at {p}")),
     };
     match out {
         Ok(v) => reply_json(rq, 200, &v),
         Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
+    }
+}
+
+/// `/api/view?fmt=bin`: the view as bytes.
+fn reply_view_bin(ctx: &Ctx, rq: Request, q: &[(String, String)]) {
+    match view_bin(ctx, q) {
+        Ok(bytes) => {
+            let r = Response::from_data(bytes)
+                .with_header(header("Content-Type", "application/octet-stream"))
+                .with_header(header("Cache-Control", "no-store"));
+            let _ = rq.respond(r);
+        }
+        Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
+    }
+}
+
+/// `/api/capture.csv`: the capture as a trace file.
+fn reply_capture_csv(ctx: &Ctx, rq: Request) {
+    let cap = ctx.lock().capture.clone();
+    let Some(c) = cap else {
+        return reply_json(rq, 404, &json!({"error": "no capture yet"}));
+    };
+    let text = super::capture_trace(
+        &c,
+        std::path::Path::new("capture.csv"),
+        ctx.instance.as_deref(),
+    )
+    .and_then(|t| {
+        let v = t.write_to(Vec::new())?;
+        Ok(String::from_utf8_lossy(&v).into_owned())
+    });
+    match text {
+        Ok(t) => reply(rq, 200, "text/csv", t),
+        Err(e) => reply_json(rq, 500, &json!({"error": format!("{e:#}")})),
     }
 }
 

@@ -20,7 +20,7 @@ use feedloop_model::units::si;
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, Status};
 use feedloop_runtime::scheduler::control::request;
 use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
-use feedloop_runtime::shared::scope::{ScopeRecords, ScopeSubscriber};
+use feedloop_runtime::shared::scope::{ReceivedBlock, ScopeRecords, ScopeSubscriber};
 use feedloop_trace::Trace;
 
 use store::Store;
@@ -181,66 +181,8 @@ fn ring_cycles(history_s: f64, period_s: f64) -> usize {
 
 /// `feedloop scope`.
 pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
-    if a.instance.is_none() && a.trace.is_none() && a.report.is_none() {
-        bail!("feedloop scope needs --instance NAME (a running loop), or --trace T.csv / --report DIR (recordings)");
-    }
-    if !(a.history_s > 0.0 && a.history_s.is_finite()) {
-        bail!(
-            "--history-s must be a positive number of seconds, got {}",
-            a.history_s
-        );
-    }
-    if let Some(i) = &a.instance {
-        if !feedloop_model::job::valid_name(i, true) {
-            bail!("invalid instance name `{i}`: use lowercase letters, digits, `_` and `-` (at most 64)");
-        }
-    }
-    let mut traces = Vec::new();
-    if let Some(dir) = &a.report {
-        traces = csv_files(dir)?;
-        if traces.is_empty() && a.trace.is_none() {
-            bail!("{}: no trace (*.csv) in this folder", dir.display());
-        }
-    }
-    if let Some(t) = &a.trace {
-        traces.insert(0, t.clone());
-    }
-    let (store, connection) = match traces.first() {
-        Some(t) => (
-            Store::from_trace(&read_trace(t)?),
-            format!("trace {}", t.display()),
-        ),
-        None => (
-            Store::live(&[], 1000),
-            format!(
-                "waiting for loop `{}`",
-                a.instance.as_deref().unwrap_or_default()
-            ),
-        ),
-    };
-    let ctx = Arc::new(Ctx {
-        shared: Mutex::new(Shared {
-            store,
-            capture: None,
-            capture_view: None,
-            connection,
-            running: false,
-            status: None,
-            answers: Default::default(),
-            bad_blocks: 0,
-            run_id: None,
-            runs: 0,
-            session: None,
-            traces,
-            seen_swaps: Vec::new(),
-            contour_job: None,
-        }),
-        instance: a.instance.clone(),
-        captures: a.captures.clone(),
-        history_s: a.history_s,
-        stop: AtomicBool::new(false),
-        views: Default::default(),
-    });
+    checked(a)?;
+    let ctx = Arc::new(context(a)?);
     if !(0..=19).contains(&a.nice) {
         bail!("--nice {}: 0..19", a.nice);
     }
@@ -282,6 +224,76 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The options checked that need nothing read.
+fn checked(a: &ScopeArgs) -> Result<()> {
+    if a.instance.is_none() && a.trace.is_none() && a.report.is_none() {
+        bail!("feedloop scope needs --instance NAME (a running loop), or --trace T.csv / --report DIR (recordings)");
+    }
+    if !(a.history_s > 0.0 && a.history_s.is_finite()) {
+        bail!(
+            "--history-s must be a positive number of seconds, got {}",
+            a.history_s
+        );
+    }
+    if let Some(i) = &a.instance {
+        if !feedloop_model::job::valid_name(i, true) {
+            bail!("invalid instance name `{i}`: use lowercase letters, digits, `_` and `-` (at most 64)");
+        }
+    }
+    Ok(())
+}
+
+/// The scope's state at its start: the traces asked for (the first one shown), else an empty
+/// ring waiting for the loop.
+fn context(a: &ScopeArgs) -> Result<Ctx> {
+    let mut traces = Vec::new();
+    if let Some(dir) = &a.report {
+        traces = csv_files(dir)?;
+        if traces.is_empty() && a.trace.is_none() {
+            bail!("{}: no trace (*.csv) in this folder", dir.display());
+        }
+    }
+    if let Some(t) = &a.trace {
+        traces.insert(0, t.clone());
+    }
+    let (store, connection) = match traces.first() {
+        Some(t) => (
+            Store::from_trace(&read_trace(t)?),
+            format!("trace {}", t.display()),
+        ),
+        None => (
+            Store::live(&[], 1000),
+            format!(
+                "waiting for loop `{}`",
+                a.instance.as_deref().unwrap_or_default()
+            ),
+        ),
+    };
+    Ok(Ctx {
+        shared: Mutex::new(Shared {
+            store,
+            capture: None,
+            capture_view: None,
+            connection,
+            running: false,
+            status: None,
+            answers: Default::default(),
+            bad_blocks: 0,
+            run_id: None,
+            runs: 0,
+            session: None,
+            traces,
+            seen_swaps: Vec::new(),
+            contour_job: None,
+        }),
+        instance: a.instance.clone(),
+        captures: a.captures.clone(),
+        history_s: a.history_s,
+        stop: AtomicBool::new(false),
+        views: Default::default(),
+    })
+}
+
 fn csv_files(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
@@ -310,17 +322,8 @@ fn feed(ctx: &Ctx, instance: &str) {
     // wake when asked, not up to 50 us later (the default timer slack), so the slot holds
     // SAFETY: plain prctl on the calling thread.
     unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000, 0, 0, 0) };
-    let sub = loop {
-        match ScopeSubscriber::open(instance) {
-            Ok(s) => break s,
-            Err(e) => {
-                ctx.say(format!("cannot watch loop `{instance}`: {e}; retrying"));
-                if ctx.stop.load(Ordering::Relaxed) {
-                    return;
-                }
-                std::thread::sleep(Duration::from_secs(1));
-            }
-        }
+    let Some(sub) = subscribe(ctx, instance) else {
+        return;
     };
     let mut was_running: Option<bool> = None;
     let mut last_check = Instant::now() - Duration::from_secs(1);
@@ -328,101 +331,129 @@ fn feed(ctx: &Ctx, instance: &str) {
     while !ctx.stop.load(Ordering::Relaxed) {
         if last_check.elapsed() >= Duration::from_millis(250) {
             last_check = Instant::now();
-            let (p, s) = sub.loop_running();
-            let running = p && s;
-            if was_running != Some(running) {
-                let newest = ctx.lock().store.newest;
-                let line = match (running, was_running, newest) {
-                    (true, _, _) => format!("attached to loop `{instance}`"),
-                    (false, None, _) => format!(
-                        "no loop of instance `{instance}` is running; waiting for one (start it \
-                         with `feedloop run JOB --out DIR --instance {instance}`)"
-                    ),
-                    (false, Some(_), Some(k)) => format!(
-                        "loop `{instance}` ended after cycle {k}; the last {} s stay on the page; \
-                         waiting for it to start again",
-                        ctx.history_s
-                    ),
-                    (false, Some(_), None) => format!("loop `{instance}` ended"),
-                };
-                ctx.say(line);
-                let mut sh = ctx.lock();
-                sh.running = running;
-                was_running = Some(running);
+            tell_running(ctx, instance, &sub, &mut was_running);
+        }
+        drain(ctx, instance, &sub, &mut bad);
+        sleep_to_slack(ctx);
+    }
+}
+
+/// The loop's scope services, retried once a second until they open; `None` when the scope
+/// ends first.
+fn subscribe(ctx: &Ctx, instance: &str) -> Option<ScopeSubscriber> {
+    loop {
+        match ScopeSubscriber::open(instance) {
+            Ok(s) => return Some(s),
+            Err(e) => {
+                ctx.say(format!("cannot watch loop `{instance}`: {e}; retrying"));
+                if ctx.stop.load(Ordering::Relaxed) {
+                    return None;
+                }
+                std::thread::sleep(Duration::from_secs(1));
             }
         }
-        loop {
-            match sub.receive(&mut bad) {
-                Ok(Some(b)) => {
-                    let restarted = {
-                        let mut sh = ctx.lock();
-                        sh.bad_blocks = bad;
-                        let new_run = sh.run_id != Some(b.run_id)
-                            && matches!(b.records, ScopeRecords::Plant(_));
-                        if new_run {
-                            let names = sh
-                                .status
-                                .as_ref()
-                                .map(|s| s.axes.iter().map(|a| a.axis.clone()).collect())
-                                .filter(|n: &Vec<String>| n.len() == b.axis_count)
-                                .unwrap_or_else(|| {
-                                    (0..b.axis_count).map(|i| format!("axis{i}")).collect()
-                                });
-                            // a trigger armed before the loop started waits for it
-                            sh.renew_store(
-                                &names,
-                                ring_cycles(ctx.history_s, b.period_s),
-                                b.period_s,
-                            );
-                            sh.seen_swaps.clear();
-                            sh.run_id = Some(b.run_id);
-                            sh.runs += 1;
-                        }
-                        // (the run is told by the plant's blocks; the scheduler's carry its own
-                        // process's start, and land by cycle number in the plant's run)
-                        match &b.records {
-                            ScopeRecords::Plant(r) => {
-                                sh.store.ring_dropped = b.ring_dropped;
-                                sh.store.block_seen(0, b.block);
-                                sh.store.push_plant(r)
-                            }
-                            ScopeRecords::Scheduler(r) if sh.run_id.is_some() => {
-                                sh.store.block_seen(1, b.block);
-                                sh.store.push_sched(r)
-                            }
-                            ScopeRecords::Scheduler(_) => {}
-                        }
-                        new_run.then_some(sh.runs)
-                    };
-                    if let Some(runs) = restarted {
-                        if runs > 1 {
-                            ctx.say(format!(
-                                "loop `{instance}` restarted (run {runs}): the page follows the new run"
-                            ));
-                        }
+    }
+}
+
+/// Says when the loop starts or ends (`was_running`: what was said last, `None` before).
+fn tell_running(ctx: &Ctx, instance: &str, sub: &ScopeSubscriber, was_running: &mut Option<bool>) {
+    let (p, s) = sub.loop_running();
+    let running = p && s;
+    if *was_running != Some(running) {
+        let newest = ctx.lock().store.newest;
+        let line = match (running, *was_running, newest) {
+            (true, _, _) => format!("attached to loop `{instance}`"),
+            (false, None, _) => format!(
+                "no loop of instance `{instance}` is running; waiting for one (start it \
+                 with `feedloop run JOB --out DIR --instance {instance}`)"
+            ),
+            (false, Some(_), Some(k)) => format!(
+                "loop `{instance}` ended after cycle {k}; the last {} s stay on the page; \
+                 waiting for it to start again",
+                ctx.history_s
+            ),
+            (false, Some(_), None) => format!("loop `{instance}` ended"),
+        };
+        ctx.say(line);
+        let mut sh = ctx.lock();
+        sh.running = running;
+        *was_running = Some(running);
+    }
+}
+
+/// Takes every block waiting in the queue into the ring.
+fn drain(ctx: &Ctx, instance: &str, sub: &ScopeSubscriber, bad: &mut u64) {
+    loop {
+        match sub.receive(bad) {
+            Ok(Some(b)) => {
+                if let Some(runs) = take_block(ctx, &b, *bad) {
+                    if runs > 1 {
+                        ctx.say(format!(
+                            "loop `{instance}` restarted (run {runs}): the page follows the new run"
+                        ));
                     }
                 }
-                Ok(None) => break,
-                Err(e) => {
-                    ctx.say(format!("scope feed of `{instance}`: {e}"));
-                    break;
-                }
+            }
+            Ok(None) => break,
+            Err(e) => {
+                ctx.say(format!("scope feed of `{instance}`: {e}"));
+                break;
             }
         }
-        // Every wake-up of this process takes a core from the loop for a moment on a small
-        // machine. So it drains the queue at once, looks again only FEED_PAUSE later (the queue
-        // holds a quarter of a second), and, like the loop's own recorders, wakes in the slack
-        // of a period rather than at a random moment that may fall on a round trip.
-        let (anchor, period_s) = {
-            let sh = ctx.lock();
-            (sh.store.last_published_ns, sh.store.period_s)
-        };
-        let period_ns = (period_s * 1e9) as u64;
-        let earliest = now_ns() + FEED_PAUSE.as_nanos() as u64;
-        match slack_slot(anchor, period_ns, earliest) {
-            Some(t) => sleep_until_ns(t),
-            None => std::thread::sleep(FEED_PAUSE),
+    }
+}
+
+/// Puts block `b` into the ring, a new ring when it starts a new run of the loop; returns the
+/// run count when it did.
+fn take_block(ctx: &Ctx, b: &ReceivedBlock, bad: u64) -> Option<u64> {
+    let mut sh = ctx.lock();
+    sh.bad_blocks = bad;
+    let new_run = sh.run_id != Some(b.run_id) && matches!(b.records, ScopeRecords::Plant(_));
+    if new_run {
+        let names = sh
+            .status
+            .as_ref()
+            .map(|s| s.axes.iter().map(|a| a.axis.clone()).collect())
+            .filter(|n: &Vec<String>| n.len() == b.axis_count)
+            .unwrap_or_else(|| (0..b.axis_count).map(|i| format!("axis{i}")).collect());
+        // a trigger armed before the loop started waits for it
+        sh.renew_store(&names, ring_cycles(ctx.history_s, b.period_s), b.period_s);
+        sh.seen_swaps.clear();
+        sh.run_id = Some(b.run_id);
+        sh.runs += 1;
+    }
+    // (the run is told by the plant's blocks; the scheduler's carry its own
+    // process's start, and land by cycle number in the plant's run)
+    match &b.records {
+        ScopeRecords::Plant(r) => {
+            sh.store.ring_dropped = b.ring_dropped;
+            sh.store.block_seen(0, b.block);
+            sh.store.push_plant(r)
         }
+        ScopeRecords::Scheduler(r) if sh.run_id.is_some() => {
+            sh.store.block_seen(1, b.block);
+            sh.store.push_sched(r)
+        }
+        ScopeRecords::Scheduler(_) => {}
+    }
+    new_run.then_some(sh.runs)
+}
+
+/// Sleeps until the feed looks again.
+fn sleep_to_slack(ctx: &Ctx) {
+    // Every wake-up of this process takes a core from the loop for a moment on a small
+    // machine. So it drains the queue at once, looks again only FEED_PAUSE later (the queue
+    // holds a quarter of a second), and, like the loop's own recorders, wakes in the slack
+    // of a period rather than at a random moment that may fall on a round trip.
+    let (anchor, period_s) = {
+        let sh = ctx.lock();
+        (sh.store.last_published_ns, sh.store.period_s)
+    };
+    let period_ns = (period_s * 1e9) as u64;
+    let earliest = now_ns() + FEED_PAUSE.as_nanos() as u64;
+    match slack_slot(anchor, period_ns, earliest) {
+        Some(t) => sleep_until_ns(t),
+        None => std::thread::sleep(FEED_PAUSE),
     }
 }
 

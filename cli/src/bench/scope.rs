@@ -9,6 +9,9 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
@@ -17,8 +20,10 @@ use serde_json::{json, Value};
 use feedloop_analysis::latency::{attribute_misses, RunFigures};
 use feedloop_model::job::WaitKind;
 
-use crate::choice::{Choice, WaitArg};
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
+
+use super::job::{bench_job, run_processes};
+use crate::choice::{Choice, WaitArg};
 
 /// Options of `feedloop bench scope`.
 #[derive(clap::Args, Debug)]
@@ -85,15 +90,12 @@ fn find_browser(asked: Option<&Path>) -> Result<PathBuf> {
     if let Some(b) = asked {
         return Ok(b.to_path_buf());
     }
-    let path = std::env::var_os("PATH").unwrap_or_default();
-    ["chromium", "chromium-browser", "google-chrome"]
-        .iter()
-        .flat_map(|b| std::env::split_paths(&path).map(move |d| d.join(b)))
-        .find(|p| p.is_file())
-        .context(
-            "no browser on PATH (chromium, chromium-browser or google-chrome): install Debian's \
-             `chromium`, or name one with --browser",
+    feedloop_cli::browser::on_path().with_context(|| {
+        format!(
+            "{}: install Debian's `chromium`, or name one with --browser",
+            feedloop_cli::browser::NOT_FOUND
         )
+    })
 }
 
 /// Makes the child about to be started run at nice value `nice`, under SCHED_IDLE when `idle`
@@ -156,7 +158,60 @@ fn figures(dir: &Path, period_ns: u64) -> Result<Value> {
 }
 
 /// `feedloop bench scope`.
-pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
+pub(super) fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
+    let wait = checked(a)?;
+    let browser = find_browser(a.browser.as_deref())?;
+    let cpus: Vec<usize> = match a.pin.as_deref() {
+        None => vec![],
+        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
+    };
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let job = bench_job(
+        &a.out,
+        a.period_s,
+        wait,
+        a.cycles,
+        feedloop_model::job::DEFAULT_PHASE_PROBE_S,
+    )?;
+    let b = ScopeBench {
+        a,
+        wait,
+        browser,
+        cpus,
+        job,
+        period_ns: (a.period_s * 1e9).round() as u64,
+        exe: std::env::current_exe().context("locating the feedloop binary")?,
+    };
+    let mut pairs = Vec::new();
+    for pair in 0..a.pairs {
+        let mut row = serde_json::Map::new();
+        // without: the loop alone (its recorders publish the scope feed to nobody);
+        // scope_only: `feedloop scope` subscribed, no page; with_scope: and a browser drawing
+        for (kind, name) in [(0u8, "without"), (1, "scope_only"), (2, "with_scope")] {
+            if (a.with_only && kind < 2) || (kind == 1 && !a.scope_only) {
+                continue;
+            }
+            row.insert(name.into(), b.one_run(pair, kind, name)?);
+        }
+        pairs.push(Value::Object(row));
+    }
+    let v = json!({
+        "what": "the benchmark chain of `bench latency` run alone and with `feedloop scope` \
+                 attached and a headless browser drawing its page, in alternating pairs",
+        "cycles": a.cycles, "period_s": a.period_s, "wait": wait.id(), "pin": a.pin,
+        "viewer_nice": a.viewer_nice, "viewer_idle": a.viewer_idle,
+        "browser": b.browser.display().to_string(),
+        "pairs": pairs,
+    });
+    let path = a.out.join("scope-bench.json");
+    crate::processes::write_json(&path, &v)?;
+    print_table(&v);
+    println!("wrote {}", path.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The options checked: the wait asked for.
+fn checked(a: &ScopeBenchArgs) -> Result<WaitKind> {
     let wait = WaitKind::parse(a.wait.id())
         .with_context(|| format!("--wait `{}`: expected busy, block or hybrid", a.wait.id()))?;
     if !(a.period_s > 1e-6 && a.period_s <= 0.1) {
@@ -171,169 +226,180 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     if !(a.rss_every_s > 0.0 && a.rss_every_s.is_finite()) {
         bail!("--rss-every-s must be a positive number of seconds");
     }
-    let browser = find_browser(a.browser.as_deref())?;
-    let cpus: Vec<usize> = match a.pin.as_deref() {
-        None => vec![],
-        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
-    };
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let job = crate::bench_run::bench_job(
-        &a.out,
-        a.period_s,
-        wait,
-        a.cycles,
-        feedloop_model::job::DEFAULT_PHASE_PROBE_S,
-    )?;
-    let period_ns = (a.period_s * 1e9).round() as u64;
-    let exe = std::env::current_exe().context("locating the feedloop binary")?;
-    let mut pairs = Vec::new();
-    for pair in 0..a.pairs {
-        let mut row = serde_json::Map::new();
-        // without: the loop alone (its recorders publish the scope feed to nobody);
-        // scope_only: `feedloop scope` subscribed, no page; with_scope: and a browser drawing
-        for (kind, name) in [(0u8, "without"), (1, "scope_only"), (2, "with_scope")] {
-            if (a.with_only && kind < 2) || (kind == 1 && !a.scope_only) {
-                continue;
-            }
-            let with_scope = kind > 0;
-            let dir = a.out.join(format!("pair{pair}-{name}"));
-            std::fs::create_dir_all(&dir)?;
-            let instance = format!("scopebench{}x{pair}{kind}", std::process::id());
-            eprintln!(
-                "bench scope: pair {} of {}, {name}: {} cycles at {:.1} kHz, about {:.0} s",
-                pair + 1,
-                a.pairs,
-                a.cycles,
-                1e-3 / a.period_s,
-                a.cycles as f64 * a.period_s
-            );
-            if !with_scope {
-                crate::bench_run::run_processes(
-                    &job, &dir, wait, a.cycles, &cpus, None, &instance,
-                )?;
-                row.insert(name.into(), figures(&dir, period_ns)?);
-                continue;
-            }
-            // the scope first, then the browser on its page, then the loop
-            let mut scope = Command::new(&exe);
-            scope
-                .args([
-                    "scope",
-                    "--instance",
-                    &instance,
-                    "--port",
-                    "0",
-                    "--captures",
-                ])
-                .arg(dir.join("captures"))
-                .stdout(Stdio::piped())
-                .stderr(Stdio::null());
-            crate::signals::die_with_parent(&mut scope);
-            lower_priority(&mut scope, a.viewer_nice, a.viewer_idle);
-            let mut scope = Kill(scope.spawn().context("starting feedloop scope")?);
-            let mut line = String::new();
-            BufReader::new(scope.0.stdout.take().context("scope's stdout")?)
-                .read_line(&mut line)?;
-            let url = line
-                .trim()
-                .strip_prefix("feedloop scope: open ")
-                .with_context(|| format!("feedloop scope printed `{}`", line.trim()))?
-                .to_string();
-            let addr = url
-                .trim_start_matches("http://")
-                .trim_end_matches('/')
-                .to_string();
-            let profile = dir.join("browser-profile");
-            let mut chrome = Command::new(&browser);
-            chrome
-                .args([
-                    "--headless",
-                    "--no-sandbox",
-                    "--disable-gpu",
-                    "--disable-quic",
-                    "--no-first-run",
-                    "--disable-background-networking",
-                    "--disable-component-update",
-                    "--disable-sync",
-                    "--window-size=1400,1000",
-                    "--remote-debugging-port=0",
-                ])
-                .arg(format!("--user-data-dir={}", profile.display()))
-                .arg(&url)
-                .stdout(Stdio::null())
-                .stderr(Stdio::null());
-            crate::signals::die_with_parent(&mut chrome);
-            lower_priority(&mut chrome, a.viewer_nice, a.viewer_idle);
-            let chrome = if kind == 2 {
-                Some(Kill(chrome.spawn().with_context(|| {
-                    format!("starting {}", browser.display())
-                })?))
-            } else {
-                None
-            };
-            let scope_pid = scope.0.id();
-            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-            let stop2 = stop.clone();
-            let every = Duration::from_secs_f64(a.rss_every_s);
-            let sampler = std::thread::spawn(move || {
-                let t0 = Instant::now();
-                let mut samples: Vec<(f64, u64)> = Vec::new();
-                while !stop2.load(std::sync::atomic::Ordering::Relaxed) {
-                    if let Some(r) = rss_bytes(scope_pid) {
-                        samples.push((t0.elapsed().as_secs_f64(), r));
-                    }
-                    let until = Instant::now() + every;
-                    while Instant::now() < until
-                        && !stop2.load(std::sync::atomic::Ordering::Relaxed)
-                    {
-                        std::thread::sleep(Duration::from_millis(50));
-                    }
-                }
-                samples
-            });
-            let before = get(&addr, "/api/stats");
-            let ran =
-                crate::bench_run::run_processes(&job, &dir, wait, a.cycles, &cpus, None, &instance);
-            let after = get(&addr, "/api/stats");
-            stop.store(true, std::sync::atomic::Ordering::Relaxed);
-            let rss = sampler.join().unwrap_or_default();
-            drop(chrome);
-            drop(scope);
-            ran?;
-            let views = |v: &Option<Value>| v.as_ref().and_then(|v| v["views_served"].as_u64());
-            let drawn = match (views(&before), views(&after)) {
-                (Some(b), Some(a)) => a.saturating_sub(b),
-                _ => 0,
-            };
-            let mut f = figures(&dir, period_ns)?;
-            let span = a.cycles as f64 * a.period_s;
-            let mb = |b: u64| b as f64 / 1048576.0;
-            f["scope"] = json!({
-                "views_served": drawn,
-                "views_per_s": drawn as f64 / span.max(1e-9),
-                "rss_mb": rss.iter().map(|(t, b)| json!([t, mb(*b)])).collect::<Vec<_>>(),
-                "rss_first_mb": rss.first().map(|s| mb(s.1)),
-                "rss_last_mb": rss.last().map(|s| mb(s.1)),
-                "rss_max_mb": rss.iter().map(|s| mb(s.1)).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v)))),
-                "lost_blocks": after.as_ref().and_then(|v| v["lost_blocks"].as_u64()),
-            });
-            if drawn == 0 && kind == 2 {
-                eprintln!("bench scope: warning: the browser fetched no view during the run");
-            }
-            row.insert(name.into(), f);
+    Ok(wait)
+}
+
+/// A checked `bench scope` and what its runs share.
+struct ScopeBench<'a> {
+    a: &'a ScopeBenchArgs,
+    wait: WaitKind,
+    browser: PathBuf,
+    cpus: Vec<usize>,
+    job: PathBuf,
+    period_ns: u64,
+    /// this binary, started again as `feedloop scope`
+    exe: PathBuf,
+}
+
+impl ScopeBench<'_> {
+    /// One run of a pair, of `kind` 0 (alone), 1 (scope only) or 2 (scope and browser): its
+    /// figures, with the scope's when it watched.
+    fn one_run(&self, pair: u32, kind: u8, name: &str) -> Result<Value> {
+        let a = self.a;
+        let dir = a.out.join(format!("pair{pair}-{name}"));
+        std::fs::create_dir_all(&dir)?;
+        let instance = format!("scopebench{}x{pair}{kind}", std::process::id());
+        eprintln!(
+            "bench scope: pair {} of {}, {name}: {} cycles at {:.1} kHz, about {:.0} s",
+            pair + 1,
+            a.pairs,
+            a.cycles,
+            1e-3 / a.period_s,
+            a.cycles as f64 * a.period_s
+        );
+        if kind == 0 {
+            run_processes(
+                &self.job, &dir, self.wait, a.cycles, &self.cpus, None, &instance,
+            )?;
+            return figures(&dir, self.period_ns);
         }
-        pairs.push(Value::Object(row));
+        self.watched_run(kind, &dir, &instance)
     }
-    let v = json!({
-        "what": "the benchmark chain of `bench latency` run alone and with `feedloop scope` \
-                 attached and a headless browser drawing its page, in alternating pairs",
-        "cycles": a.cycles, "period_s": a.period_s, "wait": wait.id(), "pin": a.pin,
-        "viewer_nice": a.viewer_nice, "viewer_idle": a.viewer_idle,
-        "browser": browser.display().to_string(),
-        "pairs": pairs,
-    });
-    let path = a.out.join("scope-bench.json");
-    crate::processes::write_json(&path, &v)?;
+
+    /// A run with the scope attached (and, for `kind` 2, a browser on its page): the scope
+    /// first, then the browser, then the loop.
+    fn watched_run(&self, kind: u8, dir: &Path, instance: &str) -> Result<Value> {
+        let a = self.a;
+        let (scope, url) = self.start_scope(dir, instance)?;
+        let addr = url
+            .trim_start_matches("http://")
+            .trim_end_matches('/')
+            .to_string();
+        let chrome = if kind == 2 {
+            Some(self.start_browser(dir, &url)?)
+        } else {
+            None
+        };
+        let sampler = RssSampler::start(scope.0.id(), Duration::from_secs_f64(a.rss_every_s));
+        let before = get(&addr, "/api/stats");
+        let ran = run_processes(
+            &self.job, dir, self.wait, a.cycles, &self.cpus, None, instance,
+        );
+        let after = get(&addr, "/api/stats");
+        let rss = sampler.stop();
+        drop(chrome);
+        drop(scope);
+        ran?;
+        let views = |v: &Option<Value>| v.as_ref().and_then(|v| v["views_served"].as_u64());
+        let drawn = match (views(&before), views(&after)) {
+            (Some(b), Some(a)) => a.saturating_sub(b),
+            _ => 0,
+        };
+        let mut f = figures(dir, self.period_ns)?;
+        let span = a.cycles as f64 * a.period_s;
+        let mb = |b: u64| b as f64 / 1048576.0;
+        f["scope"] = json!({
+            "views_served": drawn,
+            "views_per_s": drawn as f64 / span.max(1e-9),
+            "rss_mb": rss.iter().map(|(t, b)| json!([t, mb(*b)])).collect::<Vec<_>>(),
+            "rss_first_mb": rss.first().map(|s| mb(s.1)),
+            "rss_last_mb": rss.last().map(|s| mb(s.1)),
+            "rss_max_mb": rss.iter().map(|s| mb(s.1)).fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v)))),
+            "lost_blocks": after.as_ref().and_then(|v| v["lost_blocks"].as_u64()),
+        });
+        if drawn == 0 && kind == 2 {
+            eprintln!("bench scope: warning: the browser fetched no view during the run");
+        }
+        Ok(f)
+    }
+
+    /// `feedloop scope` on `instance`, with the page's address it printed.
+    fn start_scope(&self, dir: &Path, instance: &str) -> Result<(Kill, String)> {
+        let mut scope = Command::new(&self.exe);
+        scope
+            .args(["scope", "--instance", instance, "--port", "0", "--captures"])
+            .arg(dir.join("captures"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null());
+        crate::signals::die_with_parent(&mut scope);
+        lower_priority(&mut scope, self.a.viewer_nice, self.a.viewer_idle);
+        let mut scope = Kill(scope.spawn().context("starting feedloop scope")?);
+        let mut line = String::new();
+        BufReader::new(scope.0.stdout.take().context("scope's stdout")?).read_line(&mut line)?;
+        let url = line
+            .trim()
+            .strip_prefix("feedloop scope: open ")
+            .with_context(|| format!("feedloop scope printed `{}`", line.trim()))?
+            .to_string();
+        Ok((scope, url))
+    }
+
+    /// The headless browser drawing the page at `url`.
+    fn start_browser(&self, dir: &Path, url: &str) -> Result<Kill> {
+        let profile = dir.join("browser-profile");
+        let mut chrome = Command::new(&self.browser);
+        chrome
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--window-size=1400,1000",
+                "--remote-debugging-port=0",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg(url)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        crate::signals::die_with_parent(&mut chrome);
+        lower_priority(&mut chrome, self.a.viewer_nice, self.a.viewer_idle);
+        Ok(Kill(chrome.spawn().with_context(|| {
+            format!("starting {}", self.browser.display())
+        })?))
+    }
+}
+
+/// A thread sampling a process's resident memory every so often until stopped.
+struct RssSampler {
+    stop: Arc<AtomicBool>,
+    thread: JoinHandle<Vec<(f64, u64)>>,
+}
+
+impl RssSampler {
+    /// Samples process `pid` every `every`.
+    fn start(pid: u32, every: Duration) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let t0 = Instant::now();
+            let mut samples: Vec<(f64, u64)> = Vec::new();
+            while !stop2.load(Ordering::Relaxed) {
+                if let Some(r) = rss_bytes(pid) {
+                    samples.push((t0.elapsed().as_secs_f64(), r));
+                }
+                let until = Instant::now() + every;
+                while Instant::now() < until && !stop2.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            }
+            samples
+        });
+        Self { stop, thread }
+    }
+
+    /// The samples `(s since the start, bytes)`.
+    fn stop(self) -> Vec<(f64, u64)> {
+        self.stop.store(true, Ordering::Relaxed);
+        self.thread.join().unwrap_or_default()
+    }
+}
+
+/// The table of `scope-bench.json`'s runs side by side.
+fn print_table(v: &Value) {
     println!(
         "| pair | run | p50 | p99 | p99.9 | max | misses (outside stalls, unexplained) | page views/s | scope RSS first -> last (max) |"
     );
@@ -375,6 +441,4 @@ pub fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
             );
         }
     }
-    println!("wrote {}", path.display());
-    Ok(ExitCode::SUCCESS)
 }

@@ -1,10 +1,12 @@
-//! A scratch folder for one test, removed when the test passes (kept for a look when it fails),
-//! so the suite leaves nothing behind in the temp folder. Test files of other crates include
-//! this file with `#[path = "../../tests/src/scratch.rs"] mod scratch;`.
+//! Helpers shared by the test files of several crates (a dev-dependency, never a dependency of
+//! the shipped code): a scratch folder per test, and the rule for a test that needs a program
+//! the machine may lack.
 
+use std::fmt::Display;
 use std::path::{Path, PathBuf};
 
-/// A fresh folder in the temp folder, removed on drop unless the thread is panicking.
+/// A fresh folder in the temp folder, removed on drop unless the thread is panicking: the suite
+/// leaves nothing behind in the temp folder, and a failed test's folder is kept for a look.
 pub struct Scratch(PathBuf);
 
 impl Scratch {
@@ -38,4 +40,16 @@ impl Drop for Scratch {
             let _ = std::fs::remove_dir_all(&self.0);
         }
     }
+}
+
+/// What a test needs from the machine (e.g. a browser), or `None` after saying `missing` and
+/// that the test is skipped; on CI (`CI=true`) a missing one fails the test instead.
+pub fn found_or_skip<T>(found: Option<T>, missing: impl Display) -> Option<T> {
+    if found.is_none() {
+        if std::env::var("CI").as_deref() == Ok("true") {
+            panic!("{missing}");
+        }
+        eprintln!("skipped: {missing}");
+    }
+    found
 }

@@ -5,20 +5,21 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use feedloop_model::job::{Mode, WaitKind};
+use toml::{Table, Value};
 
 use crate::processes::spawn;
 
-const JOB: &str = include_str!("../../examples/jobs/xc-full-chain.toml");
-const MODEL_X: &str = include_str!("../../examples/models/xc-x.toml");
-const MODEL_C: &str = include_str!("../../examples/models/xc-c.toml");
-const QUADRANT_TABLE: &str = include_str!("../../examples/tables/xy-circle-quadrant.toml");
+const JOB: &str = include_str!("../../../examples/jobs/xc-full-chain.toml");
+const MODEL_X: &str = include_str!("../../../examples/models/xc-x.toml");
+const MODEL_C: &str = include_str!("../../../examples/models/xc-c.toml");
+const QUADRANT_TABLE: &str = include_str!("../../../examples/tables/xy-circle-quadrant.toml");
 
 /// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
 /// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
 /// `cycles`.
-pub(crate) fn bench_job(
+pub(super) fn bench_job(
     dir: &Path,
     period_s: f64,
     wait: WaitKind,
@@ -30,33 +31,51 @@ pub(crate) fn bench_job(
     std::fs::write(dir.join("bench-quadrant.toml"), QUADRANT_TABLE)?;
     // one revolution per second: enough turns to keep the cam turning through the whole run
     let turns = (cycles as f64 * period_s).ceil() + 1.0;
-    let mut job = String::new();
-    for line in JOB.lines() {
-        let key = line.split('=').next().unwrap_or("").trim();
-        let line = match key {
-            "name" => "name = \"bench-latency\"".to_string(),
-            "period_s" => format!(
-                "period_s = {period_s:e}\n\n[run]\nmode = \"realtime\"\nwait = \"{}\"\n\
-                 phase_probe_s = {phase_probe_s:e}",
-                wait.id()
-            ),
-            "turns" => format!("turns = {turns}"),
-            _ => line
-                .replace("../models/xc-x.toml", "bench-x.toml")
-                .replace("../models/xc-c.toml", "bench-c.toml")
-                .replace("../tables/xy-circle-quadrant.toml", "bench-quadrant.toml"),
-        };
-        job.push_str(&line);
-        job.push('\n');
+    let mut job: Table = JOB
+        .parse()
+        .context("reading the shipped xc-full-chain job")?;
+    job.insert("name".into(), "bench-latency".into());
+    job.insert("period_s".into(), period_s.into());
+    let mut run = Table::new();
+    run.insert("mode".into(), "realtime".into());
+    run.insert("wait".into(), wait.id().into());
+    run.insert("phase_probe_s".into(), phase_probe_s.into());
+    job.insert("run".into(), run.into());
+    // a whole number, written as an integer
+    job.get_mut("trajectory")
+        .and_then(Value::as_table_mut)
+        .context("the shipped job has no [trajectory]")?
+        .insert("turns".into(), Value::Integer(turns as i64));
+    for (_, v) in job.iter_mut() {
+        point_beside(v);
     }
     let p = dir.join("bench-job.toml");
-    std::fs::write(&p, job)?;
+    std::fs::write(&p, toml::to_string(&job)?)?;
     Ok(p)
+}
+
+/// Points the job's models and quadrant table (wherever they are named) at the copies written
+/// beside it.
+fn point_beside(v: &mut Value) {
+    match v {
+        Value::String(s) => {
+            let beside = match s.as_str() {
+                "../models/xc-x.toml" => "bench-x.toml",
+                "../models/xc-c.toml" => "bench-c.toml",
+                "../tables/xy-circle-quadrant.toml" => "bench-quadrant.toml",
+                _ => return,
+            };
+            *s = beside.to_string();
+        }
+        Value::Array(a) => a.iter_mut().for_each(point_beside),
+        Value::Table(t) => t.iter_mut().for_each(|(_, v)| point_beside(v)),
+        Value::Integer(_) | Value::Float(_) | Value::Boolean(_) | Value::Datetime(_) => {}
+    }
 }
 
 /// Runs the plant and the scheduler of `job` in realtime for `cycles`, each on its CPU of
 /// `cpus` (when given), and waits for both.
-pub(crate) fn run_processes(
+pub(super) fn run_processes(
     job: &Path,
     out: &Path,
     wait: WaitKind,

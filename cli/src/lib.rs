@@ -1,0 +1,3 @@
+//! What the `feedloop` binary shares with the tests of this package: where the browser is.
+
+pub mod browser;
