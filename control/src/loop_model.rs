@@ -97,51 +97,71 @@ pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Op
     if !finite || g.kv_nms_per_rad <= 0.0 {
         return None;
     }
-    // Motor velocity per torque, and load position per motor position, at s.
-    let axis = |s: Complex64| -> (Complex64, Complex64) {
-        match plant {
-            PlantParams::Rigid(r) => (
-                1.0 / (r.mass_kg * s + r.viscous_ns_per_m),
-                Complex64::new(1.0, 0.0),
-            ),
-            PlantParams::BallScrew { two_mass: t, .. }
-            | PlantParams::Rotary { two_mass: t, .. } => {
-                let ks = t.kl_nm_per_rad + t.cl_nms_per_rad * s;
-                let a = t.jm_kgm2 * s * s + t.dm_nms_per_rad * s + ks;
-                let b = t.jl_kgm2 * s * s + t.dl_nms_per_rad * s + ks;
-                (s * b / (a * b - ks * ks), ks / b)
-            }
-        }
+    let (lv, lp) = if period_s > 0.0 {
+        sampled_loops(plant, g, period_s, delay_s)?
+    } else {
+        continuous_loops(plant, g, delay_s)
     };
-    let n = 4000;
-    let f_max = if period_s > 0.0 { 0.5 / period_s } else { 1e4 };
-    let mut lv = Vec::with_capacity(n);
-    let mut lp = Vec::with_capacity(n);
-    let grid = || (0..n).map(|k| 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64));
-    if period_s > 0.0 {
-        // The digital loop exactly: the plant sampled with its zero-order hold, the PI as it
-        // runs (rectangle rule, integrator updated before the output), up to Nyquist.
-        let plant_z = Sampled::new(plant, period_s)?;
-        for f in grid() {
-            let w = 2.0 * PI * f;
-            let z = Complex64::from_polar(1.0, w * period_s);
-            let (gv, gp) = plant_z.at(z)?;
-            let delay = Complex64::from_polar(1.0, -w * delay_s);
-            let cv = delay
-                * if g.tv_s > 0.0 {
-                    g.kv_nms_per_rad * (1.0 + period_s / g.tv_s * z / (z - 1.0))
-                } else {
-                    Complex64::new(g.kv_nms_per_rad, 0.0)
-                };
-            let l_v = cv * gv;
-            lv.push((f, l_v));
-            lp.push((f, g.kp_per_s * cv * gp / (1.0 + l_v)));
-        }
+    let (pv, gmv) = crossing_margins(&lv);
+    let (pp, gmp) = crossing_margins(&lp);
+    let (gmv, gmp) = (
+        at_nyquist(&lv, gmv, period_s),
+        at_nyquist(&lp, gmp, period_s),
+    );
+    let (pm, gm) = (pv.min(pp), gmv.min(gmp));
+    (!pm.is_nan() && !gm.is_nan()).then_some((pm, gm))
+}
+
+/// An open loop's frequency response: (f in Hz, L(f)) on the margin check's grid.
+type Response = Vec<(f64, Complex64)>;
+
+/// Frequency points of the margin check.
+const GRID_POINTS: usize = 4000;
+
+/// The margin check's frequencies, Hz: log-spaced from 0.1 Hz to `f_max`.
+fn grid(f_max: f64) -> impl Iterator<Item = f64> {
+    let n = GRID_POINTS;
+    (0..n).map(move |k| 0.1 * (f_max / 0.1).powf(k as f64 / (n - 1) as f64))
+}
+
+/// The open velocity loop and the open position loop, (f, L(f)) up to Nyquist, of the digital
+/// loop exactly: the plant sampled with its zero-order hold, the PI as it runs (rectangle rule,
+/// integrator updated before the output).
+fn sampled_loops(
+    plant: &PlantParams,
+    g: Gains,
+    period_s: f64,
+    delay_s: f64,
+) -> Option<(Response, Response)> {
+    let mut lv = Vec::with_capacity(GRID_POINTS);
+    let mut lp = Vec::with_capacity(GRID_POINTS);
+    let plant_z = Sampled::new(plant, period_s)?;
+    for f in grid(0.5 / period_s) {
+        let w = 2.0 * PI * f;
+        let z = Complex64::from_polar(1.0, w * period_s);
+        let (gv, gp) = plant_z.at(z)?;
+        let delay = Complex64::from_polar(1.0, -w * delay_s);
+        let cv = delay
+            * if g.tv_s > 0.0 {
+                g.kv_nms_per_rad * (1.0 + period_s / g.tv_s * z / (z - 1.0))
+            } else {
+                Complex64::new(g.kv_nms_per_rad, 0.0)
+            };
+        let l_v = cv * gv;
+        lv.push((f, l_v));
+        lp.push((f, g.kp_per_s * cv * gp / (1.0 + l_v)));
     }
-    for f in grid().filter(|_| period_s == 0.0) {
+    Some((lv, lp))
+}
+
+/// The open velocity and position loops of the continuous-time loop, up to 10 kHz.
+fn continuous_loops(plant: &PlantParams, g: Gains, delay_s: f64) -> (Response, Response) {
+    let mut lv = Vec::with_capacity(GRID_POINTS);
+    let mut lp = Vec::with_capacity(GRID_POINTS);
+    for f in grid(1e4) {
         let s = Complex64::new(0.0, 2.0 * PI * f);
         let delay = (-s * delay_s).exp();
-        let (gv, load_per_motor) = axis(s);
+        let (gv, load_per_motor) = continuous_axis(plant, s);
         let cv = delay
             * if g.tv_s > 0.0 {
                 g.kv_nms_per_rad * (1.0 + 1.0 / (g.tv_s * s))
@@ -154,50 +174,67 @@ pub fn margins(plant: &PlantParams, g: Gains, period_s: f64, delay_s: f64) -> Op
         let th_l_over_v = load_per_motor * l_v / ((1.0 + l_v) * s);
         lp.push((f, g.kp_per_s * th_l_over_v));
     }
-    let m = |l: &[(f64, Complex64)]| -> (f64, f64) {
-        let mut pm = f64::INFINITY;
-        let mut gm = f64::INFINITY;
-        let mut prev_phase = l[0].1.arg();
-        let mut phase = prev_phase;
-        for w in l.windows(2) {
-            let p = w[1].1.arg();
-            let mut dp = p - prev_phase;
-            while dp > PI {
-                dp -= 2.0 * PI;
-            }
-            while dp < -PI {
-                dp += 2.0 * PI;
-            }
-            let ph0 = phase;
-            phase += dp;
-            prev_phase = p;
-            let (m0, m1) = (w[0].1.norm(), w[1].1.norm());
-            if (m0 - 1.0) * (m1 - 1.0) <= 0.0 {
-                let p = w[1].1.arg().to_degrees();
-                pm = pm.min(180.0 - p.abs());
-            }
-            let c0 = ((ph0 + PI) / (2.0 * PI)).floor();
-            let c1 = ((phase + PI) / (2.0 * PI)).floor();
-            if c0 != c1 {
-                gm = gm.min(-20.0 * m1.log10());
-            }
+    (lv, lp)
+}
+
+/// Motor velocity per torque, and load position per motor position, at s.
+fn continuous_axis(plant: &PlantParams, s: Complex64) -> (Complex64, Complex64) {
+    match plant {
+        PlantParams::Rigid(r) => (
+            1.0 / (r.mass_kg * s + r.viscous_ns_per_m),
+            Complex64::new(1.0, 0.0),
+        ),
+        PlantParams::BallScrew { two_mass: t, .. } | PlantParams::Rotary { two_mass: t, .. } => {
+            let ks = t.kl_nm_per_rad + t.cl_nms_per_rad * s;
+            let a = t.jm_kgm2 * s * s + t.dm_nms_per_rad * s + ks;
+            let b = t.jl_kgm2 * s * s + t.dl_nms_per_rad * s + ks;
+            (s * b / (a * b - ks * ks), ks / b)
         }
-        (pm, gm)
-    };
-    // A sampled loop can reach -180 deg exactly at Nyquist (where it is real): its gain margin.
-    let at_nyquist = |l: &[(f64, Complex64)], gm: f64| -> f64 {
-        match l.last() {
-            Some((_, x)) if period_s > 0.0 && x.re < 0.0 && x.im.abs() <= 1e-6 * x.norm() => {
-                gm.min(-20.0 * x.norm().log10())
-            }
-            _ => gm,
+    }
+}
+
+/// Phase and gain margin (deg, dB) of an open loop sampled on a frequency grid: the phase
+/// margin at every crossing of |L| = 1, the gain margin at every crossing of the unwrapped
+/// phase through -180 deg (mod 360).
+fn crossing_margins(l: &[(f64, Complex64)]) -> (f64, f64) {
+    let mut pm = f64::INFINITY;
+    let mut gm = f64::INFINITY;
+    let mut prev_phase = l[0].1.arg();
+    let mut phase = prev_phase;
+    for w in l.windows(2) {
+        let p = w[1].1.arg();
+        let mut dp = p - prev_phase;
+        while dp > PI {
+            dp -= 2.0 * PI;
         }
-    };
-    let (pv, gmv) = m(&lv);
-    let (pp, gmp) = m(&lp);
-    let (gmv, gmp) = (at_nyquist(&lv, gmv), at_nyquist(&lp, gmp));
-    let (pm, gm) = (pv.min(pp), gmv.min(gmp));
-    (!pm.is_nan() && !gm.is_nan()).then_some((pm, gm))
+        while dp < -PI {
+            dp += 2.0 * PI;
+        }
+        let ph0 = phase;
+        phase += dp;
+        prev_phase = p;
+        let (m0, m1) = (w[0].1.norm(), w[1].1.norm());
+        if (m0 - 1.0) * (m1 - 1.0) <= 0.0 {
+            let p = w[1].1.arg().to_degrees();
+            pm = pm.min(180.0 - p.abs());
+        }
+        let c0 = ((ph0 + PI) / (2.0 * PI)).floor();
+        let c1 = ((phase + PI) / (2.0 * PI)).floor();
+        if c0 != c1 {
+            gm = gm.min(-20.0 * m1.log10());
+        }
+    }
+    (pm, gm)
+}
+
+/// A sampled loop can reach -180 deg exactly at Nyquist (where it is real): its gain margin.
+fn at_nyquist(l: &[(f64, Complex64)], gm: f64, period_s: f64) -> f64 {
+    match l.last() {
+        Some((_, x)) if period_s > 0.0 && x.re < 0.0 && x.im.abs() <= 1e-6 * x.norm() => {
+            gm.min(-20.0 * x.norm().log10())
+        }
+        _ => gm,
+    }
 }
 
 /// An axis model sampled with a zero-order hold (exact: the matrix exponential of its

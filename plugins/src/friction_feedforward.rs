@@ -12,9 +12,12 @@
 
 use std::path::Path;
 
-use feedloop_control::controller::{AxisContext, AxisSignals, Controller, CycleContext};
+use feedloop_control::controller::{AxisContext, AxisSignals, Controller, CycleContext, Stage};
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
+
+use crate::keys::key_for;
+use crate::plugin::AxisPlugin;
 
 /// The friction feedforward.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -23,23 +26,15 @@ pub struct FrictionFeedforward {
     pub fc: f64,
 }
 
-impl FrictionFeedforward {
-    /// Plugin id.
-    pub const ID: &'static str = "friction_feedforward";
+impl AxisPlugin for FrictionFeedforward {
+    const ID: &'static str = "friction_feedforward";
+    const STAGE: Stage = Stage::Compensator;
 
     /// Reads `fc_nm` / `fc_n` / `fc_load_n`.
-    pub fn from_table(
-        params: &toml::Table,
-        axis: &AxisContext,
-        file: &Path,
-    ) -> Result<Self, ConfigError> {
+    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
         let kind = axis.plant.kind();
-        let motor_key = if kind == AxisKind::Rigid {
-            "fc_n"
-        } else {
-            "fc_nm"
-        };
+        let motor_key = key_for(kind, "fc_n", "fc_nm");
         let mut fc = f.f64_or(motor_key, Range::Within(0.0, 1e6), 0.0)?;
         if kind == AxisKind::BallScrew {
             fc +=
@@ -79,12 +74,9 @@ mod tests {
         let t: toml::Table = "fc_load_n = 62.83185307179586\nfc_nm = 0.05"
             .parse()
             .unwrap();
-        let f = FrictionFeedforward::from_table(
-            &t,
-            &crate::test_util::ballscrew_axis(1e-4),
-            Path::new("j"),
-        )
-        .unwrap();
+        let f =
+            FrictionFeedforward::build(&t, &crate::test_util::ballscrew_axis(1e-4), Path::new("j"))
+                .unwrap();
         assert!((f.fc - 0.15).abs() < 1e-12, "{}", f.fc);
     }
 
@@ -109,14 +101,14 @@ mod tests {
         let a = crate::test_util::rigid_axis(1e-4);
         let t: toml::Table = "fc_nm = 1".parse().unwrap();
         assert_eq!(
-            FrictionFeedforward::from_table(&t, &a, Path::new("j"))
+            FrictionFeedforward::build(&t, &a, Path::new("j"))
                 .unwrap_err()
                 .key,
             "fc_nm"
         );
         let t: toml::Table = "fc_n = 12".parse().unwrap();
         assert_eq!(
-            FrictionFeedforward::from_table(&t, &a, Path::new("j"))
+            FrictionFeedforward::build(&t, &a, Path::new("j"))
                 .unwrap()
                 .fc,
             12.0

@@ -51,12 +51,13 @@
 use std::path::Path;
 
 use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
+    AxisContext, AxisSignals, Controller, ControllerState, CycleContext, Stage,
 };
 use feedloop_model::model::PlantParams;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use crate::pi_velocity::key_names;
+use crate::keys::{read_pi_gains, PiGains};
+use crate::plugin::AxisPlugin;
 
 /// The 2-mass model the feedforward inverts (motor units; a rigid axis has `jl = 0`, `kl = inf`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -269,9 +270,7 @@ impl InverseFeedforwardParams {
             model.jm = f.f64_or("mass_kg", pos, model.jm)?;
             model.dm = f.f64_or("viscous_ns_per_m", nonneg, model.dm)?;
         }
-        let (kv_key, _) = key_names(axis.plant.kind());
-        let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
-        let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
+        let PiGains { kv_key, kv, tv } = read_pi_gains(&mut f, axis.plant.kind())?;
         let adv = f.opt_f64(
             "torque_advance_s",
             Range::Within(-axis.period_s * 10.0, axis.period_s * 10.0),
@@ -378,10 +377,18 @@ pub struct InverseFeedforward {
     lag_spring: Lag,
 }
 
-impl InverseFeedforward {
-    /// Plugin id.
-    pub const ID: &'static str = "inverse_feedforward";
+impl AxisPlugin for InverseFeedforward {
+    const ID: &'static str = "inverse_feedforward";
+    const STAGE: Stage = Stage::Feedforward;
 
+    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
+        Ok(Self::new(InverseFeedforwardParams::from_table(
+            params, axis, file,
+        )?))
+    }
+}
+
+impl InverseFeedforward {
     /// Builds the feedforward at rest.
     pub fn new(params: InverseFeedforwardParams) -> Self {
         let mut me = Self {

@@ -29,12 +29,14 @@
 use std::path::Path;
 
 use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
+    AxisContext, AxisSignals, Controller, ControllerState, CycleContext, Stage,
 };
-use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use crate::filters::{Biquad, LowPass1, MAX_FRACTION_OF_RATE};
+use crate::filters::{Biquad, LowPass1};
+pub use crate::keys::key_names;
+use crate::keys::{read_hz, read_pi_gains, PiGains};
+use crate::plugin::AxisPlugin;
 
 /// Parameters of [`PiVelocity`] (motor units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -71,28 +73,6 @@ pub struct LoopFilterParams {
     pub torque_lowpass_hz: Option<f64>,
     /// Notch on the feedback torque; `None` = off.
     pub notch: Option<NotchParams>,
-}
-
-/// Reads an optional filter frequency `key` (0 = off), checking it against the sampling rate.
-pub(crate) fn read_hz(
-    f: &mut Fields<'_>,
-    key: &str,
-    period_s: f64,
-) -> Result<Option<Option<f64>>, ConfigError> {
-    let Some(hz) = f.opt_f64(key, Range::NonNegative)? else {
-        return Ok(None);
-    };
-    if hz == 0.0 {
-        return Ok(Some(None));
-    }
-    let max = MAX_FRACTION_OF_RATE / period_s;
-    if hz > max {
-        return Err(f.error(
-            key,
-            format!("must be <= 0.45 / period_s = {max} Hz at this job's period, got {hz}"),
-        ));
-    }
-    Ok(Some(Some(hz)))
 }
 
 impl LoopFilterParams {
@@ -140,14 +120,6 @@ impl LoopFilterParams {
     }
 }
 
-/// Parameter key names for an axis kind: (kv, limit).
-pub fn key_names(kind: AxisKind) -> (&'static str, &'static str) {
-    match kind {
-        AxisKind::Rigid => ("kv_ns_per_m", "force_limit_n"),
-        _ => ("kv_nms_per_rad", "torque_limit_nm"),
-    }
-}
-
 impl PiVelocityParams {
     /// Reads the plugin keys from `params`, defaulting to the model's `[controller]`;
     /// `base` (when given) supplies values for keys `params` omits (used by retunes).
@@ -157,10 +129,9 @@ impl PiVelocityParams {
         file: &Path,
         base: Option<&PiVelocityParams>,
     ) -> Result<Self, ConfigError> {
-        let (kv_key, lim_key) = key_names(axis.plant.kind());
+        let (_, lim_key) = key_names(axis.plant.kind());
         let mut f = Fields::new(params, file, "");
-        let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
-        let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
+        let PiGains { kv_key, kv, tv } = read_pi_gains(&mut f, axis.plant.kind())?;
         let lim = f.opt_f64(lim_key, Range::Within(1e-9, 1e9))?;
         let filters = LoopFilterParams::read(&mut f, axis.period_s, base.map(|b| &b.filters))?;
         f.finish()?;
@@ -276,10 +247,18 @@ pub struct PiVelocity {
     filters: LoopFilters,
 }
 
-impl PiVelocity {
-    /// Plugin id.
-    pub const ID: &'static str = "pi_velocity";
+impl AxisPlugin for PiVelocity {
+    const ID: &'static str = "pi_velocity";
+    const STAGE: Stage = Stage::Velocity;
 
+    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
+        Ok(Self::new(PiVelocityParams::from_table(
+            params, axis, file, None,
+        )?))
+    }
+}
+
+impl PiVelocity {
     /// Builds the controller with a zero integrator.
     pub fn new(params: PiVelocityParams) -> Self {
         Self {

@@ -21,12 +21,13 @@
 use std::path::Path;
 
 use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
+    AxisContext, AxisSignals, Controller, ControllerState, CycleContext, Stage,
 };
 use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::filters::LowPass1;
-use crate::pi_velocity::read_hz;
+use crate::keys::{key_for, read_hz, read_kp};
+use crate::plugin::AxisPlugin;
 
 /// Parameters of [`PositionP`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,12 +53,9 @@ impl PositionPParams {
         file: &Path,
     ) -> Result<Self, ConfigError> {
         let mut f = Fields::new(params, file, "");
-        let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
+        let kp = read_kp(&mut f)?;
         let vel_filter_hz = read_hz(&mut f, "vel_filter_hz", axis.period_s)?.flatten();
-        let ff_key = match axis.plant.kind() {
-            feedloop_model::model::AxisKind::Rigid => "force_ff_kg",
-            _ => "torque_ff_kgm2",
-        };
+        let ff_key = key_for(axis.plant.kind(), "force_ff_kg", "torque_ff_kgm2");
         let velocity_ff = f
             .opt_f64("velocity_ff", Range::Within(0.0, 1.5))?
             .or(axis.defaults.velocity_ff)
@@ -85,10 +83,16 @@ pub struct PositionP {
     filter: Option<LowPass1>,
 }
 
-impl PositionP {
-    /// Plugin id.
-    pub const ID: &'static str = "position_p";
+impl AxisPlugin for PositionP {
+    const ID: &'static str = "position_p";
+    const STAGE: Stage = Stage::Position;
 
+    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
+        Ok(Self::new(PositionPParams::from_table(params, axis, file)?))
+    }
+}
+
+impl PositionP {
     /// Builds the controller.
     pub fn new(params: PositionPParams) -> Self {
         Self {

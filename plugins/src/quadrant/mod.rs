@@ -57,11 +57,12 @@ pub use table::{AxisPulses, QuadrantTable, MAX_PULSES, TABLE_FORMAT};
 use std::path::{Path, PathBuf};
 
 use feedloop_control::controller::{
-    AxisContext, AxisSignals, Controller, ControllerState, CycleContext,
+    AxisContext, AxisSignals, Controller, ControllerState, CycleContext, Stage,
 };
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use crate::pi_velocity::key_names;
+use crate::keys::{key_for, read_kp, read_pi_gains, PiGains};
+use crate::plugin::AxisPlugin;
 
 /// Commanded velocities at or below this magnitude count as rest, load units/s (1 nm/s).
 pub const REST_VELOCITY: f64 = 1e-9;
@@ -410,17 +411,11 @@ impl QuadrantParams {
         let mut f = Fields::new(params, file, "");
         let table_rel = f.str("table")?;
         let gain = f.f64_or("gain", Range::Within(0.0, 10.0), 1.0)?;
-        let kp = f.opt_f64("kp_per_s", Range::Within(0.0, 1.0e5))?;
+        let kp = read_kp(&mut f)?;
         let which = f.opt_str("axis")?.unwrap_or(axis.name.as_str()).to_string();
         let inject = f.opt_str("inject")?.unwrap_or("velocity");
-        let (kv_key, _) = key_names(axis.plant.kind());
-        let kv = f.opt_f64(kv_key, Range::Within(1e-12, 1e9))?;
-        let tv = f.opt_f64("tv_s", Range::Within(0.0, 1e3))?;
-        let inertia_key = if axis.plant.kind() == feedloop_model::model::AxisKind::Rigid {
-            "mass_kg"
-        } else {
-            "inertia_kgm2"
-        };
+        let PiGains { kv_key, kv, tv } = read_pi_gains(&mut f, axis.plant.kind())?;
+        let inertia_key = key_for(axis.plant.kind(), "mass_kg", "inertia_kgm2");
         let inertia = f.f64_or(
             inertia_key,
             Range::Within(0.0, 1e9),
@@ -520,9 +515,18 @@ pub struct QuadrantCompensator {
     integral: f64,
 }
 
+impl AxisPlugin for QuadrantCompensator {
+    const ID: &'static str = "quadrant_compensator";
+    const STAGE: Stage = Stage::Compensator;
+
+    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
+        Ok(Self::new(QuadrantParams::from_table(params, axis, file)?))
+    }
+}
+
 impl QuadrantCompensator {
-    /// Plugin id.
-    pub const ID: &'static str = "quadrant_compensator";
+    /// Plugin id ([`AxisPlugin::ID`], for callers without the trait in scope).
+    pub const ID: &'static str = <Self as AxisPlugin>::ID;
 
     /// Builds the compensator.
     pub fn new(params: QuadrantParams) -> Self {

@@ -180,9 +180,6 @@ pub enum PlantLoopError {
 const STALL_NS: u64 = 1_000_000;
 
 /// Runs the plant side until all cycles ran, the scheduler is lost, or `stop` is set.
-/// One function on purpose (about 250 lines): the steps of a period (wait for the deadline,
-/// sense, publish, wait for the command and check it, apply it, step, record) read top to bottom
-/// in the order they run, and the cycle's state stays in locals of the hot loop.
 pub fn run_plant<P: PlantDevice>(
     cfg: &PlantLoopConfig,
     plant: &mut P,
@@ -190,41 +187,17 @@ pub fn run_plant<P: PlantDevice>(
     log_path: &Path,
     stop: &std::sync::atomic::AtomicBool,
 ) -> Result<PlantOutcome, PlantLoopError> {
-    let tag = crate::shared::wire::instance_tag(&cfg.instance);
     let n = plant.axis_count();
-    // at least 1 ns: the schedule divides by it
-    let period_ns = ((cfg.period_s * 1e9).round() as u64).max(1);
-    let timeout_ns = (cfg.peer_timeout_s * 1e9) as u64;
-    let spin_ns = match cfg.wait {
-        WaitKind::Busy => u64::MAX,
-        WaitKind::Block => 0,
-        WaitKind::Hybrid => cfg.spin.as_nanos() as u64,
-    };
-    let mut rec = Recorder::<PlantRecord>::start_with_tap(
-        log_path,
-        1 << 16,
-        Some(scope_tap(
-            &cfg.instance,
-            ScopeSource::Plant,
-            cfg.period_s,
-            n,
-        )),
-    )
-    .map_err(|e| PlantLoopError::Log {
-        path: log_path.display().to_string(),
-        source: e,
-    })?;
+    let plan = Plan::new(cfg, n);
+    let rec = start_recorder(cfg, log_path, n)?;
 
     // before the handshake: once the scheduler is through it, it waits for sample 0 only as
     // long as for any sample
     let phase = (cfg.mode == Mode::Realtime && cfg.phase_probe_s > 0.0)
-        .then(|| crate::shared::phase::choose(period_ns, cfg.phase_probe_s));
-    if !handshake(ep, tag, n as u32, timeout_ns, &cfg.instance, stop)? {
+        .then(|| crate::shared::phase::choose(plan.period_ns, cfg.phase_probe_s));
+    if !handshake(ep, plan.tag, n as u32, plan.timeout_ns, &cfg.instance, stop)? {
         // stopped before the loop started: nothing moved
-        rec.finish().map_err(|e| PlantLoopError::Log {
-            path: log_path.display().to_string(),
-            source: e,
-        })?;
+        finish_log(rec, log_path)?;
         return Ok(PlantOutcome {
             end: PlantEnd::Stopped {
                 cause: StopCause::OperatorStop,
@@ -239,269 +212,431 @@ pub fn run_plant<P: PlantDevice>(
         });
     }
 
-    let mut sample = SensorSample::empty(n as u32, tag);
-    let mut applied = ActuatorCommand::empty(n as u32, tag);
-    let mut end = PlantEnd::Completed;
-    let mut silent_cycles = 0u64;
-    let mut seqs = CommandSequence::default();
-    let mut deadline_misses = 0u32;
-    // Which of the last 64 cycles took a command (bit i: cycle k - i), to tell a duplicate from a
-    // late answer.
-    let mut answered = 0u64;
-    let mut prev_missed = false;
-    let mut saturated_cycles = [0u64; crate::shared::wire::MAX_AXES];
-    let max_sat_cycles = cfg
-        .safety
-        .max_saturation_s
-        .map(|s| (s / cfg.period_s).ceil() as u64);
-    // Once stopping: cycles of braking left.
-    let mut stopping: Option<u64> = None;
-    let brake_cycles = match cfg.safety.safe_stop {
-        SafeStop::TorqueOff => 1,
-        SafeStop::BrakeRamp => ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1),
-    };
-    let grace_ns = (cfg.startup_grace_s * 1e9) as u64;
-    let mut loop_closed_after_s = None;
-    // where the schedule starts once the loop has closed: at the quiet phase, if one was found
-    let start_at = |now: u64| match phase.and_then(|p| p.quiet) {
-        Some(q) => next_at_phase(now, period_ns, q.phase_ns),
-        None => now,
-    };
-    let mut t0 = now_ns() + 5_000_000;
-    if cfg.mode == Mode::Realtime {
-        rec.set_phase(t0, period_ns);
-    }
-    let mut k = 0u64;
-    loop {
-        match stopping {
-            Some(0) => break,
-            None if k >= cfg.cycles => break,
-            _ => {}
-        }
-        let mut cause: Option<StopCause> = None;
-        if stopping.is_none() && stop.load(std::sync::atomic::Ordering::Relaxed) {
-            cause = Some(StopCause::OperatorStop);
-        }
-        let mut flags = 0u8;
-        let mut wake_late_ns = 0u64;
-        let cmd_deadline;
-        if cfg.mode == Mode::Realtime {
-            let deadline = t0 + k * period_ns;
-            wait_until_ns(deadline, spin_ns);
-            wake_late_ns = now_ns().saturating_sub(deadline);
-            if wake_late_ns > period_ns / 2 {
-                flags |= REC_OVERRUN;
-            }
-            if wake_late_ns > STALL_NS {
-                // Re-anchor the schedule instead of racing through the missed deadlines: skip
-                // the whole periods missed, so that cycles keep their phase.
-                t0 += wake_late_ns / period_ns * period_ns;
-                rec.set_phase(t0, period_ns);
-                // A machine-wide stall, unless the lateness is our own: a timed-out blocking
-                // wait for a missing command can overshoot by a timer tick (socket timeouts have
-                // jiffy resolution), and must not excuse the silence from the watchdog.
-                if !prev_missed {
-                    flags |= REC_STALL;
-                }
-            }
-            cmd_deadline = if k == 0 {
-                // start-up: cycle 0 waits for the loop to close, the axes held meanwhile
-                now_ns() + grace_ns.max(period_ns)
-            } else {
-                (deadline + period_ns).max(now_ns() + period_ns)
-            };
-        } else {
-            cmd_deadline = now_ns() + timeout_ns;
-        }
-
-        let c0 = now_ns();
-        sample.seq = k;
-        sample.plant_time_s = k as f64 * cfg.period_s;
-        let last = stopping.is_none() && k + 1 == cfg.cycles;
-        sample.flags = if last || stopping.is_some() {
-            FLAG_END
-        } else {
-            0
-        };
-        plant.sense(&mut sample.axes);
-        sample.deadline_misses = deadline_misses;
-        let sense_ns = now_ns() - c0;
-        let published = now_ns();
-        let mut latency_ns = u64::MAX;
-        if stopping.is_none() {
-            ep.send(sample)?;
-            // the next sample's loan, while the command is on its way
-            ep.prepare_next(&sample);
-            while let WaitOutcome::Got(c) = if k == 0 {
-                // the start-up wait can be long: an operator stop ends it
-                ep.receive_until_or_stop(cmd_deadline, stop)?
-            } else {
-                ep.receive_until(cmd_deadline)?
-            } {
-                if c.flags & FLAG_HELLO != 0 {
-                    continue;
-                }
-                let age = k.wrapping_sub(c.seq);
-                if c.seq <= k && age < 64 && answered >> age & 1 == 1 && c.instance_tag == tag {
-                    // The same cycle answered twice: the first answer was applied.
-                    flags |= REC_DUP_CMD;
-                    seqs.duplicates += 1;
-                    continue;
-                }
-                if c.seq < k && c.instance_tag == tag {
-                    // The answer to an earlier cycle, after its deadline: too late to apply.
-                    flags |= REC_LATE_CMD;
-                    seqs.late += 1;
-                    continue;
-                }
-                if c.seq != k || c.instance_tag != tag || c.axis_count as usize != n {
-                    flags |= REC_BAD_SEQ;
-                    seqs.bad_sequence += 1;
-                    continue;
-                }
-                answered |= 1;
-                latency_ns = now_ns() - published;
-                if k == 0 {
-                    loop_closed_after_s = Some(latency_ns as f64 * 1e-9);
-                    if cfg.mode == Mode::Realtime {
-                        // The schedule starts when the loop has closed (at the quiet phase).
-                        t0 = start_at(now_ns());
-                        rec.set_phase(t0, period_ns);
-                    }
-                }
-                if c.flags & FLAG_FAULT != 0 {
-                    cause = cause.or(Some(StopCause::PluginFault));
-                } else if c.flags & FLAG_STOP != 0 {
-                    cause = cause.or(Some(StopCause::OperatorStop));
-                } else {
-                    applied = c;
-                }
-                break;
-            }
-            if latency_ns == u64::MAX {
-                flags |= REC_MISSED;
-                if cfg.mode == Mode::Realtime && ep.poll_gap_ns() >= period_ns / 2 {
-                    flags |= REC_WAIT_INTERRUPTED;
-                }
-                seqs.missing += 1;
-                if feedloop_trace::log::is_deadline_miss(flags) {
-                    deadline_misses = deadline_misses.saturating_add(1);
-                }
-                // Only a machine-wide stall excuses silence: a merely busy machine still counts.
-                let on_time = flags & REC_STALL == 0;
-                if cfg.mode == Mode::Lockstep {
-                    silent_cycles = 1;
-                    cause = cause.or(Some(StopCause::SchedulerLost {
-                        detected_after_cycles: 1,
-                    }));
-                } else if k == 0 {
-                    // No command within the start-up grace: the scheduler never closed the loop
-                    // (unless an operator stop ended the wait).
-                    silent_cycles = 1;
-                    cause = cause.or(Some(if stop.load(std::sync::atomic::Ordering::Relaxed) {
-                        StopCause::OperatorStop
-                    } else {
-                        StopCause::SchedulerLost {
-                            detected_after_cycles: 0,
-                        }
-                    }));
-                } else if on_time {
-                    silent_cycles += 1;
-                    if silent_cycles >= cfg.watchdog_cycles {
-                        cause = cause.or(Some(StopCause::SchedulerLost {
-                            detected_after_cycles: silent_cycles,
-                        }));
-                    }
-                }
-            } else {
-                silent_cycles = 0;
-            }
-            if cause.is_none() {
-                cause = check_limits(
-                    cfg,
-                    &sample,
-                    &applied,
-                    n,
-                    &mut saturated_cycles,
-                    max_sat_cycles,
-                );
-            }
-        }
-        prev_missed = flags & REC_MISSED != 0;
-        if let Some(c) = cause {
-            end = PlantEnd::Stopped {
-                cause: c,
-                cycle: k,
-                safe_stop: cfg.safety.safe_stop,
-            };
-            stopping = Some(brake_cycles);
-            // Tell the scheduler the run is over.
-            let mut bye = sample;
-            bye.flags = FLAG_END;
-            let _ = ep.send(bye);
-        }
-        if let Some(left) = stopping.as_mut() {
-            // Safe stop: brake on the measured motor velocity, or torque off.
-            for i in 0..n {
-                let t = match cfg.safety.safe_stop {
-                    SafeStop::TorqueOff => 0.0,
-                    SafeStop::BrakeRamp => {
-                        let lim = cfg.torque_limit.get(i).copied().unwrap_or(0.0);
-                        let g = cfg.brake_gain.get(i).copied().unwrap_or(0.0);
-                        (-g * sample.axes[i].motor_vel).clamp(-lim, lim)
-                    }
-                };
-                applied.axes[i].torque = if t.is_finite() { t } else { 0.0 };
-            }
-            *left = left.saturating_sub(1);
-        }
-
-        let c1 = now_ns();
-        plant.step(&applied.axes);
-        let compute_ns = (now_ns() - c1 + sense_ns).min(u32::MAX as u64) as u32;
-
-        let mut r = PlantRecord {
-            seq: k,
-            wake_late_ns,
-            latency_ns,
-            compute_ns,
-            published_ns: published,
-            flags: if stopping.is_some() {
-                flags | REC_STOPPING
-            } else {
-                flags
-            },
-            ..Default::default()
-        };
-        for i in 0..n {
-            r.axes[i] = AxisRecord::of(&sample.axes[i], &applied.axes[i]);
-        }
-        rec.push(r);
-        if let Some(h) = cfg.cycle_hook {
-            h(k);
-        }
-        k += 1;
-        answered <<= 1;
-    }
+    let mut run = PlantLoop::new(cfg, plant, ep, stop, rec, plan, phase);
+    let k = run.cycles()?;
     // Safe state: no torque. Tell the scheduler we are done.
-    let off = ActuatorCommand::empty(n as u32, tag);
-    plant.step(&off.axes);
-    sample.flags = FLAG_END;
-    sample.seq = k;
-    let _ = ep.send(sample);
-    let dropped = rec.dropped();
+    let off = ActuatorCommand::empty(n as u32, plan.tag);
+    run.plant.step(&off.axes);
+    run.sample.flags = FLAG_END;
+    run.sample.seq = k;
+    let _ = ep.send(run.sample);
+    let dropped = run.rec.dropped();
+    finish_log(run.rec, log_path)?;
+    Ok(PlantOutcome {
+        end: run.end,
+        cycles: k,
+        dropped_records: dropped,
+        sequence: run.seqs,
+        loop_closed_after_s: run.loop_closed_after_s,
+        phase,
+    })
+}
+
+/// The plant log's recorder, with the scope's tap.
+fn start_recorder(
+    cfg: &PlantLoopConfig,
+    log_path: &Path,
+    n: usize,
+) -> Result<Recorder<PlantRecord>, PlantLoopError> {
+    Recorder::<PlantRecord>::start_with_tap(
+        log_path,
+        1 << 16,
+        Some(scope_tap(
+            &cfg.instance,
+            ScopeSource::Plant,
+            cfg.period_s,
+            n,
+        )),
+    )
+    .map_err(|e| PlantLoopError::Log {
+        path: log_path.display().to_string(),
+        source: e,
+    })
+}
+
+/// Writes out the rest of the plant log.
+fn finish_log(rec: Recorder<PlantRecord>, log_path: &Path) -> Result<(), PlantLoopError> {
     rec.finish().map_err(|e| PlantLoopError::Log {
         path: log_path.display().to_string(),
         source: e,
     })?;
-    Ok(PlantOutcome {
-        end,
-        cycles: k,
-        dropped_records: dropped,
-        sequence: seqs,
-        loop_closed_after_s,
-        phase,
-    })
+    Ok(())
+}
+
+/// The run's timing and limits, fixed before its first cycle.
+#[derive(Debug, Clone, Copy)]
+struct Plan {
+    tag: u64,
+    n: usize,
+    period_ns: u64,
+    timeout_ns: u64,
+    spin_ns: u64,
+    grace_ns: u64,
+    max_sat_cycles: Option<u64>,
+    /// Cycles of braking once stopping.
+    brake_cycles: u64,
+}
+
+impl Plan {
+    fn new(cfg: &PlantLoopConfig, n: usize) -> Self {
+        Self {
+            tag: crate::shared::wire::instance_tag(&cfg.instance),
+            n,
+            // at least 1 ns: the schedule divides by it
+            period_ns: ((cfg.period_s * 1e9).round() as u64).max(1),
+            timeout_ns: (cfg.peer_timeout_s * 1e9) as u64,
+            spin_ns: match cfg.wait {
+                WaitKind::Busy => u64::MAX,
+                WaitKind::Block => 0,
+                WaitKind::Hybrid => cfg.spin.as_nanos() as u64,
+            },
+            grace_ns: (cfg.startup_grace_s * 1e9) as u64,
+            max_sat_cycles: cfg
+                .safety
+                .max_saturation_s
+                .map(|s| (s / cfg.period_s).ceil() as u64),
+            brake_cycles: match cfg.safety.safe_stop {
+                SafeStop::TorqueOff => 1,
+                SafeStop::BrakeRamp => {
+                    ((cfg.safety.brake_time_s / cfg.period_s).ceil() as u64).max(1)
+                }
+            },
+        }
+    }
+}
+
+/// The plant loop's state from one period to the next. Its methods are the steps of a period,
+/// called in the order they run by [`PlantLoop::cycles`]; none allocates, locks or logs.
+struct PlantLoop<'a, P: PlantDevice> {
+    cfg: &'a PlantLoopConfig,
+    plant: &'a mut P,
+    ep: &'a PlantEndpoint,
+    stop: &'a std::sync::atomic::AtomicBool,
+    rec: Recorder<PlantRecord>,
+    plan: Plan,
+    /// Where the schedule starts once the loop has closed: the quiet phase, if one was found.
+    quiet: Option<crate::shared::phase::QuietPhase>,
+    sample: SensorSample,
+    applied: ActuatorCommand,
+    end: PlantEnd,
+    silent_cycles: u64,
+    seqs: CommandSequence,
+    deadline_misses: u32,
+    /// Which of the last 64 cycles took a command (bit i: cycle k - i), to tell a duplicate from
+    /// a late answer.
+    answered: u64,
+    prev_missed: bool,
+    saturated_cycles: [u64; crate::shared::wire::MAX_AXES],
+    /// Once stopping: cycles of braking left.
+    stopping: Option<u64>,
+    loop_closed_after_s: Option<f64>,
+    t0: u64,
+}
+
+impl<'a, P: PlantDevice> PlantLoop<'a, P> {
+    fn new(
+        cfg: &'a PlantLoopConfig,
+        plant: &'a mut P,
+        ep: &'a PlantEndpoint,
+        stop: &'a std::sync::atomic::AtomicBool,
+        rec: Recorder<PlantRecord>,
+        plan: Plan,
+        phase: Option<PhaseChoice>,
+    ) -> Self {
+        let n = plan.n as u32;
+        let t0 = now_ns() + 5_000_000;
+        if cfg.mode == Mode::Realtime {
+            rec.set_phase(t0, plan.period_ns);
+        }
+        Self {
+            cfg,
+            plant,
+            ep,
+            stop,
+            rec,
+            plan,
+            quiet: phase.and_then(|p| p.quiet),
+            sample: SensorSample::empty(n, plan.tag),
+            applied: ActuatorCommand::empty(n, plan.tag),
+            end: PlantEnd::Completed,
+            silent_cycles: 0,
+            seqs: CommandSequence::default(),
+            deadline_misses: 0,
+            answered: 0,
+            prev_missed: false,
+            saturated_cycles: [0; crate::shared::wire::MAX_AXES],
+            stopping: None,
+            loop_closed_after_s: None,
+            t0,
+        }
+    }
+
+    /// The periods, until all cycles ran or a stop has braked the axes; returns the cycles run.
+    /// The steps of a period (wait for the deadline, sense, publish, wait for the command and
+    /// check it, apply it, step, record) read top to bottom in the order they run.
+    fn cycles(&mut self) -> Result<u64, PlantLoopError> {
+        let (cfg, n) = (self.cfg, self.plan.n);
+        let mut k = 0u64;
+        loop {
+            match self.stopping {
+                Some(0) => break,
+                None if k >= cfg.cycles => break,
+                _ => {}
+            }
+            let mut cause: Option<StopCause> = None;
+            if self.stopping.is_none() && self.stop.load(std::sync::atomic::Ordering::Relaxed) {
+                cause = Some(StopCause::OperatorStop);
+            }
+            let (mut flags, wake_late_ns, cmd_deadline) = self.pace(k);
+
+            let c0 = now_ns();
+            self.sample.seq = k;
+            self.sample.plant_time_s = k as f64 * cfg.period_s;
+            let last = self.stopping.is_none() && k + 1 == cfg.cycles;
+            self.sample.flags = if last || self.stopping.is_some() {
+                FLAG_END
+            } else {
+                0
+            };
+            self.plant.sense(&mut self.sample.axes);
+            self.sample.deadline_misses = self.deadline_misses;
+            let sense_ns = now_ns() - c0;
+            let published = now_ns();
+            let mut latency_ns = u64::MAX;
+            if self.stopping.is_none() {
+                self.ep.send(self.sample)?;
+                // the next sample's loan, while the command is on its way
+                self.ep.prepare_next(&self.sample);
+                latency_ns =
+                    self.take_command(k, cmd_deadline, published, &mut flags, &mut cause)?;
+                if latency_ns == u64::MAX {
+                    cause = cause.or(self.missed(k, &mut flags));
+                } else {
+                    self.silent_cycles = 0;
+                }
+                if cause.is_none() {
+                    cause = check_limits(
+                        cfg,
+                        &self.sample,
+                        &self.applied,
+                        n,
+                        &mut self.saturated_cycles,
+                        self.plan.max_sat_cycles,
+                    );
+                }
+            }
+            self.prev_missed = flags & REC_MISSED != 0;
+            if let Some(c) = cause {
+                self.begin_stop(c, k);
+            }
+            if let Some(left) = self.stopping {
+                self.brake();
+                self.stopping = Some(left.saturating_sub(1));
+            }
+
+            let c1 = now_ns();
+            self.plant.step(&self.applied.axes);
+            let compute_ns = (now_ns() - c1 + sense_ns).min(u32::MAX as u64) as u32;
+
+            let mut r = PlantRecord {
+                seq: k,
+                wake_late_ns,
+                latency_ns,
+                compute_ns,
+                published_ns: published,
+                flags: if self.stopping.is_some() {
+                    flags | REC_STOPPING
+                } else {
+                    flags
+                },
+                ..Default::default()
+            };
+            for i in 0..n {
+                r.axes[i] = AxisRecord::of(&self.sample.axes[i], &self.applied.axes[i]);
+            }
+            self.rec.push(r);
+            if let Some(h) = cfg.cycle_hook {
+                h(k);
+            }
+            k += 1;
+            self.answered <<= 1;
+        }
+        Ok(k)
+    }
+
+    /// Realtime: waits for cycle `k`'s deadline and judges the wake-up; returns the record's
+    /// flags so far, how late it woke and until when the command is waited for.
+    #[inline]
+    fn pace(&mut self, k: u64) -> (u8, u64, u64) {
+        let p = self.plan;
+        if self.cfg.mode != Mode::Realtime {
+            return (0, 0, now_ns() + p.timeout_ns);
+        }
+        let mut flags = 0u8;
+        let deadline = self.t0 + k * p.period_ns;
+        wait_until_ns(deadline, p.spin_ns);
+        let wake_late_ns = now_ns().saturating_sub(deadline);
+        if wake_late_ns > p.period_ns / 2 {
+            flags |= REC_OVERRUN;
+        }
+        if wake_late_ns > STALL_NS {
+            // Re-anchor the schedule instead of racing through the missed deadlines: skip
+            // the whole periods missed, so that cycles keep their phase.
+            self.t0 += wake_late_ns / p.period_ns * p.period_ns;
+            self.rec.set_phase(self.t0, p.period_ns);
+            // A machine-wide stall, unless the lateness is our own: a timed-out blocking
+            // wait for a missing command can overshoot by a timer tick (socket timeouts have
+            // jiffy resolution), and must not excuse the silence from the watchdog.
+            if !self.prev_missed {
+                flags |= REC_STALL;
+            }
+        }
+        let cmd_deadline = if k == 0 {
+            // start-up: cycle 0 waits for the loop to close, the axes held meanwhile
+            now_ns() + p.grace_ns.max(p.period_ns)
+        } else {
+            (deadline + p.period_ns).max(now_ns() + p.period_ns)
+        };
+        (flags, wake_late_ns, cmd_deadline)
+    }
+
+    /// Waits until `cmd_deadline` for cycle `k`'s command, dropping (and flagging) any other
+    /// message; applies it, or takes its stop or fault into `cause`. Returns the latency from
+    /// `published`, or `u64::MAX` when no command came.
+    #[inline]
+    fn take_command(
+        &mut self,
+        k: u64,
+        cmd_deadline: u64,
+        published: u64,
+        flags: &mut u8,
+        cause: &mut Option<StopCause>,
+    ) -> Result<u64, IpcError> {
+        let (tag, ep) = (self.plan.tag, self.ep);
+        while let WaitOutcome::Got(c) = if k == 0 {
+            // the start-up wait can be long: an operator stop ends it
+            ep.receive_until_or_stop(cmd_deadline, self.stop)?
+        } else {
+            ep.receive_until(cmd_deadline)?
+        } {
+            if c.flags & FLAG_HELLO != 0 {
+                continue;
+            }
+            let age = k.wrapping_sub(c.seq);
+            if c.seq <= k && age < 64 && self.answered >> age & 1 == 1 && c.instance_tag == tag {
+                // The same cycle answered twice: the first answer was applied.
+                *flags |= REC_DUP_CMD;
+                self.seqs.duplicates += 1;
+                continue;
+            }
+            if c.seq < k && c.instance_tag == tag {
+                // The answer to an earlier cycle, after its deadline: too late to apply.
+                *flags |= REC_LATE_CMD;
+                self.seqs.late += 1;
+                continue;
+            }
+            if c.seq != k || c.instance_tag != tag || c.axis_count as usize != self.plan.n {
+                *flags |= REC_BAD_SEQ;
+                self.seqs.bad_sequence += 1;
+                continue;
+            }
+            self.answered |= 1;
+            let latency_ns = now_ns() - published;
+            if k == 0 {
+                self.loop_closed_after_s = Some(latency_ns as f64 * 1e-9);
+                if self.cfg.mode == Mode::Realtime {
+                    // The schedule starts when the loop has closed (at the quiet phase).
+                    let now = now_ns();
+                    self.t0 = match self.quiet {
+                        Some(q) => next_at_phase(now, self.plan.period_ns, q.phase_ns),
+                        None => now,
+                    };
+                    self.rec.set_phase(self.t0, self.plan.period_ns);
+                }
+            }
+            if c.flags & FLAG_FAULT != 0 {
+                *cause = cause.or(Some(StopCause::PluginFault));
+            } else if c.flags & FLAG_STOP != 0 {
+                *cause = cause.or(Some(StopCause::OperatorStop));
+            } else {
+                self.applied = c;
+            }
+            return Ok(latency_ns);
+        }
+        Ok(u64::MAX)
+    }
+
+    /// Cycle `k`'s command did not come: counts the miss and, from the silence, whether the
+    /// scheduler is lost (the stop cause then).
+    #[inline]
+    fn missed(&mut self, k: u64, flags: &mut u8) -> Option<StopCause> {
+        let cfg = self.cfg;
+        *flags |= REC_MISSED;
+        if cfg.mode == Mode::Realtime && self.ep.poll_gap_ns() >= self.plan.period_ns / 2 {
+            *flags |= REC_WAIT_INTERRUPTED;
+        }
+        self.seqs.missing += 1;
+        if feedloop_trace::log::is_deadline_miss(*flags) {
+            self.deadline_misses = self.deadline_misses.saturating_add(1);
+        }
+        // Only a machine-wide stall excuses silence: a merely busy machine still counts.
+        let on_time = *flags & REC_STALL == 0;
+        if cfg.mode == Mode::Lockstep {
+            self.silent_cycles = 1;
+            Some(StopCause::SchedulerLost {
+                detected_after_cycles: 1,
+            })
+        } else if k == 0 {
+            // No command within the start-up grace: the scheduler never closed the loop
+            // (unless an operator stop ended the wait).
+            self.silent_cycles = 1;
+            Some(if self.stop.load(std::sync::atomic::Ordering::Relaxed) {
+                StopCause::OperatorStop
+            } else {
+                StopCause::SchedulerLost {
+                    detected_after_cycles: 0,
+                }
+            })
+        } else if on_time {
+            self.silent_cycles += 1;
+            (self.silent_cycles >= cfg.watchdog_cycles).then_some(StopCause::SchedulerLost {
+                detected_after_cycles: self.silent_cycles,
+            })
+        } else {
+            None
+        }
+    }
+
+    /// Starts the safe stop for `cause` at cycle `k`.
+    fn begin_stop(&mut self, cause: StopCause, k: u64) {
+        self.end = PlantEnd::Stopped {
+            cause,
+            cycle: k,
+            safe_stop: self.cfg.safety.safe_stop,
+        };
+        self.stopping = Some(self.plan.brake_cycles);
+        // Tell the scheduler the run is over.
+        let mut bye = self.sample;
+        bye.flags = FLAG_END;
+        let _ = self.ep.send(bye);
+    }
+
+    /// Safe stop: brake on the measured motor velocity, or torque off.
+    #[inline]
+    fn brake(&mut self) {
+        let cfg = self.cfg;
+        for i in 0..self.plan.n {
+            let t = match cfg.safety.safe_stop {
+                SafeStop::TorqueOff => 0.0,
+                SafeStop::BrakeRamp => {
+                    let lim = cfg.torque_limit.get(i).copied().unwrap_or(0.0);
+                    let g = cfg.brake_gain.get(i).copied().unwrap_or(0.0);
+                    (-g * self.sample.axes[i].motor_vel).clamp(-lim, lim)
+                }
+            };
+            self.applied.axes[i].torque = if t.is_finite() { t } else { 0.0 };
+        }
+    }
 }
 
 /// Drive-side checks of one cycle: following error, soft limits, saturation time.

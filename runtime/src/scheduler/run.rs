@@ -102,9 +102,6 @@ pub enum SchedulerError {
 }
 
 /// Runs the scheduler side until the plant's last cycle is answered, the plant is lost, or `stop`.
-/// One function on purpose (about 200 lines): the steps of a cycle (wait for the sample, run the
-/// prepared cycle, publish, record, prepare the next references, serve the control service)
-/// read top to bottom in the order they run, and the cycle's state stays in locals.
 pub fn run_scheduler(
     cfg: &SchedulerConfig,
     cycle: &mut ControlCycle,
@@ -112,9 +109,8 @@ pub fn run_scheduler(
     ep: &SchedulerEndpoint,
     log_path: &Path,
     stop: &std::sync::atomic::AtomicBool,
-    mut control: Option<&mut crate::scheduler::control::ControlPlane>,
+    control: Option<&mut crate::scheduler::control::ControlPlane>,
 ) -> Result<SchedulerOutcome, SchedulerError> {
-    let tag = crate::shared::wire::instance_tag(&cfg.instance);
     let log_err = |e: std::io::Error| SchedulerError::Log {
         path: log_path.display().to_string(),
         source: e,
@@ -125,231 +121,369 @@ pub fn run_scheduler(
         cycle.period_s(),
         axis_count,
     );
-    let mut rec =
+    let rec =
         Recorder::<SchedRecord>::start_with_tap(log_path, 1 << 16, Some(tap)).map_err(log_err)?;
-    let mut cmd = ActuatorCommand::empty(axis_count as u32, tag);
-    // the sample being answered (received into, cycle after cycle)
-    let mut s = SensorSample::empty(axis_count as u32, tag);
-    let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
-    hello.flags = FLAG_HELLO;
-    let start_timeout = (cfg.peer_timeout_s * 1e9) as u64;
-    let silence_ns = match cfg.mode {
-        Mode::Lockstep => start_timeout,
-        Mode::Realtime => (cfg.stale_after_s * 1e9) as u64,
-    };
-    let period_ns = (cycle.period_s() * 1e9) as u64;
-    let mut started = false;
-    let mut next_seq = 0u64;
-    let mut out = SchedulerOutcome::new();
-    let t_start = now_ns();
-    let mut stop_sent = false;
-    let mut fault_sent = false;
-    let mut nonfinite_seen = 0u64;
-    // end of the last answered cycle (command published), for the stretch before the next wait
-    let mut prev_end_ns = u64::MAX;
-    loop {
-        let stop_now = stop.load(std::sync::atomic::Ordering::Relaxed);
-        if stop_now && !started {
-            out.end = SchedulerEnd::OperatorStop { cycle: 0 };
-            break;
+    let mut run = SchedLoop::new(cfg, cycle, axis_count, ep, stop, control, rec);
+    run.cycles()?;
+    let mut out = run.out;
+    out.dropped_records = run.rec.dropped();
+    run.rec.finish().map_err(log_err)?;
+    Ok(out)
+}
+
+/// The scheduler loop's state from one cycle to the next. Its methods are the steps of a cycle,
+/// called in the order they run by [`SchedLoop::cycles`]; none allocates, locks or logs.
+struct SchedLoop<'a, 'c> {
+    cfg: &'a SchedulerConfig,
+    cycle: &'a mut ControlCycle,
+    axis_count: usize,
+    ep: &'a SchedulerEndpoint,
+    stop: &'a std::sync::atomic::AtomicBool,
+    control: Option<&'c mut crate::scheduler::control::ControlPlane>,
+    rec: Recorder<SchedRecord>,
+    tag: u64,
+    cmd: ActuatorCommand,
+    /// The sample being answered (received into, cycle after cycle).
+    s: SensorSample,
+    hello: ActuatorCommand,
+    start_timeout: u64,
+    silence_ns: u64,
+    period_ns: u64,
+    started: bool,
+    next_seq: u64,
+    out: SchedulerOutcome,
+    t_start: u64,
+    stop_sent: bool,
+    fault_sent: bool,
+    nonfinite_seen: u64,
+    /// End of the last answered cycle (command published), for the stretch before the next wait.
+    prev_end_ns: u64,
+}
+
+impl<'a, 'c> SchedLoop<'a, 'c> {
+    fn new(
+        cfg: &'a SchedulerConfig,
+        cycle: &'a mut ControlCycle,
+        axis_count: usize,
+        ep: &'a SchedulerEndpoint,
+        stop: &'a std::sync::atomic::AtomicBool,
+        control: Option<&'c mut crate::scheduler::control::ControlPlane>,
+        rec: Recorder<SchedRecord>,
+    ) -> Self {
+        let tag = crate::shared::wire::instance_tag(&cfg.instance);
+        let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
+        hello.flags = FLAG_HELLO;
+        let start_timeout = (cfg.peer_timeout_s * 1e9) as u64;
+        let silence_ns = match cfg.mode {
+            Mode::Lockstep => start_timeout,
+            Mode::Realtime => (cfg.stale_after_s * 1e9) as u64,
+        };
+        let period_ns = (cycle.period_s() * 1e9) as u64;
+        Self {
+            cfg,
+            cycle,
+            axis_count,
+            ep,
+            stop,
+            control,
+            rec,
+            tag,
+            cmd: ActuatorCommand::empty(axis_count as u32, tag),
+            s: SensorSample::empty(axis_count as u32, tag),
+            hello,
+            start_timeout,
+            silence_ns,
+            period_ns,
+            started: false,
+            next_seq: 0,
+            out: SchedulerOutcome::new(),
+            t_start: now_ns(),
+            stop_sent: false,
+            fault_sent: false,
+            nonfinite_seen: 0,
+            prev_end_ns: u64::MAX,
         }
-        let wait = if started { silence_ns } else { start_timeout };
+    }
+
+    /// The cycles, until the run ends (its end in `self.out.end`). The steps of a cycle (wait
+    /// for the sample, run the prepared cycle, publish, record, prepare the next references,
+    /// serve the control service) read top to bottom in the order they run.
+    fn cycles(&mut self) -> Result<(), SchedulerError> {
+        loop {
+            let stop_now = self.stop.load(std::sync::atomic::Ordering::Relaxed);
+            if stop_now && !self.started {
+                self.out.end = SchedulerEnd::OperatorStop { cycle: 0 };
+                break;
+            }
+            match self.wait_for_sample()? {
+                WaitOutcome::Got(()) => {}
+                WaitOutcome::TimedOut => {
+                    self.out.end = self.silence_end()?;
+                    break;
+                }
+            };
+            // the sample is held: the computation (and the catch-up, and the control plane's
+            // look) starts now
+            let c0 = now_ns();
+            let skipped = if self.started {
+                match self.catch_up(c0)? {
+                    Some(skipped) => skipped,
+                    None => continue,
+                }
+            } else {
+                0
+            };
+            if self.s.flags & FLAG_HELLO != 0 {
+                self.check_hello()?;
+                self.ep.send(self.hello)?;
+                self.started = true;
+                continue;
+            }
+            if !self.started {
+                // A plant that is already cycling (we restarted?): refuse rather than guess.
+                continue;
+            }
+            if let Some(end) = self.ended_before(skipped) {
+                self.out.end = end;
+                break;
+            }
+            let (s, cycle) = (&self.s, &mut *self.cycle);
+            if let Some(c) = self.control.as_deref_mut() {
+                c.plant_deadline_misses = s.deadline_misses;
+                c.before_cycle(cycle, s.seq);
+            }
+            if self.cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
+                // samples arrive at the plant's cycle starts: keep the writer in the slack after
+                // them
+                self.rec.set_phase(c0, self.period_ns);
+            }
+            let ep = self.ep;
+            let mut lost_ns = ep
+                .poll_gap_ns()
+                .max(c0.saturating_sub(ep.last_poll_ns()))
+                .max(ep.wait_start_ns().saturating_sub(self.prev_end_ns));
+            cycle.step(s, &mut self.cmd);
+            if let Some(c) = self.control.as_deref_mut() {
+                c.vet(cycle, &mut self.cmd);
+            }
+            self.flag_command(stop_now);
+            let c1 = now_ns();
+            let compute_ns = (c1 - c0).min(u32::MAX as u64) as u32;
+            ep.send(self.cmd)?;
+            self.prev_end_ns = now_ns();
+            lost_ns = lost_ns.max(self.prev_end_ns - c1);
+            ep.prepare_next(&self.cmd);
+            let (s, cycle) = (&self.s, &mut *self.cycle);
+            if let Some(c) = self.control.as_deref_mut() {
+                c.after_cycle(cycle, &self.cmd, s.seq);
+            }
+            self.out.commands += 1;
+            self.out.skipped += u64::from(skipped);
+            self.next_seq = s.seq + 1;
+            let r = SchedRecord {
+                seq: s.seq,
+                compute_ns,
+                skipped,
+                poll_gap_ns: lost_ns.min(u32::MAX as u64) as u32,
+                received_ns: ep.last_poll_ns(),
+                started_ns: c0,
+                computed_ns: c1,
+                sent_ns: self.prev_end_ns,
+                ..Default::default()
+            };
+            self.push_record(r);
+            // the next cycle's references, while the plant steps
+            self.cycle.prepare(self.next_seq);
+            let s = &self.s;
+            if let Some(h) = self.cfg.cycle_hook {
+                h(s.seq);
+            }
+            if s.flags & FLAG_END != 0 {
+                self.end_with_answered();
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// The plant's end message was answered: the run ends by the operator's stop, early by the
+    /// plant's, or completed.
+    fn end_with_answered(&mut self) {
+        let seq = self.s.seq;
+        if self.stop_sent {
+            self.out.end = SchedulerEnd::OperatorStop { cycle: seq };
+        } else if seq + 1 < self.cycle.cycles() {
+            self.out.end = SchedulerEnd::PlantEnded { cycle: seq };
+        }
+    }
+
+    /// Waits for the next sample, into `self.s`: after the start for the silence allowed, before
+    /// it for the start-up timeout (which an operator stop ends at once).
+    #[inline]
+    fn wait_for_sample(&mut self) -> Result<WaitOutcome<()>, IpcError> {
+        let wait = if self.started {
+            self.silence_ns
+        } else {
+            self.start_timeout
+        };
         let deadline = now_ns() + wait.max(1);
         // before the start an operator stop (or the launcher's death) ends the wait at once
-        let got = if started {
+        Ok(if self.started {
             // into the buffer kept across cycles: no copy of the whole sample on the way
-            ep.receive_until_into(deadline, &mut s)?
+            self.ep.receive_until_into(deadline, &mut self.s)?
         } else {
-            match ep.receive_until_or_stop(deadline, stop)? {
+            match self.ep.receive_until_or_stop(deadline, self.stop)? {
                 WaitOutcome::Got(m) => {
-                    s = m;
+                    self.s = m;
                     WaitOutcome::Got(())
                 }
                 WaitOutcome::TimedOut => WaitOutcome::TimedOut,
             }
-        };
-        match got {
-            WaitOutcome::Got(()) => {}
-            WaitOutcome::TimedOut => {
-                if !started && stop.load(std::sync::atomic::Ordering::Relaxed) {
-                    out.end = SchedulerEnd::OperatorStop { cycle: 0 };
-                    break;
-                }
-                if !started {
-                    return Err(IpcError::PeerTimeout {
-                        peer: "plant",
-                        instance: cfg.instance.clone(),
-                        seconds: (now_ns() - t_start) as f64 * 1e-9,
-                    }
-                    .into());
-                }
-                let cycle = next_seq.saturating_sub(1);
-                out.end = if stop_sent {
-                    SchedulerEnd::OperatorStop { cycle }
-                } else {
-                    SchedulerEnd::PlantLost { cycle }
-                };
-                break;
+        })
+    }
+
+    /// How a wait that timed out ends the run (an error when the plant never came).
+    fn silence_end(&self) -> Result<SchedulerEnd, SchedulerError> {
+        if !self.started && self.stop.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(SchedulerEnd::OperatorStop { cycle: 0 });
+        }
+        if !self.started {
+            return Err(IpcError::PeerTimeout {
+                peer: "plant",
+                instance: self.cfg.instance.clone(),
+                seconds: (now_ns() - self.t_start) as f64 * 1e-9,
             }
-        };
-        // the sample is held: the computation (and the catch-up, and the control plane's look)
-        // starts now
-        let c0 = now_ns();
-        // Realtime catch-up: answer the newest sample; every other queued one is either skipped
-        // (older than the newest, but not answered before) or a sequence fault (counted). Only
-        // needed when the sample may not be the newest: one held shortly after a poll found the
-        // queue empty is (the plant publishes once a period); one that was already waiting, or
-        // held after a stall since that poll, may have newer ones behind it.
+            .into());
+        }
+        let cycle = self.next_seq.saturating_sub(1);
+        Ok(if self.stop_sent {
+            SchedulerEnd::OperatorStop { cycle }
+        } else {
+            SchedulerEnd::PlantLost { cycle }
+        })
+    }
+
+    /// Realtime catch-up of a sample held at `c0`: answer the newest sample; every other queued
+    /// one is either skipped (older than the newest, but not answered before) or a sequence
+    /// fault (counted). Only needed when the sample may not be the newest: one held shortly after
+    /// a poll found the queue empty is (the plant publishes once a period); one that was already
+    /// waiting, or held after a stall since that poll, may have newer ones behind it. Returns the
+    /// samples skipped, or `None` when there is none to answer.
+    #[inline]
+    fn catch_up(&mut self, c0: u64) -> Result<Option<u32>, IpcError> {
         let mut skipped = 0u32;
-        let newest = ep
+        let newest = self
+            .ep
             .empty_poll_ns()
-            .is_some_and(|t| c0.saturating_sub(t) < period_ns / 4);
-        if started && newest {
-            if !accept(&mut out, next_seq, &s) {
-                continue;
+            .is_some_and(|t| c0.saturating_sub(t) < self.period_ns / 4);
+        if newest {
+            if !accept(&mut self.out, self.next_seq, &self.s) {
+                return Ok(None);
             }
-        } else if started {
-            let mut best = screen(&mut out, next_seq, None, s);
-            while let Some(newer) = ep.try_receive()? {
+        } else {
+            let mut best = screen(&mut self.out, self.next_seq, None, self.s);
+            while let Some(newer) = self.ep.try_receive()? {
                 if newer.flags & FLAG_HELLO == 0 {
                     let before = best.is_some();
-                    best = screen(&mut out, next_seq, best, newer);
+                    best = screen(&mut self.out, self.next_seq, best, newer);
                     if before && best.map(|b| b.seq) == Some(newer.seq) {
                         skipped += 1;
                     }
                 }
             }
             match best {
-                Some(b) => s = b,
-                None => continue,
+                Some(b) => self.s = b,
+                None => return Ok(None),
             }
         }
-        if s.flags & FLAG_HELLO != 0 {
-            if s.protocol != PROTOCOL_VERSION {
-                return Err(IpcError::Handshake(format!(
-                    "plant speaks protocol {}, this scheduler {}",
-                    s.protocol, PROTOCOL_VERSION
-                ))
-                .into());
-            }
-            if s.instance_tag != tag {
-                return Err(IpcError::Handshake("plant belongs to another instance".into()).into());
-            }
-            if s.axis_count as usize != axis_count {
-                return Err(IpcError::Handshake(format!(
-                    "plant has {} axes, this scheduler drives {axis_count}: are both running the same job?",
-                    s.axis_count
-                ))
-                .into());
-            }
-            ep.send(hello)?;
-            started = true;
-            continue;
+        Ok(Some(skipped))
+    }
+
+    /// The plant's hello checked against this scheduler's protocol, instance and axes.
+    fn check_hello(&self) -> Result<(), SchedulerError> {
+        let s = &self.s;
+        if s.protocol != PROTOCOL_VERSION {
+            return Err(IpcError::Handshake(format!(
+                "plant speaks protocol {}, this scheduler {}",
+                s.protocol, PROTOCOL_VERSION
+            ))
+            .into());
         }
-        if !started {
-            // A plant that is already cycling (we restarted?): refuse rather than guess.
-            continue;
+        if s.instance_tag != self.tag {
+            return Err(IpcError::Handshake("plant belongs to another instance".into()).into());
         }
-        if s.seq < next_seq {
+        if s.axis_count as usize != self.axis_count {
+            return Err(IpcError::Handshake(format!(
+                "plant has {} axes, this scheduler drives {}: are both running the same job?",
+                s.axis_count, self.axis_count
+            ))
+            .into());
+        }
+        Ok(())
+    }
+
+    /// Counts the sequence numbers never seen before the held sample (besides the `skipped`
+    /// ones), and whether the sample ends the run before it is answered: the plant's goodbye
+    /// after an early stop, or its end message after the last cycle or a stop or fault sent.
+    #[inline]
+    fn ended_before(&mut self, skipped: u32) -> Option<SchedulerEnd> {
+        let s = &self.s;
+        let end = |cycle| {
+            if self.stop_sent {
+                SchedulerEnd::OperatorStop { cycle }
+            } else {
+                SchedulerEnd::PlantEnded { cycle }
+            }
+        };
+        if s.seq < self.next_seq {
             // `screen` let only the plant's goodbye after an early stop through (it repeats the
             // last cycle number).
-            out.end = if stop_sent {
-                SchedulerEnd::OperatorStop { cycle: s.seq }
-            } else {
-                SchedulerEnd::PlantEnded { cycle: s.seq }
-            };
-            break;
+            return Some(end(s.seq));
         }
-        if s.seq > next_seq + u64::from(skipped) {
-            out.missing += s.seq - next_seq - u64::from(skipped);
+        if s.seq > self.next_seq + u64::from(skipped) {
+            self.out.missing += s.seq - self.next_seq - u64::from(skipped);
         }
-        if s.flags & FLAG_END != 0 && (s.seq >= cycle.cycles() || stop_sent || fault_sent) {
-            out.end = if stop_sent {
-                SchedulerEnd::OperatorStop { cycle: s.seq }
-            } else {
-                SchedulerEnd::PlantEnded { cycle: s.seq }
-            };
-            break;
+        if s.flags & FLAG_END != 0
+            && (s.seq >= self.cycle.cycles() || self.stop_sent || self.fault_sent)
+        {
+            return Some(end(s.seq));
         }
-        if let Some(c) = control.as_deref_mut() {
-            c.plant_deadline_misses = s.deadline_misses;
-            c.before_cycle(cycle, s.seq);
-        }
-        if cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
-            // samples arrive at the plant's cycle starts: keep the writer in the slack after them
-            rec.set_phase(c0, period_ns);
-        }
-        let mut lost_ns = ep
-            .poll_gap_ns()
-            .max(c0.saturating_sub(ep.last_poll_ns()))
-            .max(ep.wait_start_ns().saturating_sub(prev_end_ns));
-        cycle.step(&s, &mut cmd);
-        if let Some(c) = control.as_deref_mut() {
-            c.vet(cycle, &mut cmd);
-        }
+        None
+    }
+
+    /// Sets the command's stop flag (an operator stop) and fault flag (a plugin fault).
+    #[inline]
+    fn flag_command(&mut self, stop_now: bool) {
         if stop_now {
-            cmd.flags |= FLAG_STOP;
-            stop_sent = true;
+            self.cmd.flags |= FLAG_STOP;
+            self.stop_sent = true;
         } else {
-            cmd.flags &= !FLAG_STOP;
+            self.cmd.flags &= !FLAG_STOP;
         }
-        let nonfinite = cycle.chain().nonfinite_faults > nonfinite_seen;
-        nonfinite_seen = cycle.chain().nonfinite_faults;
-        let on_probation = control.as_deref().is_some_and(|c| c.in_probation());
-        if cycle.chain().plugin_panics > 0 || (nonfinite && !on_probation) {
+        let chain = self.cycle.chain();
+        let nonfinite = chain.nonfinite_faults > self.nonfinite_seen;
+        self.nonfinite_seen = chain.nonfinite_faults;
+        let on_probation = self.control.as_deref().is_some_and(|c| c.in_probation());
+        if chain.plugin_panics > 0 || (nonfinite && !on_probation) {
             // A plugin panicked or produced a non-finite torque (zeroed by the chain): its output
             // can no longer be trusted, the plant stops the axes. A controller just swapped in is
             // rolled back by the control plane instead.
-            cmd.flags |= FLAG_FAULT;
-            fault_sent = true;
-        }
-        let c1 = now_ns();
-        let compute_ns = (c1 - c0).min(u32::MAX as u64) as u32;
-        ep.send(cmd)?;
-        prev_end_ns = now_ns();
-        lost_ns = lost_ns.max(prev_end_ns - c1);
-        ep.prepare_next(&cmd);
-        if let Some(c) = control.as_deref_mut() {
-            c.after_cycle(cycle, &cmd, s.seq);
-        }
-        out.commands += 1;
-        out.skipped += u64::from(skipped);
-        next_seq = s.seq + 1;
-        let mut r = SchedRecord {
-            seq: s.seq,
-            compute_ns,
-            skipped,
-            poll_gap_ns: lost_ns.min(u32::MAX as u64) as u32,
-            received_ns: ep.last_poll_ns(),
-            started_ns: c0,
-            computed_ns: c1,
-            sent_ns: prev_end_ns,
-            ..Default::default()
-        };
-        for i in 0..axis_count {
-            r.axes[i] = (cmd.axes[i].torque, cmd.axes[i].reference);
-        }
-        for (st, sg) in r.stages.iter_mut().zip(cycle.chain().signals()) {
-            *st = (sg.vel_cmd, sg.torque_ff);
-        }
-        rec.push(r);
-        // the next cycle's references, while the plant steps
-        cycle.prepare(next_seq);
-        if let Some(h) = cfg.cycle_hook {
-            h(s.seq);
-        }
-        if s.flags & FLAG_END != 0 {
-            if stop_sent {
-                out.end = SchedulerEnd::OperatorStop { cycle: s.seq };
-            } else if s.seq + 1 < cycle.cycles() {
-                out.end = SchedulerEnd::PlantEnded { cycle: s.seq };
-            }
-            break;
+            self.cmd.flags |= FLAG_FAULT;
+            self.fault_sent = true;
         }
     }
-    out.dropped_records = rec.dropped();
-    rec.finish().map_err(log_err)?;
-    Ok(out)
+
+    /// Completes the cycle's record with the command and the stages' signals, and hands it on.
+    #[inline]
+    fn push_record(&mut self, mut r: SchedRecord) {
+        for i in 0..self.axis_count {
+            r.axes[i] = (self.cmd.axes[i].torque, self.cmd.axes[i].reference);
+        }
+        for (st, sg) in r.stages.iter_mut().zip(self.cycle.chain().signals()) {
+            *st = (sg.vel_cmd, sg.torque_ff);
+        }
+        self.rec.push(r);
+    }
 }
 
 /// [`screen`] of a sample with no other queued (`best` = `None`), without copying it: whether
