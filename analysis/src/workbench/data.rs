@@ -127,6 +127,11 @@ impl AxisData {
         self.motor_raw.is_some()
     }
 
+    /// The measured load position in motor units (unfiltered).
+    pub fn load_in_motor_units(&self) -> Vec<f64> {
+        self.load_raw.iter().map(|x| x * self.r).collect()
+    }
+
     /// The same data prepared with another filter cut-off (derivatives, filtered torque and
     /// the fit range recomputed from the recorded columns).
     pub fn with_cutoff(&self, cutoff_hz: f64) -> AxisData {
@@ -160,7 +165,7 @@ impl AxisData {
     fn prepared(self, cutoff_hz: f64) -> AxisData {
         let fs = 1.0 / self.dt;
         let n = self.len();
-        let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
+        let load_m = self.load_in_motor_units();
         let fine = self.sub > 1;
         let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt, fine);
         let (qm, vm, am) = match &self.motor_raw {
