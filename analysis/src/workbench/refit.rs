@@ -288,14 +288,7 @@ pub fn best_effect(
     bl: &[(usize, usize)],
     mask: Option<&[f64]>,
 ) -> Result<Refit, Untestable> {
-    let mut grid = search_grid(id, model, d)?;
-    let searched = grid.clone();
-    if let Some(h) = presearch_decimated(id, model, d, base, base_now, y, bl, mask, grid.len()) {
-        grid = vec![h];
-    }
-    let scorer = Scorer {
-        id,
-        side: default_side(d.kind),
+    let p = Problem {
         model,
         d,
         base,
@@ -303,10 +296,20 @@ pub fn best_effect(
         y,
         bl,
         mask,
+    };
+    let mut grid = search_grid(id, model, d)?;
+    let searched = grid.clone();
+    if let Some(h) = presearch_decimated(id, &p, grid.len()) {
+        grid = vec![h];
+    }
+    let scorer = Scorer {
+        id,
+        side: default_side(d.kind),
         needed: (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d)),
         // a base column that the effect's own columns span (the damping beside a friction with
         // viscous slopes) cannot be refitted beside it: held from the start
         collinear: spanned_base(id, d, base),
+        p,
     };
     let (mut best, reason, best_i) = scorer.best_on(&grid);
     // a continuous time constant or limit: refine between the grid's neighbours of the best
@@ -352,35 +355,25 @@ fn search_grid(id: EffectId, model: &WbModel, d: &AxisData) -> Result<Vec<Vec<f6
 /// On a long trace, the grid (of `points` points) of an effect with regressor columns is
 /// searched on a decimated copy (the filtered signals are band-limited to the cut-off) and only
 /// its best point is scored on all samples: that point, when the pre-search found one.
-#[allow(clippy::too_many_arguments)]
-fn presearch_decimated(
-    id: EffectId,
-    model: &WbModel,
-    d: &AxisData,
-    base: &[&[f64]],
-    base_now: &[f64],
-    y: &[f64],
-    bl: &[(usize, usize)],
-    mask: Option<&[f64]>,
-    points: usize,
-) -> Option<Vec<f64>> {
+fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<Vec<f64>> {
+    let d = p.d;
     let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
     if !(channel(id) == Channel::Torque && points > 1 && q > 1 && d.len() >= LONG_TRACE) {
         return None;
     }
     let dd = d.decimated(q);
     let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
-    let base_d: Vec<Vec<f64>> = base.iter().map(|c| dec(c)).collect();
+    let base_d: Vec<Vec<f64>> = p.base.iter().map(|c| dec(c)).collect();
     let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
-    let y_d = dec(y);
-    let mask_d = mask.map(dec);
-    let bl_d = blocks(dd.range, bl.len());
+    let y_d = dec(p.y);
+    let mask_d = p.mask.map(dec);
+    let bl_d = blocks(dd.range, p.bl.len());
     best_effect(
         id,
-        model,
+        p.model,
         &dd,
         &base_r,
-        base_now,
+        p.base_now,
         &y_d,
         &bl_d,
         mask_d.as_deref(),
@@ -389,10 +382,8 @@ fn presearch_decimated(
     .map(|r| r.effect.hyper)
 }
 
-/// What one point of an effect's grid is scored with (see [`best_effect`]).
-struct Scorer<'a> {
-    id: EffectId,
-    side: Side,
+/// What an effect is refitted on (the arguments of [`best_effect`]).
+struct Problem<'a> {
     model: &'a WbModel,
     d: &'a AxisData,
     base: &'a [&'a [f64]],
@@ -400,6 +391,13 @@ struct Scorer<'a> {
     y: &'a [f64],
     bl: &'a [(usize, usize)],
     mask: Option<&'a [f64]>,
+}
+
+/// What one point of an effect's grid is scored with (see [`best_effect`]).
+struct Scorer<'a> {
+    id: EffectId,
+    side: Side,
+    p: Problem<'a>,
     /// The torque the model needs, for an effect on the torque path (it changes the target).
     needed: Option<Vec<f64>>,
     /// Base columns held from the start (see [`spanned_base`]).
@@ -410,11 +408,11 @@ impl Scorer<'_> {
     /// The effect at nonlinear parameters `h` refitted with the base parameters, or why it does
     /// not fit physically there.
     fn eval(&self, h: Vec<f64>) -> Result<Refit, Untestable> {
-        let (id, d, nb) = (self.id, self.d, self.base.len());
+        let (id, d, nb) = (self.id, self.p.d, self.p.base.len());
         let e = Effect::new(id, self.side, h);
         let target: Option<Vec<f64>> = match &self.needed {
             Some(needed) => {
-                let mut with = self.model.clone();
+                let mut with = self.p.model.clone();
                 with.effects.push(e.clone());
                 let t = with
                     .applied(d)
@@ -428,7 +426,7 @@ impl Scorer<'_> {
             None => e.columns(d),
         };
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let y = target.as_deref().unwrap_or(self.y);
+        let y = target.as_deref().unwrap_or(self.p.y);
         let (cv, held) = self.joint_fit(&refs, y);
         physical(id, &e, &cv, nb)?;
         let mut e = e;
@@ -447,19 +445,20 @@ impl Scorer<'_> {
     /// base columns held at their values where the joint fit would make them vanish; and those
     /// held.
     fn joint_fit(&self, refs: &[&[f64]], y: &[f64]) -> (Cv, Vec<usize>) {
-        let nb = self.base.len();
+        let nb = self.p.base.len();
         let mut held: Vec<usize> = self.collinear.clone();
         let cv = loop {
             let free: Vec<&[f64]> = (0..nb)
                 .filter(|i| !held.contains(i))
-                .map(|i| self.base[i])
+                .map(|i| self.p.base[i])
                 .collect();
             let cv = expand(
-                cv_cols_masked(&free, refs, y, self.bl, self.mask),
+                cv_cols_masked(&free, refs, y, self.p.bl, self.p.mask),
                 nb,
                 &held,
             );
             let vanishing: Vec<usize> = self
+                .p
                 .base_now
                 .iter()
                 .enumerate()
