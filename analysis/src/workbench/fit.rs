@@ -98,6 +98,8 @@ pub struct FitResult {
     pub after: Errors,
     /// What the fit held, clamped or could not determine (each a sentence).
     pub warnings: Vec<String>,
+    /// The model's effects that an added effect contains and so replaced (ids).
+    pub replaced: Vec<String>,
 }
 
 impl FitResult {
@@ -148,22 +150,21 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
 /// fitted as a correction of it; an added effect whose columns hold a base parameter's (the
 /// damping beside a friction with viscous slopes) carries that parameter whole: it is set to
 /// zero and refitted as the effect's coefficient, which then keeps its physical sign. Each
-/// change is said in `warnings`.
+/// change is said in `warnings`; the effects replaced are returned beside the model.
 fn prepared(
     model: &WbModel,
     d: &AxisData,
     add: &[EffectId],
     free_keys: &[BaseParam],
     warnings: &mut Vec<String>,
-) -> WbModel {
+) -> (WbModel, Vec<String>) {
     let mut work = model.clone();
+    let mut replaced = Vec::new();
     for &id in add {
-        if let Some(old) = id
-            .supersedes()
-            .filter(|s| work.effects.iter().any(|e| e.id == *s) && !add.contains(s))
-        {
+        if let Some(old) = work.superseded_by(id).filter(|s| !add.contains(s)) {
             work.effects.retain(|e| e.id != old);
             warnings.push(format!("{id} replaces the model's {old} (it contains it)"));
+            replaced.push(old.to_string());
         }
     }
     let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
@@ -177,7 +178,7 @@ fn prepared(
         }
     }
     update_plant(&mut work);
-    work
+    (work, replaced)
 }
 
 /// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits:
@@ -194,7 +195,7 @@ pub fn fit(
     let mut warnings: Vec<String> = Vec::new();
     let original = model;
     let (free_keys, free_effects) = free_keys(model, d, free)?;
-    let work = prepared(model, d, add, &free_keys, &mut warnings);
+    let (work, replaced) = prepared(model, d, add, &free_keys, &mut warnings);
     let moved = work.base != model.base || work.effects.len() != model.effects.len();
     let model = &work;
     let rel = Released::of(model, d, free_effects.as_deref());
@@ -213,6 +214,7 @@ pub fn fit(
     }
     warnings.append(&mut r.warnings);
     r.warnings = warnings;
+    r.replaced = replaced;
     Ok(r)
 }
 
@@ -279,15 +281,13 @@ impl<'a> Adder<'a> {
         }
         match channel(id) {
             Channel::Deflection => {
-                let (rd, dcols) =
-                    deflection(model, d).ok_or_else(|| WorkbenchError::MissingColumn {
-                        path: d.path.clone(),
-                        column: format!("{}.motor", d.axis),
-                        needed_for: format!(
-                            "fitting `{id}` (it shows in motor minus load position)"
-                        ),
-                        present: d.columns_present().join(", "),
-                    })?;
+                let (rd, dcols) = deflection(model, d).ok_or_else(|| {
+                    missing_column(
+                        d,
+                        "motor",
+                        format!("fitting `{id}` (it shows in motor minus load position)"),
+                    )
+                })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
                 let r = best_effect(id, model, d, &dref, &[], &rd, &self.bl, None)
                     .map_err(|why| refused(id, why))?;
@@ -307,15 +307,9 @@ impl<'a> Adder<'a> {
         warnings: &mut Vec<String>,
     ) -> Result<Effect, WorkbenchError> {
         let (model, d) = (self.model, self.d);
-        let y = d
-            .torque
-            .as_ref()
-            .ok_or_else(|| WorkbenchError::MissingColumn {
-                path: d.path.clone(),
-                column: format!("{}.torque", d.axis),
-                needed_for: format!("fitting `{id}` by inverse dynamics"),
-                present: d.columns_present().join(", "),
-            })?;
+        let y = d.torque.as_ref().ok_or_else(|| {
+            missing_column(d, "torque", format!("fitting `{id}` by inverse dynamics"))
+        })?;
         // a drive that records its clamped torque shows its limit in the controller
         // channel, not in the torque balance: take the limit from there when it
         // explains the record's departure from the law better than the balance
@@ -517,6 +511,7 @@ pub fn fit_with(
         before,
         after,
         warnings,
+        replaced: Vec::new(),
     })
 }
 
@@ -748,6 +743,17 @@ fn constrained(
         delta[*i] = th[k];
     }
     (keep, delta)
+}
+
+/// The error of a fit that needs column `A.column` of the axis, which `d` lacks, for
+/// `needed_for`.
+fn missing_column(d: &AxisData, column: &str, needed_for: String) -> WorkbenchError {
+    WorkbenchError::MissingColumn {
+        path: d.path.clone(),
+        column: format!("{}.{column}", d.axis),
+        needed_for,
+        present: d.columns_present().join(", "),
+    }
 }
 
 /// The error of `fit --add ID` when the effect cannot be fitted.
