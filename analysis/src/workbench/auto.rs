@@ -67,7 +67,6 @@ pub fn auto(
         {
             break;
         }
-        let replaced = replaced_by(&m, &top);
         let res = fit_step(&m, d, &top, &last, window_s);
         let res = match res {
             Ok(r) => r,
@@ -101,10 +100,10 @@ pub fn auto(
         }
         let added = if top.is_param {
             vec![format!("refit {}", top.effect)]
-        } else if !replaced.is_empty() {
+        } else if !res.replaced.is_empty() {
             res.added
                 .iter()
-                .map(|a| format!("{a} (replaces {})", replaced.join(", ")))
+                .map(|a| format!("{a} (replaces {})", res.replaced.join(", ")))
                 .collect()
         } else {
             res.added.clone()
@@ -121,20 +120,6 @@ pub fn auto(
         model: m,
         last,
     })
-}
-
-/// The effects of `m` that the candidate's effects contain and so replace on the same body
-/// (Stribeck or directional friction contains Coulomb friction).
-fn replaced_by(m: &WbModel, top: &Candidate) -> Vec<String> {
-    let mut out = Vec::new();
-    for e in &top.add {
-        if let Some(old) = e.id.supersedes() {
-            if m.effects.iter().any(|x| x.id == old && x.side == e.side) {
-                out.push(old.to_string());
-            }
-        }
-    }
-    out
 }
 
 /// The fit of one step: a base parameter refitted (with those the diagnosis cannot tell from

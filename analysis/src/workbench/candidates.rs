@@ -450,10 +450,7 @@ pub(super) fn torque_effect_candidate(
     d: &AxisData,
     ch: &TorqueChannel<'_>,
 ) -> Result<Candidate, Untestable> {
-    let Some(old) = id
-        .supersedes()
-        .filter(|s| model.effects.iter().any(|e| e.id == *s))
-    else {
+    let Some(old) = model.superseded_by(id) else {
         return scored_candidate(id, model, d, ch, ch);
     };
     let mut reduced = model.clone();

@@ -96,16 +96,7 @@ pub fn classify(d: &AxisData) -> Vec<SegKind> {
     }
     let margin = (0.01 / d.dt).round() as usize;
     // standstill: long stretches below 2 % of the top speed
-    let mut k = 0;
-    while k < n {
-        if d.vm[k].abs() >= vlow {
-            k += 1;
-            continue;
-        }
-        let start = k;
-        while k < n && d.vm[k].abs() < vlow {
-            k += 1;
-        }
+    for (start, k) in slow_runs(&d.vm, vlow) {
         if (k - start) as f64 * d.dt > 0.02 {
             for x in &mut kind[start..k] {
                 *x = SegKind::Standstill;
@@ -113,17 +104,7 @@ pub fn classify(d: &AxisData) -> Vec<SegKind> {
         }
     }
     // reversals: stretches below 10 % of the top speed between opposite directions
-    let mut k = 0;
-    while k < n {
-        if d.vm[k].abs() >= vrev {
-            k += 1;
-            continue;
-        }
-        let start = k;
-        while k < n && d.vm[k].abs() < vrev {
-            k += 1;
-        }
-        let end = k; // exclusive
+    for (start, end) in slow_runs(&d.vm, vrev) {
         let before = if start > 0 {
             d.vm[start - 1].signum()
         } else {
@@ -139,6 +120,26 @@ pub fn classify(d: &AxisData) -> Vec<SegKind> {
         }
     }
     kind
+}
+
+/// The longest stretches (first sample, one past the last) in which velocity `v` stays below
+/// `thr` in magnitude.
+fn slow_runs(v: &[f64], thr: f64) -> Vec<(usize, usize)> {
+    let n = v.len();
+    let mut runs = Vec::new();
+    let mut k = 0;
+    while k < n {
+        if v[k].abs() >= thr {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < n && v[k].abs() < thr {
+            k += 1;
+        }
+        runs.push((start, k));
+    }
+    runs
 }
 
 /// One contiguous stretch of one kind and its share of the residual.

@@ -160,7 +160,7 @@ fn best_of(
     add: Option<&[f64]>,
     limit: Option<f64>,
 ) -> Option<(Law, &'static str, Discretisation, Vec<f64>)> {
-    let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+    let x = d.load_in_motor_units();
     let q = d.motor_raw.as_deref().unwrap_or(&x);
     let (fa, fb) = d.range;
     let mut best: Option<(f64, Law, &'static str, Discretisation, Vec<f64>)> = None;
@@ -322,7 +322,7 @@ impl ControllerChannel {
         let mut best = (score(&self.law), None);
         // the law again with the drive's clamp inside it (not on a long trace held in block
         // means: its law was evaluated at the recording's rate when it was read)
-        let x: Vec<f64> = d.load_raw.iter().map(|v| v * d.r).collect();
+        let x = d.load_in_motor_units();
         let q = d.motor_raw.as_deref().unwrap_or(&x);
         let vel = (d.held_law.is_none())
             .then(|| super::law::velocity_named(self.velocity, q, d.motor_vel_raw.as_deref(), d.dt))

@@ -127,63 +127,34 @@ impl AxisData {
         self.motor_raw.is_some()
     }
 
+    /// The measured load position in motor units (unfiltered).
+    pub fn load_in_motor_units(&self) -> Vec<f64> {
+        in_motor_units(&self.load_raw, self.r)
+    }
+
     /// The same data prepared with another filter cut-off (derivatives, filtered torque and
     /// the fit range recomputed from the recorded columns).
     pub fn with_cutoff(&self, cutoff_hz: f64) -> AxisData {
         // the recorded columns only: the derived ones are made anew
-        AxisData {
+        Recorded {
             path: self.path.clone(),
             axis: self.axis.clone(),
+            kind: self.kind,
+            r: self.r,
+            dt: self.dt,
             t: self.t.clone(),
             cmd: self.cmd.clone(),
             load_raw: self.load_raw.clone(),
             motor_raw: self.motor_raw.clone(),
             encoder_offset: self.encoder_offset,
-            torque: None,
             torque_raw: self.torque_raw.clone(),
             motor_vel_raw: self.motor_vel_raw.clone(),
             added_input: self.added_input.clone(),
-            qm: vec![],
-            vm: vec![],
-            am: vec![],
-            ql: vec![],
-            vl: vec![],
-            al: vec![],
+            torque_filtered: self.torque_filtered,
+            sub: self.sub,
             held_law: self.held_law.clone(),
-            ..*self
         }
         .prepared(cutoff_hz)
-    }
-
-    /// Fills the filtered positions, their derivatives, the filtered torque (when
-    /// `torque_filtered`) and the fit range (filter edges left out) from the recorded columns.
-    fn prepared(self, cutoff_hz: f64) -> AxisData {
-        let fs = 1.0 / self.dt;
-        let n = self.len();
-        let load_m: Vec<f64> = self.load_raw.iter().map(|x| x * self.r).collect();
-        let fine = self.sub > 1;
-        let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt, fine);
-        let (qm, vm, am) = match &self.motor_raw {
-            Some(m) => filtered_derivatives(m, cutoff_hz, self.dt, fine),
-            None => (ql.clone(), vl.clone(), al.clone()),
-        };
-        let torque = match &self.torque_raw {
-            Some(y) if self.torque_filtered => Some(filtfilt_butter4(y, cutoff_hz, fs)),
-            other => other.clone(),
-        };
-        let edge = ((fs / cutoff_hz).ceil() as usize * 2).min(n / 10);
-        AxisData {
-            qm,
-            vm,
-            am,
-            ql,
-            vl,
-            al,
-            torque,
-            cutoff_hz,
-            range: (edge, n - edge),
-            ..self
-        }
     }
 
     /// Every `q`-th sample of every series (the filtered ones are band-limited to the cut-off,
@@ -256,6 +227,98 @@ impl AxisData {
             .as_deref()
             .ok_or_else(|| missing(trace, &format!("{}.torque", self.axis), needed_for))
     }
+}
+
+/// Load positions `load_raw` (load units) in motor units, `r` motor units per load unit.
+fn in_motor_units(load_raw: &[f64], r: f64) -> Vec<f64> {
+    load_raw.iter().map(|x| x * r).collect()
+}
+
+/// The recorded columns of an axis (see [`AxisData`] for each), from which
+/// [`Recorded::prepared`] makes the filtered ones.
+struct Recorded {
+    path: PathBuf,
+    axis: String,
+    kind: AxisKind,
+    r: f64,
+    dt: f64,
+    t: Vec<f64>,
+    cmd: Vec<f64>,
+    load_raw: Vec<f64>,
+    motor_raw: Option<Vec<f64>>,
+    encoder_offset: Option<f64>,
+    torque_raw: Option<Vec<f64>>,
+    motor_vel_raw: Option<Vec<f64>>,
+    added_input: Option<(String, Vec<f64>)>,
+    torque_filtered: bool,
+    sub: usize,
+    held_law: Option<HeldLaw>,
+}
+
+impl Recorded {
+    /// The axis with the filtered positions, their derivatives, the filtered torque (when
+    /// `torque_filtered`) and the fit range (filter edges left out) made from the recorded
+    /// columns.
+    fn prepared(self, cutoff_hz: f64) -> AxisData {
+        let fs = 1.0 / self.dt;
+        let n = self.t.len();
+        let load_m = in_motor_units(&self.load_raw, self.r);
+        let fine = self.sub > 1;
+        let (ql, vl, al) = filtered_derivatives(&load_m, cutoff_hz, self.dt, fine);
+        let (qm, vm, am) = match &self.motor_raw {
+            Some(m) => filtered_derivatives(m, cutoff_hz, self.dt, fine),
+            None => (ql.clone(), vl.clone(), al.clone()),
+        };
+        let torque = match &self.torque_raw {
+            Some(y) if self.torque_filtered => Some(filtfilt_butter4(y, cutoff_hz, fs)),
+            other => other.clone(),
+        };
+        let edge = ((fs / cutoff_hz).ceil() as usize * 2).min(n / 10);
+        AxisData {
+            path: self.path,
+            axis: self.axis,
+            kind: self.kind,
+            r: self.r,
+            dt: self.dt,
+            t: self.t,
+            cmd: self.cmd,
+            load_raw: self.load_raw,
+            motor_raw: self.motor_raw,
+            encoder_offset: self.encoder_offset,
+            torque,
+            torque_raw: self.torque_raw,
+            motor_vel_raw: self.motor_vel_raw,
+            added_input: self.added_input,
+            qm,
+            vm,
+            am,
+            ql,
+            vl,
+            al,
+            cutoff_hz,
+            torque_filtered: self.torque_filtered,
+            range: (edge, n - edge),
+            sub: self.sub,
+            held_law: self.held_law,
+        }
+    }
+}
+
+/// Takes the zero offset between the motor and the load encoder (see [`encoder_offset`]; `load_m`
+/// in motor units) out of `motor`, when there is one; and that offset.
+fn remove_encoder_offset(
+    motor: &mut Option<Vec<f64>>,
+    load_m: &[f64],
+    torque: Option<&[f64]>,
+    dt: f64,
+) -> Option<f64> {
+    let offset = motor
+        .as_deref()
+        .and_then(|m| encoder_offset(m, load_m, torque, dt));
+    if let (Some(m), Some(c)) = (motor.as_mut(), offset) {
+        m.iter_mut().for_each(|v| *v -= c);
+    }
+    offset
 }
 
 fn missing(trace: &Trace, column: &str, needed_for: &str) -> WorkbenchError {
@@ -365,15 +428,14 @@ pub fn load_axis(
         check_travel(trace, model, axis, m, &load_raw)?;
     }
     let mut motor_raw = motor_raw;
-    let offset = motor_raw.as_deref().and_then(|m| {
-        let l: Vec<f64> = load_raw.iter().map(|x| x * r).collect();
-        encoder_offset(m, &l, torque.as_deref(), dt)
-    });
-    if let (Some(m), Some(c)) = (motor_raw.as_mut(), offset) {
-        m.iter_mut().for_each(|x| *x -= c);
-    }
+    let offset = remove_encoder_offset(
+        &mut motor_raw,
+        &in_motor_units(&load_raw, r),
+        torque.as_deref(),
+        dt,
+    );
     let cutoff = prep.cutoff_hz.unwrap_or((fs / 10.0).min(100.0));
-    Ok(AxisData {
+    Ok(Recorded {
         path: trace.path.clone(),
         axis: axis.to_string(),
         kind,
@@ -384,19 +446,10 @@ pub fn load_axis(
         load_raw,
         motor_raw,
         encoder_offset: offset,
-        torque: None,
         torque_raw: torque,
         motor_vel_raw,
         added_input,
-        qm: vec![],
-        vm: vec![],
-        am: vec![],
-        ql: vec![],
-        vl: vec![],
-        al: vec![],
-        cutoff_hz: cutoff,
         torque_filtered: prep.filter_torque,
-        range: (0, n),
         sub: 1,
         held_law: None,
     }
@@ -519,20 +572,68 @@ pub fn load_axis_held(
     let q = q.max(1);
     let kind = file.plant.kind();
     let r = file.plant.motor_per_load();
+    let added_name = held_checks(&trace, file, axis, prep, q)?;
+    let dt = trace.period_s();
+    let cutoff = prep.cutoff_hz.unwrap_or((1.0 / dt / 10.0).min(100.0));
+    let path = trace.path.clone();
+    let t = block_means(trace.t(), q);
+    let mut c = FullRate::take(trace, axis, added_name.as_deref());
+    let load_raw = block_means(&c.x, q);
+    c.cmd.iter_mut().for_each(|v| *v *= r);
+    c.x.iter_mut().for_each(|v| *v *= r);
+    let offset = remove_encoder_offset(&mut c.motor, &c.x, c.torque.as_deref(), dt);
+    let held_law = c.held_law(file, dt, q);
+    // the torque acting between samples k - 1 and k, in block means
+    let torque_raw = c.torque.map(|y| {
+        (0..y.len() / q)
+            .map(|b| (b * q..(b + 1) * q).map(|k| zoh_mid(&y, k)).sum::<f64>() / q as f64)
+            .collect()
+    });
+    Ok(Recorded {
+        path,
+        axis: axis.to_string(),
+        kind,
+        r,
+        dt: dt * q as f64,
+        t,
+        cmd: block_means(&c.cmd, q),
+        load_raw,
+        encoder_offset: offset,
+        motor_raw: c.motor.map(|m| block_means(&m, q)),
+        torque_raw,
+        motor_vel_raw: c.motor_vel.map(|v| block_means(&v, q)),
+        added_input: added_name.zip(c.added.map(|a| block_means(&a, q))),
+        torque_filtered: prep.filter_torque,
+        sub: q,
+        held_law,
+    }
+    .prepared(cutoff))
+}
+
+/// The checks of [`load_axis_held`], those of [`load_axis`] on a trace held in blocks of `q`:
+/// the axis' columns, the added input (its column name, when there is one), the length and the
+/// travel ratio.
+fn held_checks(
+    trace: &Trace,
+    file: &ModelFile,
+    axis: &str,
+    prep: &Prep,
+    q: usize,
+) -> Result<Option<String>, WorkbenchError> {
     let name = |c: &str| format!("{axis}.{c}");
     for (c, why) in [
         ("cmd", "the commanded position"),
         ("load", "the measured position"),
     ] {
         if !trace.has(&name(c)) {
-            return Err(missing(&trace, &name(c), why));
+            return Err(missing(trace, &name(c), why));
         }
     }
     let added_name = match &prep.added_input {
         Some(n) if trace.has(n) => Some(n.clone()),
         Some(n) => {
             return Err(missing(
-                &trace,
+                trace,
                 n,
                 "the declared added input (--added-input)",
             ))
@@ -550,92 +651,77 @@ pub fn load_axis_held(
         });
     }
     if let (Some(m), Some(l)) = (trace.column(&name("motor")), trace.column(&name("load"))) {
-        check_travel(&trace, file, axis, m, l)?;
+        check_travel(trace, file, axis, m, l)?;
     }
-    let dt = trace.period_s();
-    let cutoff = prep.cutoff_hz.unwrap_or((1.0 / dt / 10.0).min(100.0));
-    let path = trace.path.clone();
-    let t = block_means(trace.t(), q);
-    let mut cols: Vec<(String, Vec<f64>)> = trace.into_columns();
-    let mut take = |c: &str| {
-        cols.iter()
-            .position(|(k, _)| k == c)
-            .map(|i| cols.swap_remove(i).1)
-    };
-    let (Some(mut cmd), Some(mut x)) = (take(&name("cmd")), take(&name("load"))) else {
-        unreachable!("checked above")
-    };
-    let motor = take(&name("motor"));
-    let motor_vel = take(&name("motor_vel"));
-    let torque = take(&name("torque"));
-    let added = added_name.as_deref().and_then(&mut take);
-    drop(cols);
-    let load_raw = block_means(&x, q);
-    cmd.iter_mut().for_each(|v| *v *= r);
-    x.iter_mut().for_each(|v| *v *= r);
-    let mut motor = motor;
-    let offset = motor
-        .as_deref()
-        .and_then(|m| encoder_offset(m, &x, torque.as_deref(), dt));
-    if let (Some(m), Some(c)) = (motor.as_mut(), offset) {
-        m.iter_mut().for_each(|v| *v -= c);
+    Ok(added_name)
+}
+
+/// The columns of one axis of a long trace at the recording's rate, taken out of it.
+struct FullRate {
+    /// Commanded position.
+    cmd: Vec<f64>,
+    /// Load position.
+    x: Vec<f64>,
+    motor: Option<Vec<f64>>,
+    motor_vel: Option<Vec<f64>>,
+    torque: Option<Vec<f64>>,
+    /// The added input (column `added_name`).
+    added: Option<Vec<f64>>,
+}
+
+impl FullRate {
+    /// Takes the columns of `axis` (checked by [`held_checks`]) and the added input named
+    /// `added_name` out of `trace`, freeing the rest.
+    fn take(trace: Trace, axis: &str, added_name: Option<&str>) -> Self {
+        let name = |c: &str| format!("{axis}.{c}");
+        let mut cols: Vec<(String, Vec<f64>)> = trace.into_columns();
+        let mut take = |c: &str| {
+            cols.iter()
+                .position(|(k, _)| k == c)
+                .map(|i| cols.swap_remove(i).1)
+        };
+        let (Some(cmd), Some(x)) = (take(&name("cmd")), take(&name("load"))) else {
+            unreachable!("checked above")
+        };
+        let motor = take(&name("motor"));
+        let motor_vel = take(&name("motor_vel"));
+        let torque = take(&name("torque"));
+        let added = added_name.and_then(&mut take);
+        FullRate {
+            cmd,
+            x,
+            motor,
+            motor_vel,
+            torque,
+            added,
+        }
     }
-    let held_law = match (Law::of(file), &torque) {
-        (Some(law_p), Some(rec)) => best_law(
+
+    /// The controller law of `file` evaluated on every recorded sample (period `dt`, positions
+    /// in motor units), kept at the centres of blocks of `q` ([`HeldLaw`]).
+    fn held_law(&self, file: &ModelFile, dt: f64, q: usize) -> Option<HeldLaw> {
+        let (Some(law_p), Some(rec)) = (Law::of(file), &self.torque) else {
+            return None;
+        };
+        best_law(
             &law_p,
-            &cmd,
-            &x,
-            motor.as_deref().unwrap_or(&x),
-            motor_vel.as_deref(),
+            &self.cmd,
+            &self.x,
+            self.motor.as_deref().unwrap_or(&self.x),
+            self.motor_vel.as_deref(),
             rec,
-            added.as_deref(),
+            self.added.as_deref(),
             dt,
         )
         .map(|(velocity, discretisation, law)| HeldLaw {
             law_of: law_p,
             recorded: block_centres(rec, q),
             law: block_centres(&law, q),
-            add: added.as_deref().map(|a| block_centres(a, q)),
+            add: self.added.as_deref().map(|a| block_centres(a, q)),
             velocity,
             discretisation,
-        }),
-        _ => None,
-    };
-    // the torque acting between samples k - 1 and k, in block means
-    let torque_raw = torque.map(|y| {
-        (0..y.len() / q)
-            .map(|b| (b * q..(b + 1) * q).map(|k| zoh_mid(&y, k)).sum::<f64>() / q as f64)
-            .collect()
-    });
-    let nh = t.len();
-    Ok(AxisData {
-        path,
-        axis: axis.to_string(),
-        kind,
-        r,
-        dt: dt * q as f64,
-        t,
-        cmd: block_means(&cmd, q),
-        load_raw,
-        encoder_offset: offset,
-        motor_raw: motor.map(|m| block_means(&m, q)),
-        torque: None,
-        torque_raw,
-        motor_vel_raw: motor_vel.map(|v| block_means(&v, q)),
-        added_input: added_name.zip(added.map(|a| block_means(&a, q))),
-        qm: vec![],
-        vm: vec![],
-        am: vec![],
-        ql: vec![],
-        vl: vec![],
-        al: vec![],
-        cutoff_hz: cutoff,
-        torque_filtered: prep.filter_torque,
-        range: (0, nh),
-        sub: q,
-        held_law,
+        })
     }
-    .prepared(cutoff))
 }
 
 #[cfg(test)]

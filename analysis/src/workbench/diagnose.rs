@@ -27,6 +27,7 @@ use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
 use super::effects::{channel, Channel, Effect, WbModel};
+use super::lsq::Cv;
 use super::refit::{best_effect, cv_cols_masked, flat, inertias_now, Refit, Released};
 use super::scoring::*;
 pub use super::scoring::{
@@ -344,7 +345,6 @@ pub(super) fn condition_on_top(
     tf: &TorqueFit<'_>,
     e0: f64,
 ) {
-    let (base_cols, res, bl, mk) = (tf.base_cols, tf.res, tf.bl, tf.mask);
     // the first significant candidate (one ranked above it lost its significance when its fit
     // failed and stays as it is)
     let Some(ti) = cands.iter().position(|c| c.significant) else {
@@ -354,66 +354,34 @@ pub(super) fn condition_on_top(
     if top.is_param || top.channel != "torque" {
         return;
     }
-    let top_add = top.add.clone();
-    let top_class = top.class.clone();
-    let top_name = top.effect.clone();
+    let top = Top {
+        add: top.add.clone(),
+        class: top.class.clone(),
+        name: top.effect.clone(),
+    };
     let needed = model.torque_needed(d);
     let mut with_top = model.clone();
-    let mut top_cols: Vec<Vec<f64>> = Vec::new();
-    for e in &top_add {
-        match channel(e.id) {
-            Channel::TorquePath => with_top.effects.push(e.clone()),
-            Channel::Torque => top_cols.extend(e.columns(d)),
-            Channel::Deflection => {}
-        }
-    }
-    let target_of = |m: &WbModel| -> Vec<f64> {
-        match m.applied(d) {
-            Some(t) => t.iter().zip(&needed).map(|(a, b)| a - b).collect(),
-            None => res.to_vec(),
-        }
-    };
-    let t_ref = target_of(&with_top);
-    let mut cols: Vec<&[f64]> = base_cols.to_vec();
+    let top_cols = add_effects(&mut with_top, d, &top.add);
+    let mut cols: Vec<&[f64]> = tf.base_cols.to_vec();
     cols.extend(top_cols.iter().map(|c| c.as_slice()));
-    let cv_ref = cv_cols_masked(&cols, &[], &t_ref, bl, mk);
     let mut now_ext = tf.now.to_vec();
     now_ext.resize(cols.len(), 0.0);
+    let beyond = Beyond {
+        with_top: &with_top,
+        d,
+        tf,
+        needed: &needed,
+        cols: &cols,
+        now: &now_ext,
+    };
+    let t_ref = beyond.target_of(&with_top);
+    let cv_ref = cv_cols_masked(&cols, &[], &t_ref, tf.bl, tf.mask);
     let mut included = Vec::new();
     for c in cands.iter_mut().skip(ti + 1) {
         if c.is_param || c.channel != "torque" || c.add.is_empty() {
             continue;
         }
-        let was_significant = c.significant;
-        // a single effect is refitted beyond the first one (its nonlinear parameter chosen
-        // again: the first one's misfit no longer hides it)
-        let single = (c.add.len() == 1).then(|| c.add[0].id).filter(|id| {
-            channel(*id) != Channel::Deflection
-                && (id.repeatable() || !top_add.iter().any(|t| t.id == *id))
-        });
-        let rescored = single
-            .and_then(|id| best_effect(id, &with_top, d, &cols, &now_ext, &t_ref, bl, mk).ok());
-        let cv = match &rescored {
-            Some(r) => r.cv.clone(),
-            None => {
-                let mut with = with_top.clone();
-                let mut extra_cols: Vec<Vec<f64>> = Vec::new();
-                for e in &c.add {
-                    match channel(e.id) {
-                        Channel::TorquePath => with.effects.push(e.clone()),
-                        Channel::Torque => extra_cols.extend(e.columns(d)),
-                        Channel::Deflection => {}
-                    }
-                }
-                let t = if with.effects.len() > with_top.effects.len() {
-                    target_of(&with)
-                } else {
-                    t_ref.clone()
-                };
-                let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
-                cv_cols_masked(&cols, &refs, &t, bl, mk)
-            }
-        };
+        let (cv, rescored) = beyond.rescore(c, &top, &t_ref);
         let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
         let wins = fold_wins(&cv, &cv_ref.fold_mse);
         let nb = cols.len();
@@ -422,13 +390,56 @@ pub(super) fn condition_on_top(
                 && r.cv.theta.len() > nb
                 && r.cv.theta[nb].abs() <= CI_SIGMAS * r.cv.theta_se[nb]
         });
-        if extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci {
+        let earns = extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci;
+        if let Some(e) = top.judge(c, earns, extra, rescored, d) {
+            included.push(e);
+        }
+    }
+    cands[0].same_as.extend(included);
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+}
+
+/// Adds the torque-path effects among `add` to `m` (they change the target); the columns of
+/// its torque-channel effects.
+fn add_effects(m: &mut WbModel, d: &AxisData, add: &[Effect]) -> Vec<Vec<f64>> {
+    let mut cols: Vec<Vec<f64>> = Vec::new();
+    for e in add {
+        match channel(e.id) {
+            Channel::TorquePath => m.effects.push(e.clone()),
+            Channel::Torque => cols.extend(e.columns(d)),
+            Channel::Deflection => {}
+        }
+    }
+    cols
+}
+
+/// The first significant candidate of [`condition_on_top`].
+struct Top {
+    add: Vec<Effect>,
+    class: String,
+    name: String,
+}
+
+impl Top {
+    /// Marks candidate `c` by whether it `earns` its significance beyond the first one (by
+    /// `extra` % of the model's error, refitted as `rescored` when refitted alone); the
+    /// candidate's effect when the first one already includes it.
+    fn judge(
+        &self,
+        c: &mut Candidate,
+        earns: bool,
+        extra: f64,
+        rescored: Option<Refit>,
+        d: &AxisData,
+    ) -> Option<String> {
+        let top_name = &self.name;
+        if earns {
             if let Some(Refit { effect: e, .. }) = rescored {
                 c.params = flat(&e.to_table(d.kind, d.r));
                 c.evidence = evidence(&e, d);
                 c.add = vec![e];
             }
-            if !was_significant {
+            if !c.significant {
                 c.significant = true;
                 c.error_reduction_pct = extra;
             }
@@ -436,24 +447,88 @@ pub(super) fn condition_on_top(
                 "{}; beyond {top_name} it lowers the cross-validated error by {extra:.1} %",
                 c.evidence
             );
-        } else {
-            c.significant = false;
-            c.error_reduction_pct = extra;
-            if c.add.iter().all(|e| top_add.iter().any(|t| t.id == e.id)) {
-                c.class = top_class.clone();
-                if !c.same_as.contains(&top_name) {
-                    c.same_as.push(top_name.clone());
-                }
-                included.push(c.effect.clone());
+            return None;
+        }
+        c.significant = false;
+        c.error_reduction_pct = extra;
+        let mut included = None;
+        if c.add.iter().all(|e| self.add.iter().any(|t| t.id == e.id)) {
+            c.class = self.class.clone();
+            if !c.same_as.contains(top_name) {
+                c.same_as.push(top_name.clone());
             }
-            c.evidence = format!(
-                "{}; beyond {top_name} it lowers the cross-validated error by only {extra:.1} % (not significant)",
-                c.evidence
-            );
+            included = Some(c.effect.clone());
+        }
+        c.evidence = format!(
+            "{}; beyond {top_name} it lowers the cross-validated error by only {extra:.1} % (not significant)",
+            c.evidence
+        );
+        included
+    }
+}
+
+/// What a candidate is refitted with beyond the first one: the model with the first one's
+/// torque-path effects, the base columns followed by the first one's columns, and the current
+/// values of the inertias among them.
+struct Beyond<'a> {
+    with_top: &'a WbModel,
+    d: &'a AxisData,
+    tf: &'a TorqueFit<'a>,
+    /// The torque the model needs for the measured motion.
+    needed: &'a [f64],
+    cols: &'a [&'a [f64]],
+    now: &'a [f64],
+}
+
+impl Beyond<'_> {
+    /// The torque residual of `m`: its applied torque less the torque needed (the channel's
+    /// residual without a recorded torque).
+    fn target_of(&self, m: &WbModel) -> Vec<f64> {
+        match m.applied(self.d) {
+            Some(t) => t.iter().zip(self.needed).map(|(a, b)| a - b).collect(),
+            None => self.tf.res.to_vec(),
         }
     }
-    cands[0].same_as.extend(included);
-    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
+
+    /// The cross-validation of candidate `c` beyond the first one (`top`, whose residual is
+    /// `t_ref`), and its refit when it is a single effect refitted alone.
+    fn rescore(&self, c: &Candidate, top: &Top, t_ref: &[f64]) -> (Cv, Option<Refit>) {
+        let (d, tf) = (self.d, self.tf);
+        // a single effect is refitted beyond the first one (its nonlinear parameter chosen
+        // again: the first one's misfit no longer hides it)
+        let single = (c.add.len() == 1).then(|| c.add[0].id).filter(|id| {
+            channel(*id) != Channel::Deflection
+                && (id.repeatable() || !top.add.iter().any(|t| t.id == *id))
+        });
+        let rescored = single.and_then(|id| {
+            best_effect(
+                id,
+                self.with_top,
+                d,
+                self.cols,
+                self.now,
+                t_ref,
+                tf.bl,
+                tf.mask,
+            )
+            .ok()
+        });
+        let cv = match &rescored {
+            Some(r) => r.cv.clone(),
+            None => {
+                let mut with = self.with_top.clone();
+                let extra_cols = add_effects(&mut with, d, &c.add);
+                let t = if with.effects.len() > self.with_top.effects.len() {
+                    self.target_of(&with)
+                } else {
+                    t_ref.to_vec()
+                };
+                let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
+                cv_cols_masked(self.cols, &refs, &t, tf.bl, tf.mask)
+            }
+        };
+        (cv, rescored)
+    }
 }
 
 impl Diagnosis {

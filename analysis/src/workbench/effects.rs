@@ -503,6 +503,13 @@ pub struct WbModel {
 }
 
 impl WbModel {
+    /// The effect of this model that effect `id` contains and so replaces when added (see
+    /// [`EffectId::supersedes`]): what `fit` takes out and `diagnose` scores it without.
+    pub fn superseded_by(&self, id: EffectId) -> Option<EffectId> {
+        id.supersedes()
+            .filter(|s| self.effects.iter().any(|e| e.id == *s))
+    }
+
     /// Loads a model file.
     pub fn load(path: &Path) -> Result<Self, WorkbenchError> {
         let file = ModelFile::load(path)?;

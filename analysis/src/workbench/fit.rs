@@ -99,6 +99,8 @@ pub struct FitResult {
     pub after: Errors,
     /// What the fit held, clamped or could not determine (each a sentence).
     pub warnings: Vec<String>,
+    /// The model's effects that an added effect contains and so replaced (ids).
+    pub replaced: Vec<String>,
 }
 
 impl FitResult {
@@ -149,22 +151,21 @@ pub fn parse_effects(list: &[String]) -> Result<Vec<EffectId>, WorkbenchError> {
 /// fitted as a correction of it; an added effect whose columns hold a base parameter's (the
 /// damping beside a friction with viscous slopes) carries that parameter whole: it is set to
 /// zero and refitted as the effect's coefficient, which then keeps its physical sign. Each
-/// change is said in `warnings`.
+/// change is said in `warnings`; the effects replaced are returned beside the model.
 fn prepared(
     model: &WbModel,
     d: &AxisData,
     add: &[EffectId],
     free_keys: &[BaseParam],
     warnings: &mut Vec<String>,
-) -> WbModel {
+) -> (WbModel, Vec<String>) {
     let mut work = model.clone();
+    let mut replaced = Vec::new();
     for &id in add {
-        if let Some(old) = id
-            .supersedes()
-            .filter(|s| work.effects.iter().any(|e| e.id == *s) && !add.contains(s))
-        {
+        if let Some(old) = work.superseded_by(id).filter(|s| !add.contains(s)) {
             work.effects.retain(|e| e.id != old);
             warnings.push(format!("{id} replaces the model's {old} (it contains it)"));
+            replaced.push(old.to_string());
         }
     }
     let cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
@@ -178,10 +179,13 @@ fn prepared(
         }
     }
     update_plant(&mut work);
-    work
+    (work, replaced)
 }
 
-/// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits.
+/// Adds effects by id (nonlinear parameters chosen by cross-validated grid search) and refits:
+/// the model the addition starts from ([`prepared`]), each effect's best variant on the channel
+/// where it shows ([`Adder::effect`]), then the joint refit ([`fit_with`]) with what those refits
+/// held still held ([`Adder::narrowed`]).
 pub fn fit(
     model: &WbModel,
     d: &AxisData,
@@ -189,24 +193,84 @@ pub fn fit(
     free: Option<&[String]>,
     window_s: f64,
 ) -> Result<FitResult, WorkbenchError> {
-    let kind = d.kind;
     let mut warnings: Vec<String> = Vec::new();
-    let mut held_all: Vec<BaseParam> = Vec::new();
-    let mut held_effects: Vec<EffectId> = Vec::new();
     let original = model;
     let (free_keys, free_effects) = free_keys(model, d, free)?;
-    let work = prepared(model, d, add, &free_keys, &mut warnings);
+    let (work, replaced) = prepared(model, d, add, &free_keys, &mut warnings);
     let moved = work.base != model.base || work.effects.len() != model.effects.len();
     let model = &work;
     let rel = Released::of(model, d, free_effects.as_deref());
-    let mut base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
-    base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
-    let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
-    names.extend(rel.names(model));
-    let bl = blocks(d.range, FOLDS);
-    let moving = moving_mask(d);
+    let mut adder = Adder::new(model, d, &free_keys, &rel);
     let mut effects = Vec::new();
     for &id in add {
+        effects.push(adder.effect(id, &mut warnings)?);
+    }
+    // the base parameters the effects' own refits held (what the data cannot tell apart from
+    // them) stay held in the joint refit: the same refit that diagnose ranks by
+    let narrowed = adder.narrowed(free_effects.as_deref());
+    let free = narrowed.as_deref().or(free);
+    let mut r = fit_with(model, d, effects, free, window_s)?;
+    if moved {
+        r.before = Errors::of(original, d, window_s);
+    }
+    warnings.append(&mut r.warnings);
+    r.warnings = warnings;
+    r.replaced = replaced;
+    Ok(r)
+}
+
+/// The effects added by [`fit`], each refitted on its own beside the base parameters (and the
+/// model's own effects' coefficients, [`Released`]), and what those refits held.
+struct Adder<'a> {
+    model: &'a WbModel,
+    d: &'a AxisData,
+    free_keys: &'a [BaseParam],
+    rel: &'a Released,
+    /// The free base parameters' columns, then the released ones.
+    base_cols: Vec<&'a [f64]>,
+    /// Their names, in the same order.
+    names: Vec<String>,
+    bl: Vec<(usize, usize)>,
+    moving: Option<Vec<f64>>,
+    /// Base parameters an effect's refit held.
+    held_all: Vec<BaseParam>,
+    /// The model's effects whose coefficients an effect's refit held.
+    held_effects: Vec<EffectId>,
+}
+
+impl<'a> Adder<'a> {
+    fn new(
+        model: &'a WbModel,
+        d: &'a AxisData,
+        free_keys: &'a [BaseParam],
+        rel: &'a Released,
+    ) -> Self {
+        let mut base_cols: Vec<&[f64]> = free_keys.iter().map(|k| k.column(d)).collect();
+        base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
+        let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
+        names.extend(rel.names(model));
+        Adder {
+            model,
+            d,
+            free_keys,
+            rel,
+            base_cols,
+            names,
+            bl: blocks(d.range, FOLDS),
+            moving: moving_mask(d),
+            held_all: Vec::new(),
+            held_effects: Vec::new(),
+        }
+    }
+
+    /// Effect `id` at its best variant, on the channel where it shows (what was doubtful or
+    /// held said in `warnings`), or why it is refused.
+    fn effect(
+        &mut self,
+        id: EffectId,
+        warnings: &mut Vec<String>,
+    ) -> Result<Effect, WorkbenchError> {
+        let (model, d) = (self.model, self.d);
         if !id.repeatable() && model.effects.iter().any(|e| e.id == id) {
             return Err(WorkbenchError::EffectRefused {
                 effect: id.to_string(),
@@ -218,104 +282,107 @@ pub fn fit(
         }
         match channel(id) {
             Channel::Deflection => {
-                let (rd, dcols) =
-                    deflection(model, d).ok_or_else(|| WorkbenchError::MissingColumn {
-                        path: d.path.clone(),
-                        column: format!("{}.motor", d.axis),
-                        needed_for: format!(
-                            "fitting `{id}` (it shows in motor minus load position)"
-                        ),
-                        present: d.columns_present().join(", "),
-                    })?;
+                let (rd, dcols) = deflection(model, d).ok_or_else(|| {
+                    missing_column(
+                        d,
+                        "motor",
+                        format!("fitting `{id}` (it shows in motor minus load position)"),
+                    )
+                })?;
                 let dref: Vec<&[f64]> = dcols.iter().map(|c| c.as_slice()).collect();
-                let r = best_effect(id, model, d, &dref, &[], &rd, &bl, None)
+                let r = best_effect(id, model, d, &dref, &[], &rd, &self.bl, None)
                     .map_err(|why| refused(id, why))?;
                 if let Some(why) = &r.doubtful {
                     warnings.push(format!("{id}: {why} (doubtful)"));
                 }
-                effects.push(r.effect);
+                Ok(r.effect)
             }
-            Channel::Torque | Channel::TorquePath => {
-                let y = d
-                    .torque
-                    .as_ref()
-                    .ok_or_else(|| WorkbenchError::MissingColumn {
-                        path: d.path.clone(),
-                        column: format!("{}.torque", d.axis),
-                        needed_for: format!("fitting `{id}` by inverse dynamics"),
-                        present: d.columns_present().join(", "),
-                    })?;
-                // a drive that records its clamped torque shows its limit in the controller
-                // channel, not in the torque balance: take the limit from there when it
-                // explains the record's departure from the law better than the balance
-                if id == EffectId::TorqueSaturation {
-                    if let Some(l) = controller_clamp(model, d) {
-                        effects.push(Effect::new(id, Side::Motor, vec![l]));
-                        continue;
-                    }
-                }
-                let res = residual(model, d, y);
-                let now = inertias_now(model, &free_keys);
-                let Refit {
-                    effect: mut e,
-                    held,
-                    doubtful,
-                    ..
-                } = best_effect(id, model, d, &base_cols, &now, &res, &bl, moving.as_deref())
-                    .map_err(|why| refused(id, why))?;
-                // a Coulomb friction is added symmetric: its level alone spans no offset, so the
-                // model's own effects it held are refitted beside it; any other effect keeps
-                // them held (an offset beside a friction with a level per direction)
-                let symmetric = e.id == EffectId::CoulombFriction;
-                if symmetric {
-                    e.coef[1] = 0.0;
-                }
-                let nk = free_keys.len();
-                if !symmetric {
-                    held_effects.extend(
-                        held.iter()
-                            .filter(|i| **i >= nk)
-                            .map(|i| model.effects[rel.slots[*i - nk].0].id),
-                    );
-                }
-                let held: Vec<usize> = held.into_iter().filter(|i| *i < nk || !symmetric).collect();
-                if !held.is_empty() {
-                    warnings.push(format!("{id}: {}", held_words(&held, &names)));
-                    held_all.extend(held.iter().filter_map(|i| free_keys.get(*i).copied()));
-                }
-                if let Some(why) = &doubtful {
-                    warnings.push(format!("{id}: {why} (doubtful)"));
-                }
-                effects.push(e);
-            }
+            Channel::Torque | Channel::TorquePath => self.torque_effect(id, warnings),
         }
     }
-    let _ = kind;
-    // the base parameters the effects' own refits held (what the data cannot tell apart from
-    // them) stay held in the joint refit: the same refit that diagnose ranks by
-    let narrowed: Option<Vec<String>> =
-        (!held_all.is_empty() || !held_effects.is_empty()).then(|| {
+
+    /// [`Adder::effect`] on the torque channel (or its path).
+    fn torque_effect(
+        &mut self,
+        id: EffectId,
+        warnings: &mut Vec<String>,
+    ) -> Result<Effect, WorkbenchError> {
+        let (model, d) = (self.model, self.d);
+        let y = d.torque.as_ref().ok_or_else(|| {
+            missing_column(d, "torque", format!("fitting `{id}` by inverse dynamics"))
+        })?;
+        // a drive that records its clamped torque shows its limit in the controller
+        // channel, not in the torque balance: take the limit from there when it
+        // explains the record's departure from the law better than the balance
+        if id == EffectId::TorqueSaturation {
+            if let Some(l) = controller_clamp(model, d) {
+                return Ok(Effect::new(id, Side::Motor, vec![l]));
+            }
+        }
+        let res = residual(model, d, y);
+        let now = inertias_now(model, self.free_keys);
+        let Refit {
+            effect: mut e,
+            held,
+            doubtful,
+            ..
+        } = best_effect(
+            id,
+            model,
+            d,
+            &self.base_cols,
+            &now,
+            &res,
+            &self.bl,
+            self.moving.as_deref(),
+        )
+        .map_err(|why| refused(id, why))?;
+        // a Coulomb friction is added symmetric: its level alone spans no offset, so the
+        // model's own effects it held are refitted beside it; any other effect keeps
+        // them held (an offset beside a friction with a level per direction)
+        let symmetric = e.id == EffectId::CoulombFriction;
+        if symmetric {
+            e.coef[1] = 0.0;
+        }
+        let nk = self.free_keys.len();
+        if !symmetric {
+            self.held_effects.extend(
+                held.iter()
+                    .filter(|i| **i >= nk)
+                    .map(|i| model.effects[self.rel.slots[*i - nk].0].id),
+            );
+        }
+        let held: Vec<usize> = held.into_iter().filter(|i| *i < nk || !symmetric).collect();
+        if !held.is_empty() {
+            warnings.push(format!("{id}: {}", held_words(&held, &self.names)));
+            self.held_all
+                .extend(held.iter().filter_map(|i| self.free_keys.get(*i).copied()));
+        }
+        if let Some(why) = &doubtful {
+            warnings.push(format!("{id}: {why} (doubtful)"));
+        }
+        Ok(e)
+    }
+
+    /// The free parameters of the joint refit when the effects' refits held some (`None`: as
+    /// given): the free base parameters and the model's effects (those `free_effects` lists,
+    /// all when `None`) less those held.
+    fn narrowed(&self, free_effects: Option<&[EffectId]>) -> Option<Vec<String>> {
+        (!self.held_all.is_empty() || !self.held_effects.is_empty()).then(|| {
             let effects: Vec<EffectId> = free_effects
-                .clone()
-                .unwrap_or_else(|| model.effects.iter().map(|e| e.id).collect())
+                .map(<[EffectId]>::to_vec)
+                .unwrap_or_else(|| self.model.effects.iter().map(|e| e.id).collect())
                 .into_iter()
-                .filter(|id| !held_effects.contains(id))
+                .filter(|id| !self.held_effects.contains(id))
                 .collect();
-            free_keys
+            self.free_keys
                 .iter()
-                .filter(|k| !held_all.contains(k))
+                .filter(|k| !self.held_all.contains(k))
                 .map(|k| k.key().to_string())
                 .chain(effects.iter().map(|id| id.id().to_string()))
                 .collect()
-        });
-    let free = narrowed.as_deref().or(free);
-    let mut r = fit_with(model, d, effects, free, window_s)?;
-    if moved {
-        r.before = Errors::of(original, d, window_s);
+        })
     }
-    warnings.append(&mut r.warnings);
-    r.warnings = warnings;
-    Ok(r)
 }
 
 /// The drive's torque limit as the controller channel shows it: when the record departs from
@@ -389,10 +456,9 @@ fn free_keys(
 }
 
 /// Adds the given effects (nonlinear parameters fixed as given, coefficients refitted) and
-/// refits the free base parameters jointly with them.
-/// Kept as one function (about 125 lines): the joint refit (torque-path effects, the columns of
-/// the added effects, the active set on the base parameters, the write-back) shares one
-/// regression and its index of which column is which parameter.
+/// refits the free base parameters jointly with them: torque-path effects first (they change
+/// the target), the joint refit on the torque ([`joint_refit`]), the parameters fitted
+/// ([`fitted_params`]), and a check that the plant accepts the model ([`plant_accepts`]).
 pub fn fit_with(
     model: &WbModel,
     d: &AxisData,
@@ -413,8 +479,70 @@ pub fn fit_with(
         new.effects.push(e.clone());
     }
     let mut params = BTreeMap::new();
-    if let Some(y) = d.torque.as_ref() {
-        let _ = y;
+    if d.torque.is_some() {
+        let refit = JointRefit {
+            model,
+            d,
+            effects: &effects,
+            free_keys: &free_keys,
+            rel: &rel,
+        };
+        refit.run(&mut new, &mut params, &mut warnings);
+    } else {
+        for e in effects.iter().filter(|e| channel(e.id) == Channel::Torque) {
+            new.effects.push(e.clone());
+        }
+    }
+    for e in effects
+        .iter()
+        .filter(|e| channel(e.id) == Channel::Deflection)
+    {
+        new.effects.push(e.clone());
+    }
+    if effects.iter().any(|e| e.id == EffectId::Backlash) {
+        // the simulation runs on the parsed plant: bring the refitted base values there first
+        update_plant(&mut new);
+        size_gaps_on_window(&mut new, d, window_s);
+    }
+    let added: Vec<String> = effects.iter().map(|e| e.id.id().to_string()).collect();
+    fitted_params(&new, &effects, &rel, &free_keys, &mut params);
+    // the parsed model file must reflect the new base values for the simulation
+    update_plant(&mut new);
+    plant_accepts(&new, &effects, &added)?;
+    let after = Errors::of(&new, d, window_s);
+    Ok(FitResult {
+        model: new,
+        added,
+        params,
+        before,
+        after,
+        warnings,
+        replaced: Vec::new(),
+    })
+}
+
+/// The joint refit of [`fit_with`] on the torque: the free base parameters, the model's own
+/// effects' coefficients ([`Released`]) and the added torque-channel effects' coefficients in
+/// one regression, whose columns are in that order.
+struct JointRefit<'a> {
+    model: &'a WbModel,
+    d: &'a AxisData,
+    effects: &'a [Effect],
+    free_keys: &'a [BaseParam],
+    rel: &'a Released,
+}
+
+impl JointRefit<'_> {
+    /// Refits into `new` (which holds the torque-path effects already; the torque-channel
+    /// effects are added fitted), the base parameters into `params`, what was held into
+    /// `warnings`.
+    fn run(
+        &self,
+        new: &mut WbModel,
+        params: &mut BTreeMap<String, f64>,
+        warnings: &mut Vec<String>,
+    ) {
+        let (model, d, free_keys, rel) = (self.model, self.d, self.free_keys, self.rel);
         let y_app = new.applied(d).unwrap_or_default();
         // target: the residual of the current model; base parameters are refitted as changes
         // from their current values (a direction the data cannot see stays where it was)
@@ -422,7 +550,8 @@ pub fn fit_with(
         let target: Vec<f64> = y_app.iter().zip(&f).map(|(a, b)| a - b).collect();
         let mut ecols: Vec<Vec<f64>> = Vec::new();
         let mut slots = Vec::new();
-        for (i, e) in effects
+        for (i, e) in self
+            .effects
             .iter()
             .enumerate()
             .filter(|(_, e)| channel(e.id) == Channel::Torque)
@@ -446,37 +575,21 @@ pub fn fit_with(
             .next()
             .expect("one block");
         let (nk, nr) = (free_keys.len(), rel.cols.len());
-        let (keep, delta) = constrained(&all, model, &free_keys, &rel);
+        let (keep, delta) = constrained(&all, model, free_keys, rel);
         for (i, key) in free_keys.iter().enumerate() {
             let v = model.base_value(*key) + delta[i];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
                 b.1 = v;
             }
         }
-        rel.apply(&mut new, &delta[nk..nk + nr]);
-        for key in &free_keys {
+        rel.apply(new, &delta[nk..nk + nr]);
+        for key in free_keys {
             params.insert(key.key().to_string(), new.base_value(*key));
         }
-        let mut held: Vec<String> = (0..nk)
-            .filter(|i| !keep.contains(i))
-            .map(|i| free_keys[i].key().to_string())
-            .collect();
-        for (k, (e, _)) in rel.slots.iter().enumerate() {
-            let name = model.effects[*e].id.id().to_string();
-            if !keep.contains(&(nk + k)) && !held.contains(&name) {
-                held.push(name);
-            }
+        if let Some(w) = self.held_warning(&keep) {
+            warnings.push(w);
         }
-        if !held.is_empty() {
-            warnings.push(format!(
-                "{} held at {} value: the joint refit took {} out of {} range (an inertia below a tenth of its value, a negative damping, or a friction level of the other sign), which these data cannot determine together with the added effects",
-                held.join(", "),
-                if held.len() == 1 { "its" } else { "their" },
-                if held.len() == 1 { "it" } else { "them" },
-                if held.len() == 1 { "its" } else { "their" },
-            ));
-        }
-        let mut fitted = effects.clone();
+        let mut fitted = self.effects.to_vec();
         for (s, (i, j)) in slots.iter().enumerate() {
             fitted[*i].coef[*j] = delta[nk + nr + s];
         }
@@ -486,25 +599,44 @@ pub fn fit_with(
         {
             new.effects.push(e);
         }
-    } else {
-        for e in effects.iter().filter(|e| channel(e.id) == Channel::Torque) {
-            new.effects.push(e.clone());
+    }
+
+    /// The sentence naming the base parameters and model effects the refit held (those of
+    /// whose columns `keep` lists none), when it held any.
+    fn held_warning(&self, keep: &[usize]) -> Option<String> {
+        let (free_keys, nk) = (self.free_keys, self.free_keys.len());
+        let mut held: Vec<String> = (0..nk)
+            .filter(|i| !keep.contains(i))
+            .map(|i| free_keys[i].key().to_string())
+            .collect();
+        for (k, (e, _)) in self.rel.slots.iter().enumerate() {
+            let name = self.model.effects[*e].id.id().to_string();
+            if !keep.contains(&(nk + k)) && !held.contains(&name) {
+                held.push(name);
+            }
         }
+        (!held.is_empty()).then(|| format!(
+            "{} held at {} value: the joint refit took {} out of {} range (an inertia below a tenth of its value, a negative damping, or a friction level of the other sign), which these data cannot determine together with the added effects",
+            held.join(", "),
+            if held.len() == 1 { "its" } else { "their" },
+            if held.len() == 1 { "it" } else { "them" },
+            if held.len() == 1 { "its" } else { "their" },
+        ))
     }
-    for e in effects
-        .iter()
-        .filter(|e| channel(e.id) == Channel::Deflection)
-    {
-        new.effects.push(e.clone());
-    }
-    if effects.iter().any(|e| e.id == EffectId::Backlash) {
-        // the simulation runs on the parsed plant: bring the refitted base values there first
-        update_plant(&mut new);
-        size_gaps_on_window(&mut new, d, window_s);
-    }
+}
+
+/// Into `params`: the parameters of the added `effects` and of the model's effects refitted
+/// (`rel`) under the model file's keys (`effects.ID.KEY` where a key is taken), and the free
+/// base parameters' new values.
+fn fitted_params(
+    new: &WbModel,
+    effects: &[Effect],
+    rel: &Released,
+    free_keys: &[BaseParam],
+    params: &mut BTreeMap<String, f64>,
+) {
     let kind = new.kind();
     let r = new.file.plant.motor_per_load();
-    let added: Vec<String> = effects.iter().map(|e| e.id.id().to_string()).collect();
     for (_, e) in new.effects.iter().enumerate().filter(|(i, e)| {
         effects.iter().any(|a| a.id == e.id) || rel.slots.iter().any(|(r, _)| r == i)
     }) {
@@ -522,40 +654,38 @@ pub fn fit_with(
             params.insert(k.key().to_string(), *v);
         }
     }
-    // the parsed model file must reflect the new base values for the simulation
-    update_plant(&mut new);
-    // what is written must be a model the plant accepts: a fitted parameter outside its
-    // physical range (a negative friction level, say) refuses the effect it belongs to
-    if let Err(e) = read_effects(&new.sim_file()) {
-        let effect = effects
-            .iter()
-            .map(|e| e.id)
-            .find(|id| e.key.contains(id.id()))
-            .map(|id| id.to_string())
-            .unwrap_or_else(|| added.join(", "));
-        return Err(WorkbenchError::EffectRefused {
-            effect,
-            reason: format!(
-                "the model it would write is one the plant refuses (`{}`: {}){}",
-                e.key,
-                e.reason,
-                if e.reason.starts_with("must be") {
-                    ": a fitted value outside its physical range means these data do not show the effect"
-                } else {
-                    ""
-                }
-            ),
-            advice: "nothing was written; run `feedloop diagnose`, refit with other base parameters free (--free), or leave it out".into(),
-        });
-    }
-    let after = Errors::of(&new, d, window_s);
-    Ok(FitResult {
-        model: new,
-        added,
-        params,
-        before,
-        after,
-        warnings,
+}
+
+/// What is written must be a model the plant accepts: a fitted parameter outside its physical
+/// range (a negative friction level, say) refuses the effect it belongs to (of `effects`, whose
+/// ids are `added`).
+fn plant_accepts(
+    new: &WbModel,
+    effects: &[Effect],
+    added: &[String],
+) -> Result<(), WorkbenchError> {
+    let Err(e) = read_effects(&new.sim_file()) else {
+        return Ok(());
+    };
+    let effect = effects
+        .iter()
+        .map(|e| e.id)
+        .find(|id| e.key.contains(id.id()))
+        .map(|id| id.to_string())
+        .unwrap_or_else(|| added.join(", "));
+    Err(WorkbenchError::EffectRefused {
+        effect,
+        reason: format!(
+            "the model it would write is one the plant refuses (`{}`: {}){}",
+            e.key,
+            e.reason,
+            if e.reason.starts_with("must be") {
+                ": a fitted value outside its physical range means these data do not show the effect"
+            } else {
+                ""
+            }
+        ),
+        advice: "nothing was written; run `feedloop diagnose`, refit with other base parameters free (--free), or leave it out".into(),
     })
 }
 
@@ -619,6 +749,17 @@ fn constrained(
         delta[*i] = th[k];
     }
     (keep, delta)
+}
+
+/// The error of a fit that needs column `A.column` of the axis, which `d` lacks, for
+/// `needed_for`.
+fn missing_column(d: &AxisData, column: &str, needed_for: String) -> WorkbenchError {
+    WorkbenchError::MissingColumn {
+        path: d.path.clone(),
+        column: format!("{}.{column}", d.axis),
+        needed_for,
+        present: d.columns_present().join(", "),
+    }
 }
 
 /// The error of `fit --add ID` when the effect cannot be fitted.

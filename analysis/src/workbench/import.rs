@@ -103,9 +103,9 @@ pub fn parse_map(map: &str) -> Result<Vec<MapEntry>, WorkbenchError> {
 
 /// Imports `from` (CSV with a header row; `,`, `;` or tab separated; `#` comment lines allowed)
 /// into a trace with the mapped columns. Time comes from a `t=...` entry, else from a source
-/// column named `t`, else from `period_s` (then `t = k * period_s`).
-/// Kept as one function (about 115 lines): one pass over the source (separator, header, column
-/// map, rows with their line numbers for errors, time column), each step feeding the next.
+/// column named `t`, else from `period_s` (then `t = k * period_s`). In one pass over the
+/// source, each step feeding the next: the header ([`Source::read`]), the column map
+/// ([`mapped_columns`], [`time_column`]), the rows ([`Source::rows`]), then the trace written.
 pub fn import(
     from: &Path,
     map: &[MapEntry],
@@ -113,95 +113,10 @@ pub fn import(
     out: &Path,
 ) -> Result<Trace, WorkbenchError> {
     let text = std::fs::read_to_string(from).map_err(|e| WorkbenchError::io(from, e))?;
-    let data_err = |line: usize, reason: String| WorkbenchError::Data {
-        path: from.to_path_buf(),
-        reason: format!("line {line}: {reason}"),
-    };
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim_start().starts_with('#') && !l.trim().is_empty());
-    let (hline, header) = lines
-        .next()
-        .ok_or_else(|| data_err(1, "no header row".into()))?;
-    let sep = [',', ';', '\t']
-        .into_iter()
-        .max_by_key(|c| header.matches(*c).count())
-        .unwrap_or(',');
-    let names: Vec<String> = header
-        .split(sep)
-        .map(|s| s.trim().trim_matches('"').to_string())
-        .collect();
-    let mut idx = Vec::new();
-    for e in map {
-        let i = names.iter().position(|n| *n == e.source).ok_or_else(|| {
-            WorkbenchError::BadArgument {
-                arg: format!("--map {}={}", e.target, e.source),
-                reason: format!(
-                    "{}: line {}: no column `{}` (columns: {})",
-                    from.display(),
-                    hline + 1,
-                    e.source,
-                    names.join(", ")
-                ),
-            }
-        })?;
-        idx.push(i);
-    }
-    let t_src = if map.iter().any(|e| e.target == "t") {
-        None
-    } else {
-        names.iter().position(|n| n == "t")
-    };
-    if !map.iter().any(|e| e.target == "t") && t_src.is_none() && period_s.is_none() {
-        return Err(WorkbenchError::BadArgument {
-            arg: "--map".into(),
-            reason: format!(
-                "{}: no time: map a column to `t` (e.g. t=time_ms*0.001), or give --period-s",
-                from.display()
-            ),
-        });
-    }
-    let mut cols: Vec<Vec<f64>> = vec![Vec::new(); map.len()];
-    let mut t = Vec::new();
-    // the source line of every row, so that the checks of the built trace name the source
-    let mut src_lines: Vec<usize> = Vec::new();
-    for (ln, line) in lines {
-        src_lines.push(ln + 1);
-        let cells: Vec<&str> = line.split(sep).collect();
-        if cells.len() != names.len() {
-            return Err(data_err(
-                ln + 1,
-                format!(
-                    "{} cells, but the header has {} columns",
-                    cells.len(),
-                    names.len()
-                ),
-            ));
-        }
-        let num = |i: usize| -> Result<f64, WorkbenchError> {
-            let c = cells[i].trim().trim_matches('"');
-            let v: f64 = c.parse().map_err(|_| {
-                data_err(
-                    ln + 1,
-                    format!("column `{}`: \"{c}\" is not a number", names[i]),
-                )
-            })?;
-            if !v.is_finite() {
-                return Err(data_err(
-                    ln + 1,
-                    format!("column `{}`: \"{c}\" is not finite", names[i]),
-                ));
-            }
-            Ok(v)
-        };
-        for (j, (e, &i)) in map.iter().zip(&idx).enumerate() {
-            cols[j].push(num(i)? * e.scale + e.offset);
-        }
-        if let Some(i) = t_src {
-            t.push(num(i)?);
-        }
-    }
+    let src = Source::read(from, &text)?;
+    let idx = mapped_columns(&src, map)?;
+    let t_src = time_column(&src, map, period_s)?;
+    let Rows { cols, t, src_lines } = src.rows(map, &idx, t_src)?;
     let n = cols[0].len();
     let mut columns = Vec::new();
     let mut data = Vec::new();
@@ -228,7 +143,7 @@ pub fn import(
         // the --map scaling); the header and metadata lines become the source's header line
         let e = e.relocated(from, |l| match l.checked_sub(header_line + 1) {
             Some(r) => src_lines.get(r).copied().unwrap_or(l),
-            None => hline + 1,
+            None => src.hline + 1,
         });
         WorkbenchError::Trace(e)
     })?;
@@ -236,11 +151,172 @@ pub fn import(
     Ok(trace)
 }
 
+/// The error of line `line` (1-based) of source file `from`.
+fn line_err(from: &Path, line: usize, reason: String) -> WorkbenchError {
+    WorkbenchError::Data {
+        path: from.to_path_buf(),
+        reason: format!("line {line}: {reason}"),
+    }
+}
+
+/// A source file of `trace import`: its header and its data lines.
+struct Source<'a> {
+    from: &'a Path,
+    /// Index (0-based) of the header line.
+    hline: usize,
+    /// The separator, the one the header holds most of.
+    sep: char,
+    /// The header's column names.
+    names: Vec<String>,
+    /// The data lines with their indices (0-based), comments and blank lines left out.
+    lines: Vec<(usize, &'a str)>,
+}
+
+impl<'a> Source<'a> {
+    /// The header (the first line that is neither a comment nor blank) and the data lines of
+    /// `text`, read from `from`.
+    fn read(from: &'a Path, text: &'a str) -> Result<Self, WorkbenchError> {
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim_start().starts_with('#') && !l.trim().is_empty());
+        let (hline, header) = lines
+            .next()
+            .ok_or_else(|| line_err(from, 1, "no header row".into()))?;
+        let sep = [',', ';', '\t']
+            .into_iter()
+            .max_by_key(|c| header.matches(*c).count())
+            .unwrap_or(',');
+        let names: Vec<String> = header
+            .split(sep)
+            .map(|s| s.trim().trim_matches('"').to_string())
+            .collect();
+        Ok(Source {
+            from,
+            hline,
+            sep,
+            names,
+            lines: lines.collect(),
+        })
+    }
+
+    /// The mapped columns (scaled and offset), the time column `t_src` when read from the
+    /// source, and the source line of every row, so that the checks of the built trace name the
+    /// source.
+    fn rows(
+        &self,
+        map: &[MapEntry],
+        idx: &[usize],
+        t_src: Option<usize>,
+    ) -> Result<Rows, WorkbenchError> {
+        let (from, names) = (self.from, &self.names);
+        let mut cols: Vec<Vec<f64>> = vec![Vec::new(); map.len()];
+        let mut t = Vec::new();
+        let mut src_lines: Vec<usize> = Vec::new();
+        for &(ln, line) in &self.lines {
+            src_lines.push(ln + 1);
+            let cells: Vec<&str> = line.split(self.sep).collect();
+            if cells.len() != names.len() {
+                return Err(line_err(
+                    from,
+                    ln + 1,
+                    format!(
+                        "{} cells, but the header has {} columns",
+                        cells.len(),
+                        names.len()
+                    ),
+                ));
+            }
+            let num = |i: usize| -> Result<f64, WorkbenchError> {
+                let c = cells[i].trim().trim_matches('"');
+                let v: f64 = c.parse().map_err(|_| {
+                    line_err(
+                        from,
+                        ln + 1,
+                        format!("column `{}`: \"{c}\" is not a number", names[i]),
+                    )
+                })?;
+                if !v.is_finite() {
+                    return Err(line_err(
+                        from,
+                        ln + 1,
+                        format!("column `{}`: \"{c}\" is not finite", names[i]),
+                    ));
+                }
+                Ok(v)
+            };
+            for (j, (e, &i)) in map.iter().zip(idx).enumerate() {
+                cols[j].push(num(i)? * e.scale + e.offset);
+            }
+            if let Some(i) = t_src {
+                t.push(num(i)?);
+            }
+        }
+        Ok(Rows { cols, t, src_lines })
+    }
+}
+
+/// What [`Source::rows`] reads.
+struct Rows {
+    /// The mapped columns, in the order of the map.
+    cols: Vec<Vec<f64>>,
+    /// The source's time column, when read from it.
+    t: Vec<f64>,
+    /// The source line (1-based) of every row.
+    src_lines: Vec<usize>,
+}
+
+/// The index in the source of every mapped column, or an error naming the one it lacks.
+fn mapped_columns(src: &Source<'_>, map: &[MapEntry]) -> Result<Vec<usize>, WorkbenchError> {
+    let names = &src.names;
+    let mut idx = Vec::new();
+    for e in map {
+        let i = names.iter().position(|n| *n == e.source).ok_or_else(|| {
+            WorkbenchError::BadArgument {
+                arg: format!("--map {}={}", e.target, e.source),
+                reason: format!(
+                    "{}: line {}: no column `{}` (columns: {})",
+                    src.from.display(),
+                    src.hline + 1,
+                    e.source,
+                    names.join(", ")
+                ),
+            }
+        })?;
+        idx.push(i);
+    }
+    Ok(idx)
+}
+
+/// The source column `t`, when time is not mapped and the source has it; an error when time
+/// comes from nowhere (not mapped, no `t` column, no period).
+fn time_column(
+    src: &Source<'_>,
+    map: &[MapEntry],
+    period_s: Option<f64>,
+) -> Result<Option<usize>, WorkbenchError> {
+    let t_src = if map.iter().any(|e| e.target == "t") {
+        None
+    } else {
+        src.names.iter().position(|n| n == "t")
+    };
+    if !map.iter().any(|e| e.target == "t") && t_src.is_none() && period_s.is_none() {
+        return Err(WorkbenchError::BadArgument {
+            arg: "--map".into(),
+            reason: format!(
+                "{}: no time: map a column to `t` (e.g. t=time_ms*0.001), or give --period-s",
+                src.from.display()
+            ),
+        });
+    }
+    Ok(t_src)
+}
+
 /// Builds a nominal model of `spec.kind` for axis `axis` of `trace` by least squares on its
 /// torque (no effects, no controller), and writes it to `out`. A ball screw's lead and a rotary
 /// axis's gear ratio come from `spec`, else from the motor/load travel ratio when the trace has a
-/// motor column. Kept whole: the provisional model, the least squares for the axis kind and the
-/// written file share the kind's keys and units.
+/// motor column. In steps: a provisional model that reads the trace in the kind's units
+/// ([`provisional`]), the least squares for the kind ([`fitted_table`]), the written file.
 pub fn model_init(
     trace: &Trace,
     spec: &InitSpec,
@@ -248,6 +324,32 @@ pub fn model_init(
     out: &Path,
 ) -> Result<WbModel, WorkbenchError> {
     let axis = pick_axis(trace, out, axis)?;
+    let file = provisional(trace, spec, &axis, out)?;
+    let d = load_axis(trace, &file, &axis, &Prep::default())?;
+    let y = d.require_torque("model init (least squares on the torque)", trace)?;
+    let mut notes = Vec::new();
+    let t = fitted_table(&d, y, spec.kind, &file, &mut notes);
+    let file = ModelFile::from_table(&t, out)?;
+    let m = WbModel::from_parts(file, t.clone())?;
+    let text = format!(
+        "# nominal model from `feedloop model init` on {} (axis {axis}): base parameters by least squares, no effects\n{}{}",
+        trace.path.display(),
+        notes.iter().map(|n| format!("# {n}\n")).collect::<String>(),
+        toml::to_string_pretty(&t).unwrap_or_default()
+    );
+    std::fs::write(out, text).map_err(|e| WorkbenchError::io(out, e))?;
+    Ok(m)
+}
+
+/// A model of `spec.kind` with unit base parameters and the ratio between motor and load units
+/// (from `spec`, else from the motor/load travel ratio of axis `axis` of `trace`): what reads
+/// the trace in the kind's units.
+fn provisional(
+    trace: &Trace,
+    spec: &InitSpec,
+    axis: &str,
+    out: &Path,
+) -> Result<ModelFile, WorkbenchError> {
     let kind = spec.kind;
     // motor units per load unit from the motor/load travel ratio (when the trace has a motor
     // column): a lead for a ball screw, a gear ratio for a rotary axis
@@ -294,14 +396,22 @@ pub fn model_init(
             arg: "--lead-m / --gear-ratio".into(),
             reason: format!("{e}"),
         })?;
-    let file = ModelFile::from_table(&table, out)?;
-    let d = load_axis(trace, &file, &axis, &Prep::default())?;
-    let y = d.require_torque("model init (least squares on the torque)", trace)?;
+    Ok(ModelFile::from_table(&table, out)?)
+}
+
+/// The model file's table of a `kind` model fitted by least squares on torque `y` of `d` (read
+/// with the provisional `file`), what the fit leaves out said in `notes`.
+fn fitted_table(
+    d: &AxisData,
+    y: &[f64],
+    kind: AxisKind,
+    file: &ModelFile,
+    notes: &mut Vec<String>,
+) -> toml::Table {
     let bl = blocks(d.range, 1);
     let mut t = toml::Table::new();
     t.insert("kind".into(), toml::Value::String(kind.id().into()));
     let pos = |v: f64, floor: f64| round_sig(v.max(floor));
-    let mut notes = Vec::new();
     match kind {
         AxisKind::Rigid => {
             let th = cross_validate(&normals(&[&d.am, &d.vm], y, &bl)).theta;
@@ -322,9 +432,9 @@ pub fn model_init(
             let jm = pos(j.0, 1e-9);
             let jl = pos(j.1, 1e-9);
             let kl = if kind == AxisKind::Rotary {
-                rotary_stiffness(&d, y, jm, &bl, &mut notes)
+                rotary_stiffness(d, y, jm, &bl, notes)
             } else {
-                ballscrew_stiffness(&d, jm, jl, dmp.1.max(0.0), &bl)
+                ballscrew_stiffness(d, jm, jl, dmp.1.max(0.0), &bl)
             };
             t.insert("jm_kgm2".into(), toml::Value::Float(jm));
             t.insert("dm_nms_per_rad".into(), toml::Value::Float(pos(dmp.0, 0.0)));
@@ -347,16 +457,7 @@ pub fn model_init(
             }
         }
     }
-    let file = ModelFile::from_table(&t, out)?;
-    let m = WbModel::from_parts(file, t.clone())?;
-    let text = format!(
-        "# nominal model from `feedloop model init` on {} (axis {axis}): base parameters by least squares, no effects\n{}{}",
-        trace.path.display(),
-        notes.iter().map(|n| format!("# {n}\n")).collect::<String>(),
-        toml::to_string_pretty(&t).unwrap_or_default()
-    );
-    std::fs::write(out, text).map_err(|e| WorkbenchError::io(out, e))?;
-    Ok(m)
+    t
 }
 
 /// What `model init` builds: the axis kind and, where the trace cannot tell, the ratio between

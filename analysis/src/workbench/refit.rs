@@ -273,9 +273,10 @@ pub type Untestable = String;
 /// a joint fit that would take one of them to less than a tenth of its value (an inertia or a
 /// mass that the effect makes vanish) cannot tell the two apart, so that parameter is held at
 /// its value and the effect refitted without it. An effect that no variant fits physically is
-/// [`Untestable`], with the reason.
-/// Kept whole: the grid, its decimated pre-search on long traces, the hold of undetermined base
-/// parameters and the golden-section refinement share one scoring closure.
+/// [`Untestable`], with the reason. In steps: the grid ([`search_grid`]), its decimated
+/// pre-search on a long trace ([`presearch_decimated`]), every point scored by the joint fit
+/// ([`Scorer::eval`], [`Scorer::best_on`]) and a continuous parameter refined
+/// ([`Scorer::refine`]).
 #[allow(clippy::too_many_arguments)]
 pub fn best_effect(
     id: EffectId,
@@ -287,14 +288,58 @@ pub fn best_effect(
     bl: &[(usize, usize)],
     mask: Option<&[f64]>,
 ) -> Result<Refit, Untestable> {
-    let side = default_side(d.kind);
+    let p = Problem {
+        model,
+        d,
+        base,
+        base_now,
+        y,
+        bl,
+        mask,
+    };
+    let mut grid = search_grid(id, model, d)?;
+    let searched = grid.clone();
+    if let Some(h) = presearch_decimated(id, &p, grid.len()) {
+        grid = vec![h];
+    }
+    let scorer = Scorer {
+        id,
+        side: default_side(d.kind),
+        needed: (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d)),
+        // a base column that the effect's own columns span (the damping beside a friction with
+        // viscous slopes) cannot be refitted beside it: held from the start
+        collinear: spanned_base(id, d, base),
+        p,
+    };
+    let (mut best, reason, best_i) = scorer.best_on(&grid);
+    // a continuous time constant or limit: refine between the grid's neighbours of the best
+    // point
+    if matches!(id, EffectId::CurrentLag | EffectId::TorqueSaturation)
+        && best.is_some()
+        && grid.len() >= 3
+        && grid[0][0] > 0.0
+    {
+        if let Some(r) = scorer.refine(&grid, best_i) {
+            if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
+                best = Some(r);
+            }
+        }
+    }
+    let mut best =
+        best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))?;
+    best.doubtful = at_edge(id, &searched, &best.effect.hyper);
+    Ok(best)
+}
+
+/// The nonlinear parameters searched for effect `id` (a backlash's from the model when it has
+/// one), or why there is nothing to search on this trace.
+fn search_grid(id: EffectId, model: &WbModel, d: &AxisData) -> Result<Vec<Vec<f64>>, Untestable> {
     let mut grid = hyper_grid(id, d);
     if id == EffectId::Backlash {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
         }
     }
-    let searched = grid.clone();
     if grid.is_empty() {
         return Err(match channel(id) {
             Channel::TorquePath => format!(
@@ -304,41 +349,70 @@ pub fn best_effect(
             Channel::Torque | Channel::Deflection => "nothing to search on this trace".into(),
         });
     }
-    // on a long trace, the grid of an effect with regressor columns is searched on a decimated
-    // copy (the filtered signals are band-limited to the cut-off) and only its best point is
-    // scored on all samples
+    Ok(grid)
+}
+
+/// On a long trace, the grid (of `points` points) of an effect with regressor columns is
+/// searched on a decimated copy (the filtered signals are band-limited to the cut-off) and only
+/// its best point is scored on all samples: that point, when the pre-search found one.
+fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<Vec<f64>> {
+    let d = p.d;
     let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
-    if channel(id) == Channel::Torque && grid.len() > 1 && q > 1 && d.len() >= LONG_TRACE {
-        let dd = d.decimated(q);
-        let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
-        let base_d: Vec<Vec<f64>> = base.iter().map(|c| dec(c)).collect();
-        let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
-        let y_d = dec(y);
-        let mask_d = mask.map(dec);
-        let bl_d = blocks(dd.range, bl.len());
-        if let Ok(r) = best_effect(
-            id,
-            model,
-            &dd,
-            &base_r,
-            base_now,
-            &y_d,
-            &bl_d,
-            mask_d.as_deref(),
-        ) {
-            grid = vec![r.effect.hyper];
-        }
+    if !(channel(id) == Channel::Torque && points > 1 && q > 1 && d.len() >= LONG_TRACE) {
+        return None;
     }
-    let needed = (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d));
-    let nb = base.len();
-    // a base column that the effect's own columns span (the damping beside a friction with
-    // viscous slopes) cannot be refitted beside it: held from the start
-    let collinear = spanned_base(id, d, base);
-    let eval = |h: Vec<f64>| -> Result<Refit, Untestable> {
-        let e = Effect::new(id, side, h);
-        let target: Option<Vec<f64>> = match &needed {
+    let dd = d.decimated(q);
+    let dec = |x: &[f64]| x.iter().step_by(q).copied().collect::<Vec<f64>>();
+    let base_d: Vec<Vec<f64>> = p.base.iter().map(|c| dec(c)).collect();
+    let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
+    let y_d = dec(p.y);
+    let mask_d = p.mask.map(dec);
+    let bl_d = blocks(dd.range, p.bl.len());
+    best_effect(
+        id,
+        p.model,
+        &dd,
+        &base_r,
+        p.base_now,
+        &y_d,
+        &bl_d,
+        mask_d.as_deref(),
+    )
+    .ok()
+    .map(|r| r.effect.hyper)
+}
+
+/// What an effect is refitted on (the arguments of [`best_effect`]).
+struct Problem<'a> {
+    model: &'a WbModel,
+    d: &'a AxisData,
+    base: &'a [&'a [f64]],
+    base_now: &'a [f64],
+    y: &'a [f64],
+    bl: &'a [(usize, usize)],
+    mask: Option<&'a [f64]>,
+}
+
+/// What one point of an effect's grid is scored with (see [`best_effect`]).
+struct Scorer<'a> {
+    id: EffectId,
+    side: Side,
+    p: Problem<'a>,
+    /// The torque the model needs, for an effect on the torque path (it changes the target).
+    needed: Option<Vec<f64>>,
+    /// Base columns held from the start (see [`spanned_base`]).
+    collinear: Vec<usize>,
+}
+
+impl Scorer<'_> {
+    /// The effect at nonlinear parameters `h` refitted with the base parameters, or why it does
+    /// not fit physically there.
+    fn eval(&self, h: Vec<f64>) -> Result<Refit, Untestable> {
+        let (id, d, nb) = (self.id, self.p.d, self.p.base.len());
+        let e = Effect::new(id, self.side, h);
+        let target: Option<Vec<f64>> = match &self.needed {
             Some(needed) => {
-                let mut with = model.clone();
+                let mut with = self.p.model.clone();
                 with.effects.push(e.clone());
                 let t = with
                     .applied(d)
@@ -347,21 +421,45 @@ pub fn best_effect(
             }
             None => None,
         };
-        let cols = match &needed {
+        let cols = match &self.needed {
             Some(_) => vec![],
             None => e.columns(d),
         };
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let y = target.as_deref().unwrap_or(y);
-        // base columns held at their values where the joint fit would make them vanish
-        let mut held: Vec<usize> = collinear.clone();
+        let y = target.as_deref().unwrap_or(self.p.y);
+        let (cv, held) = self.joint_fit(&refs, y);
+        physical(id, &e, &cv, nb)?;
+        let mut e = e;
+        for (i, c) in e.coef.iter_mut().enumerate() {
+            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
+        }
+        Ok(Refit {
+            effect: e,
+            cv,
+            held,
+            doubtful: None,
+        })
+    }
+
+    /// The cross-validated fit of the effect's columns `refs` with the base columns on `y`, the
+    /// base columns held at their values where the joint fit would make them vanish; and those
+    /// held.
+    fn joint_fit(&self, refs: &[&[f64]], y: &[f64]) -> (Cv, Vec<usize>) {
+        let nb = self.p.base.len();
+        let mut held: Vec<usize> = self.collinear.clone();
         let cv = loop {
             let free: Vec<&[f64]> = (0..nb)
                 .filter(|i| !held.contains(i))
-                .map(|i| base[i])
+                .map(|i| self.p.base[i])
                 .collect();
-            let cv = expand(cv_cols_masked(&free, &refs, y, bl, mask), nb, &held);
-            let vanishing: Vec<usize> = base_now
+            let cv = expand(
+                cv_cols_masked(&free, refs, y, self.p.bl, self.p.mask),
+                nb,
+                &held,
+            );
+            let vanishing: Vec<usize> = self
+                .p
+                .base_now
                 .iter()
                 .enumerate()
                 .filter(|(i, v)| {
@@ -377,77 +475,43 @@ pub fn best_effect(
             held.extend(vanishing);
             held.sort_unstable();
         };
-        // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
-        if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
-            return Err(
-                "its breakaway level fits below its sliding level (fs < fc) at every \
-                        Stribeck velocity searched: these data show no rise of friction at low \
-                        speed"
-                    .into(),
-            );
-        }
-        // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
-        if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
-            return Err(
-                "its mass fits negative at every frequency searched (coloured noise, \
-                        not a mass on a spring)"
-                    .into(),
-            );
-        }
-        // lost motion is a play the motor crosses by travelling it: not negative, and not
-        // crossed in less travel than its own size (a negative stiffness of the spring)
-        if id == EffectId::LostMotion {
-            let half = cv.theta.get(nb).copied().unwrap_or(0.0);
-            if half < 0.0 {
-                return Err("its offset fits the wrong way (the load ahead of the motor in the direction of travel) at every transition searched".into());
-            }
-            if e.hyper.first().is_some_and(|t| *t < 2.0 * half) {
-                return Err("it fits only with a transition shorter than the play itself, which no transmission has".into());
-            }
-        }
-        let mut e = e;
-        for (i, c) in e.coef.iter_mut().enumerate() {
-            *c = cv.theta.get(nb + i).copied().unwrap_or(0.0);
-        }
-        Ok(Refit {
-            effect: e,
-            cv,
-            held,
-            doubtful: None,
-        })
-    };
-    // the grid's points are independent: scored in parallel, the best kept (the first on a tie,
-    // so the result does not depend on the thread count)
-    let scored: Vec<Result<Refit, Untestable>> = grid.par_iter().map(|h| eval(h.clone())).collect();
-    let mut best: Option<Refit> = None;
-    let mut reason: Option<Untestable> = None;
-    let mut best_i = 0;
-    for (i, r) in scored.into_iter().enumerate() {
-        match r {
-            Ok(r) => {
-                if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
-                    best = Some(r);
-                    best_i = i;
+        (cv, held)
+    }
+
+    /// The best of the grid's points (the first on a tie, so the result does not depend on the
+    /// thread count: the points are independent and scored in parallel), the first reason a
+    /// point did not fit, and the best point's index.
+    fn best_on(&self, grid: &[Vec<f64>]) -> (Option<Refit>, Option<Untestable>, usize) {
+        let scored: Vec<Result<Refit, Untestable>> =
+            grid.par_iter().map(|h| self.eval(h.clone())).collect();
+        let mut best: Option<Refit> = None;
+        let mut reason: Option<Untestable> = None;
+        let mut best_i = 0;
+        for (i, r) in scored.into_iter().enumerate() {
+            match r {
+                Ok(r) => {
+                    if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
+                        best = Some(r);
+                        best_i = i;
+                    }
+                }
+                Err(why) => {
+                    reason.get_or_insert(why);
                 }
             }
-            Err(why) => {
-                reason.get_or_insert(why);
-            }
         }
+        (best, reason, best_i)
     }
-    // a continuous time constant or limit: refine between the grid's neighbours of the best
-    // point (golden-section search on its logarithm)
-    if matches!(id, EffectId::CurrentLag | EffectId::TorqueSaturation)
-        && best.is_some()
-        && grid.len() >= 3
-        && grid[0][0] > 0.0
-    {
+
+    /// The refit at the minimum of a golden-section search on the logarithm of the parameter
+    /// between the neighbours of grid point `best_i`.
+    fn refine(&self, grid: &[Vec<f64>], best_i: usize) -> Option<Refit> {
         let lo = grid[best_i.saturating_sub(1)][0].ln();
         let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
         let g = 0.5 * (5f64.sqrt() - 1.0);
         let (mut a, mut b) = (lo, hi);
         let score = |x: f64| {
-            eval(vec![x.exp()])
+            self.eval(vec![x.exp()])
                 .map(|r| r.cv.rms)
                 .unwrap_or(f64::INFINITY)
         };
@@ -468,16 +532,42 @@ pub fn best_effect(
                 fd = score(dd);
             }
         }
-        if let Ok(r) = eval(vec![(0.5 * (a + b)).exp()]) {
-            if best.as_ref().map(|b| r.cv.rms < b.cv.rms).unwrap_or(true) {
-                best = Some(r);
-            }
+        self.eval(vec![(0.5 * (a + b)).exp()]).ok()
+    }
+}
+
+/// Why effect `e` (fitted by `cv`, its coefficients after the `nb` base columns) is not
+/// physical, for the effects that have such a bound.
+fn physical(id: EffectId, e: &Effect, cv: &Cv, nb: usize) -> Result<(), Untestable> {
+    // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
+    if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
+        return Err(
+            "its breakaway level fits below its sliding level (fs < fc) at every \
+                    Stribeck velocity searched: these data show no rise of friction at low \
+                    speed"
+                .into(),
+        );
+    }
+    // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
+    if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {
+        return Err(
+            "its mass fits negative at every frequency searched (coloured noise, \
+                    not a mass on a spring)"
+                .into(),
+        );
+    }
+    // lost motion is a play the motor crosses by travelling it: not negative, and not
+    // crossed in less travel than its own size (a negative stiffness of the spring)
+    if id == EffectId::LostMotion {
+        let half = cv.theta.get(nb).copied().unwrap_or(0.0);
+        if half < 0.0 {
+            return Err("its offset fits the wrong way (the load ahead of the motor in the direction of travel) at every transition searched".into());
+        }
+        if e.hyper.first().is_some_and(|t| *t < 2.0 * half) {
+            return Err("it fits only with a transition shorter than the play itself, which no transmission has".into());
         }
     }
-    let mut best =
-        best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))?;
-    best.doubtful = at_edge(id, &searched, &best.effect.hyper);
-    Ok(best)
+    Ok(())
 }
 
 /// The words for a nonlinear parameter `hyper` of effect `id` that lies at an edge of the range

@@ -118,12 +118,82 @@ pub fn spectrum(x: &[f64], dt: f64) -> (Vec<f64>, Vec<f64>) {
     (f, a)
 }
 
+/// The channel the report's headline plots show: the torque's equation error when recorded,
+/// else the windowed simulation's first channel.
+struct Shown<'a> {
+    residual: &'a [f64],
+    measured: &'a [f64],
+    model: &'a [f64],
+    /// Its name on the value axis (`force`, `torque`, `velocity`, ...).
+    label: String,
+    unit: &'static str,
+}
+
+impl<'a> Shown<'a> {
+    fn of(d: &AxisData, c: &'a Comparison) -> Self {
+        let (_, _, torque_unit, _) = units(d.kind);
+        match &c.eq {
+            Some(e) => Shown {
+                residual: &e.residual,
+                measured: &e.measured,
+                model: &e.model,
+                label: if torque_unit == "N" {
+                    "force"
+                } else {
+                    "torque"
+                }
+                .to_string(),
+                unit: torque_unit,
+            },
+            None => {
+                let name = c
+                    .sim
+                    .channels
+                    .first()
+                    .map(|x| x.name.as_str())
+                    .unwrap_or("");
+                Shown {
+                    residual: &c.sim.residual,
+                    measured: &c.sim.measured,
+                    model: &c.sim.simulated,
+                    label: name.replace('_', " "),
+                    unit: channel_unit(name, d.kind),
+                }
+            }
+        }
+    }
+}
+
+/// A time axis.
+fn time() -> Axis {
+    Axis::linear("time", "s")
+}
+
+/// A value axis in SI prefixes.
+fn value(label: &str, unit: &str) -> Axis {
+    Axis::linear(label, unit).si()
+}
+
 /// Writes the HTML report of a comparison (and, when given, a diagnosis table and an error
-/// history) as a string.
-/// Kept as one function (about 160 lines): the report page from top to bottom, each section a
-/// figure and its plot in the order the reader meets them.
+/// history) as a string: the page's head, the figures, where the residual lives, then the plots
+/// in the order the reader meets them.
 pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> String {
     let mut h = String::new();
+    head(&mut h, d, title);
+    let shown = Shown::of(d, c);
+    figures_table(&mut h, d, c);
+    residual_tables(&mut h, d, c, shown.unit);
+    h.push_str(extra_html);
+    h.push_str("<h2>Plots</h2>");
+    time_plots(&mut h, d, c, &shown);
+    scatter_plots(&mut h, d, &shown);
+    windowed_plot(&mut h, d, c);
+    h.push_str("</body></html>\n");
+    h
+}
+
+/// The page's head, title and the trace it reads.
+fn head(h: &mut String, d: &AxisData, title: &str) {
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>{}</title><style>body{{font-family:sans-serif;max-width:900px;margin:auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}th{{background:#eee}}</style></head><body><h1>{}</h1>",
@@ -131,36 +201,11 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         esc(title)
     );
     let _ = write!(h, "<p>trace <code>{}</code>, axis <b>{}</b>, {} samples at {}; positions filtered zero-phase at {} Hz before differentiation.</p>", esc(&d.path.display().to_string()), esc(&d.axis), d.len(), si(d.dt, "s"), sig(d.cutoff_hz));
-    let (pos_unit, vel_unit, torque_unit, load_unit) = units(d.kind);
-    let (residual, meas, model, ylabel, unit) = match &c.eq {
-        Some(e) => (
-            &e.residual,
-            &e.measured,
-            &e.model,
-            if torque_unit == "N" {
-                "force"
-            } else {
-                "torque"
-            }
-            .to_string(),
-            torque_unit,
-        ),
-        None => {
-            let name = c
-                .sim
-                .channels
-                .first()
-                .map(|x| x.name.as_str())
-                .unwrap_or("");
-            (
-                &c.sim.residual,
-                &c.sim.measured,
-                &c.sim.simulated,
-                name.replace('_', " "),
-                channel_unit(name, d.kind),
-            )
-        }
-    };
+}
+
+/// The table of figures: each channel's NRMSE and residual RMS.
+fn figures_table(h: &mut String, d: &AxisData, c: &Comparison) {
+    let (_, _, torque_unit, _) = units(d.kind);
     h.push_str("<h2>Figures</h2><table><tr><th>channel</th><th>method</th><th>NRMSE %</th><th>residual RMS</th></tr>");
     if let Some(e) = &c.eq {
         let _ = write!(h, "<tr><td>torque</td><td>equation error (inverse dynamics)</td><td>{:.2}</td><td>{}</td></tr>", e.nrmse_pct, si(e.rms, torque_unit));
@@ -177,6 +222,10 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         );
     }
     h.push_str("</table>");
+}
+
+/// Where the residual lives: its share by kind of motion, then the worst segments.
+fn residual_tables(h: &mut String, d: &AxisData, c: &Comparison, unit: &str) {
     h.push_str("<h2>Where the residual lives</h2><table><tr><th>motion</th><th>share of residual %</th><th>share of time %</th><th>RMS</th></tr>");
     for s in &c.by_kind {
         let _ = write!(
@@ -201,15 +250,18 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         );
     }
     h.push_str("</table>");
-    h.push_str(extra_html);
-    let time = || Axis::linear("time", "s");
-    let value = |label: &str, unit: &str| Axis::linear(label, unit).si();
-    h.push_str("<h2>Plots</h2>");
-    if !meas.is_empty() {
-        let (tx, my) = envelope(&d.t, meas, 1600);
-        let (tx2, sy) = envelope(&d.t, model, 1600);
+}
+
+/// The plots over time: measurement against model, the controller channel where it departs,
+/// and the residual with the worst segments shaded.
+fn time_plots(h: &mut String, d: &AxisData, c: &Comparison, shown: &Shown<'_>) {
+    let (_, _, torque_unit, _) = units(d.kind);
+    let unit = shown.unit;
+    if !shown.measured.is_empty() {
+        let (tx, my) = envelope(&d.t, shown.measured, 1600);
+        let (tx2, sy) = envelope(&d.t, shown.model, 1600);
         h.push_str(&figure(
-            Plot::new("Measurement vs model", time(), value(&ylabel, unit))
+            Plot::new("Measurement vs model", time(), value(&shown.label, unit))
                 .series(Series::line("measured", PALETTE[0], &tx, &my))
                 .series(Series::line("model", PALETTE[1], &tx2, &sy)),
         ));
@@ -237,7 +289,7 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         .take(10)
         .map(|s| (d.t[s.start], d.t[s.end - 1]))
         .collect();
-    let (tx, ry) = envelope(&d.t, residual, 1600);
+    let (tx, ry) = envelope(&d.t, shown.residual, 1600);
     h.push_str(&figure(
         Plot::new("Residual over time", time(), value("residual", unit))
             .series(Series::line(
@@ -248,6 +300,12 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
             ))
             .shade("worst 10 segments", &shade),
     ));
+}
+
+/// The residual against motor velocity, load position and motor angle, and its spectrum.
+fn scatter_plots(h: &mut String, d: &AxisData, shown: &Shown<'_>) {
+    let (pos_unit, vel_unit, _, load_unit) = units(d.kind);
+    let (residual, unit) = (shown.residual, shown.unit);
     let rs = thin(residual, 4000);
     let v = thin(&d.vm, 4000);
     h.push_str(&figure(
@@ -303,30 +361,33 @@ pub fn html(d: &AxisData, c: &Comparison, title: &str, extra_html: &str) -> Stri
         )
         .series(Series::line("residual", PALETTE[4], &f, &amp)),
     ));
-    if c.eq.is_some() && !c.sim.measured.is_empty() {
-        let (tx, my) = envelope(&d.t, &c.sim.measured, 1600);
-        let (tx2, sy) = envelope(&d.t, &c.sim.simulated, 1600);
-        let name = c
-            .sim
-            .channels
-            .first()
-            .map(|x| x.name.clone())
-            .unwrap_or_default();
-        h.push_str(&figure(
-            Plot::new(
-                &format!(
-                    "Windowed simulation ({}, {:.0} ms windows): {}",
-                    c.sim.mode,
-                    c.sim.window_s * 1e3,
-                    name.replace('_', " ")
-                ),
-                time(),
-                value(&name.replace('_', " "), channel_unit(&name, d.kind)),
-            )
-            .series(Series::line("measured", PALETTE[0], &tx, &my))
-            .series(Series::line("simulated", PALETTE[1], &tx2, &sy)),
-        ));
+}
+
+/// The windowed simulation against the measurement, when the headline plots showed the torque.
+fn windowed_plot(h: &mut String, d: &AxisData, c: &Comparison) {
+    if c.eq.is_none() || c.sim.measured.is_empty() {
+        return;
     }
-    h.push_str("</body></html>\n");
-    h
+    let (tx, my) = envelope(&d.t, &c.sim.measured, 1600);
+    let (tx2, sy) = envelope(&d.t, &c.sim.simulated, 1600);
+    let name = c
+        .sim
+        .channels
+        .first()
+        .map(|x| x.name.clone())
+        .unwrap_or_default();
+    h.push_str(&figure(
+        Plot::new(
+            &format!(
+                "Windowed simulation ({}, {:.0} ms windows): {}",
+                c.sim.mode,
+                c.sim.window_s * 1e3,
+                name.replace('_', " ")
+            ),
+            time(),
+            value(&name.replace('_', " "), channel_unit(&name, d.kind)),
+        )
+        .series(Series::line("measured", PALETTE[0], &tx, &my))
+        .series(Series::line("simulated", PALETTE[1], &tx2, &sy)),
+    ));
 }
