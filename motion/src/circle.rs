@@ -128,35 +128,8 @@ impl Trajectory for Circle {
 }
 
 /// `kind = "circle"`.
-/// Kept as one function (about 105 lines): it reads every key of a circle in one place, so the
-/// accepted keys and their checks stand together.
 pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
-    let plane = match f.opt_str_array("axes")? {
-        Some(names) => {
-            if names.len() != 2 {
-                return Err(f.error(
-                    "axes",
-                    format!("must name exactly two axes, got {}", names.len()),
-                ));
-            }
-            let a = ctx.axis_index(&f, "axes", &names[0])?;
-            let b = ctx.axis_index(&f, "axes", &names[1])?;
-            if a == b {
-                return Err(f.error("axes", "must name two different axes"));
-            }
-            [a, b]
-        }
-        None if ctx.axes.len() == 2 => [0, 1],
-        None => {
-            return Err(f.error(
-                "axes",
-                format!(
-                    "is required when the job does not have exactly two axes (axes: {})",
-                    ctx.axes.join(", ")
-                ),
-            ))
-        }
-    };
+    let plane = plane(&mut f, ctx)?;
     let center = f
         .opt_f64_array("center_m")?
         .ok_or_else(|| f.error("center_m", "is required: [x, y] of the centre, m"))?;
@@ -170,18 +143,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     let feed = f.f64("feed_m_per_s", Range::Positive)?;
     let turns = f.f64_or("turns", Range::Positive, 1.0)?;
     // (direction of the first pass, whether it turns back the other way afterwards)
-    let (direction, both_ways) = match f.opt_str("direction")?.unwrap_or("ccw") {
-        "ccw" => (1.0, false),
-        "cw" => (-1.0, false),
-        "ccw_cw" => (1.0, true),
-        "cw_ccw" => (-1.0, true),
-        other => {
-            return Err(f.error(
-                "direction",
-                format!("unknown direction `{other}` (ccw, cw, ccw_cw, cw_ccw)"),
-            ))
-        }
-    };
+    let (direction, both_ways) = direction(&mut f)?;
     let start_angle_rad = f.f64_or("start_angle_rad", Range::Finite, 0.0)?;
     let ramp_s = f.f64_or("ramp_s", Range::Positive, 0.1)?;
     ctx.at_least_periods(&f, "ramp_s", ramp_s, 2.0)?;
@@ -206,20 +168,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         ));
     }
     f.finish()?;
-    let mut b = Builder::new(&[0.0]);
-    b.hold(before);
-    b.smooth_velocity_change(ramp_s, &[feed]);
-    b.cruise(cruise_s);
-    b.smooth_velocity_change(ramp_s, &[-feed]);
-    if both_ways {
-        // At rest, then the same arc back the other way, to the start.
-        b.hold(between);
-        b.smooth_velocity_change(ramp_s, &[-feed]);
-        b.cruise(cruise_s);
-        b.smooth_velocity_change(ramp_s, &[feed]);
-    }
-    b.hold(after);
-    let (arc, windows) = b.finish();
+    let (arc, windows) = arc_profile(feed, ramp_s, cruise_s, both_ways, [before, between, after]);
     let cruise = windows
         .iter()
         .zip([feed, -feed])
@@ -236,6 +185,77 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
         windows,
         cruise,
     }))
+}
+
+/// The plane's two axes (`axes`, or the job's own two).
+fn plane(f: &mut Fields, ctx: &Ctx) -> Result<[usize; 2], ConfigError> {
+    Ok(match f.opt_str_array("axes")? {
+        Some(names) => {
+            if names.len() != 2 {
+                return Err(f.error(
+                    "axes",
+                    format!("must name exactly two axes, got {}", names.len()),
+                ));
+            }
+            let a = ctx.axis_index(f, "axes", &names[0])?;
+            let b = ctx.axis_index(f, "axes", &names[1])?;
+            if a == b {
+                return Err(f.error("axes", "must name two different axes"));
+            }
+            [a, b]
+        }
+        None if ctx.axes.len() == 2 => [0, 1],
+        None => {
+            return Err(f.error(
+                "axes",
+                format!(
+                    "is required when the job does not have exactly two axes (axes: {})",
+                    ctx.axes.join(", ")
+                ),
+            ))
+        }
+    })
+}
+
+/// `direction`: the sign of the first pass, and whether it turns back the other way afterwards.
+fn direction(f: &mut Fields) -> Result<(f64, bool), ConfigError> {
+    Ok(match f.opt_str("direction")?.unwrap_or("ccw") {
+        "ccw" => (1.0, false),
+        "cw" => (-1.0, false),
+        "ccw_cw" => (1.0, true),
+        "cw_ccw" => (-1.0, true),
+        other => {
+            return Err(f.error(
+                "direction",
+                format!("unknown direction `{other}` (ccw, cw, ccw_cw, cw_ccw)"),
+            ))
+        }
+    })
+}
+
+/// The arc length's profile: dwell, smooth ramp to `feed`, cruise, ramp down (and back the
+/// other way with `both_ways`), dwell; with its cruise windows.
+fn arc_profile(
+    feed: f64,
+    ramp_s: f64,
+    cruise_s: f64,
+    both_ways: bool,
+    [before, between, after]: [f64; 3],
+) -> (PiecewisePoly, Vec<[f64; 2]>) {
+    let mut b = Builder::new(&[0.0]);
+    b.hold(before);
+    b.smooth_velocity_change(ramp_s, &[feed]);
+    b.cruise(cruise_s);
+    b.smooth_velocity_change(ramp_s, &[-feed]);
+    if both_ways {
+        // At rest, then the same arc back the other way, to the start.
+        b.hold(between);
+        b.smooth_velocity_change(ramp_s, &[-feed]);
+        b.cruise(cruise_s);
+        b.smooth_velocity_change(ramp_s, &[feed]);
+    }
+    b.hold(after);
+    b.finish()
 }
 
 #[cfg(test)]

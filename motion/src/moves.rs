@@ -212,8 +212,6 @@ enum Segment {
 }
 
 /// `kind = "sequence"`.
-/// Kept as one function (about 115 lines): it reads every key of a sequence and of its segments
-/// in one place, so the accepted keys and their checks stand together.
 pub(crate) fn sequence(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
     let zero = vec![0.0; ctx.axes.len()];
     let start = per_axis_or(&mut f, "start_m", "start_rad", ctx, Range::Finite, &zero)?;
@@ -249,84 +247,94 @@ pub(crate) fn sequence(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, 
             .as_table()
             .ok_or_else(|| ConfigError::new(file, &key, "must be a table"))?;
         let mut sf = Fields::new(t, file, &key);
-        let seg = match sf.str("kind")? {
-            "dwell" => {
-                let d = sf.f64("duration_s", Range::Positive)?;
-                ctx.at_least_periods(&sf, "duration_s", d, 1.0)?;
-                Segment::Dwell(d)
-            }
-            "move" => {
-                let to = per_axis(&mut sf, "to_m", "to_rad", ctx.axes, Range::Finite)?;
-                let by = per_axis(&mut sf, "by_m", "by_rad", ctx.axes, Range::Finite)?;
-                let has_to = to.iter().any(Option::is_some);
-                let has_by = by.iter().any(Option::is_some);
-                if has_to && has_by {
-                    return Err(sf.error(
-                        "by_m",
-                        "give either absolute targets (to_m / to_rad) or relative ones (by_m / by_rad), not both",
-                    ));
-                }
-                if !has_to && !has_by {
-                    return Err(sf.error(
-                        "to_m",
-                        "is required: absolute targets (to_m / to_rad) or relative ones (by_m / by_rad)",
-                    ));
-                }
-                let profile = profile(&mut sf, ctx)?;
-                Segment::Move {
-                    target: if has_to { to } else { by },
-                    relative: has_by,
-                    profile,
-                }
-            }
-            "ramp" => {
-                let (v, accel_s, constant_s) = ramp_keys(&mut sf, ctx)?;
-                Segment::Ramp {
-                    v,
-                    accel_s,
-                    constant_s,
-                }
-            }
-            other => {
-                return Err(sf.error(
-                    "kind",
-                    format!("unknown segment kind `{other}` (move, ramp, dwell)"),
-                ))
-            }
-        };
+        let seg = segment(&mut sf, ctx)?;
         sf.finish()?;
         segments.push(seg);
     }
     let mut b = Builder::new(&start);
     for _ in 0..repeat {
         for s in &segments {
-            match s {
-                Segment::Dwell(d) => b.hold(*d),
-                Segment::Move {
-                    target,
-                    relative,
-                    profile,
-                } => {
-                    let delta: Vec<f64> = target
-                        .iter()
-                        .zip(b.position())
-                        .map(|(t, p)| match (t, relative) {
-                            (Some(t), false) => t - p,
-                            (Some(t), true) => *t,
-                            (None, _) => 0.0,
-                        })
-                        .collect();
-                    append_move(&mut b, &delta, profile);
-                }
-                Segment::Ramp {
-                    v,
-                    accel_s,
-                    constant_s,
-                } => append_ramp(&mut b, v, *accel_s, *constant_s),
-            }
+            play(&mut b, s);
         }
     }
     Ok(finish("sequence", ctx, b))
+}
+
+/// One `[[segments]]` table: a dwell, a move (to absolute or by relative targets) or a ramp.
+fn segment(sf: &mut Fields, ctx: &Ctx) -> Result<Segment, ConfigError> {
+    Ok(match sf.str("kind")? {
+        "dwell" => {
+            let d = sf.f64("duration_s", Range::Positive)?;
+            ctx.at_least_periods(sf, "duration_s", d, 1.0)?;
+            Segment::Dwell(d)
+        }
+        "move" => {
+            let to = per_axis(sf, "to_m", "to_rad", ctx.axes, Range::Finite)?;
+            let by = per_axis(sf, "by_m", "by_rad", ctx.axes, Range::Finite)?;
+            let has_to = to.iter().any(Option::is_some);
+            let has_by = by.iter().any(Option::is_some);
+            if has_to && has_by {
+                return Err(sf.error(
+                    "by_m",
+                    "give either absolute targets (to_m / to_rad) or relative ones (by_m / by_rad), not both",
+                ));
+            }
+            if !has_to && !has_by {
+                return Err(sf.error(
+                    "to_m",
+                    "is required: absolute targets (to_m / to_rad) or relative ones (by_m / by_rad)",
+                ));
+            }
+            let profile = profile(sf, ctx)?;
+            Segment::Move {
+                target: if has_to { to } else { by },
+                relative: has_by,
+                profile,
+            }
+        }
+        "ramp" => {
+            let (v, accel_s, constant_s) = ramp_keys(sf, ctx)?;
+            Segment::Ramp {
+                v,
+                accel_s,
+                constant_s,
+            }
+        }
+        other => {
+            return Err(sf.error(
+                "kind",
+                format!("unknown segment kind `{other}` (move, ramp, dwell)"),
+            ))
+        }
+    })
+}
+
+/// Appends segment `s` to the trajectory built so far.
+fn play(b: &mut Builder, s: &Segment) {
+    match s {
+        Segment::Dwell(d) => b.hold(*d),
+        Segment::Move {
+            target,
+            relative,
+            profile,
+        } => {
+            let delta: Vec<f64> = target
+                .iter()
+                .zip(b.position())
+                .map(|(t, p)| match (t, relative) {
+                    (Some(t), false) => t - p,
+                    (Some(t), true) => *t,
+                    (None, _) => 0.0,
+                })
+                .collect();
+            append_move(b, &delta, profile);
+        }
+        Segment::Ramp {
+            v,
+            accel_s,
+            constant_s,
+        } => append_ramp(b, v, *accel_s, *constant_s),
+    }
 }
 
 #[cfg(test)]

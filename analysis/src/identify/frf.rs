@@ -2,7 +2,7 @@
 //! coherence, or the indirect estimate with an instrument (the command when the loop is closed).
 
 use rustfft::num_complex::Complex64;
-use rustfft::FftPlanner;
+use rustfft::{Fft, FftPlanner};
 
 use super::IdentifyError;
 
@@ -81,91 +81,130 @@ pub fn welch_frf_windows(
         .collect();
     let fft = FftPlanner::<f64>::new().plan_fft_forward(nseg);
     let nf = nseg / 2 + 1;
-    let mut suu = vec![0.0; nf];
-    let mut syy = vec![0.0; nf];
-    let mut suy = vec![Complex64::new(0.0, 0.0); nf];
-    let mut sru = vec![Complex64::new(0.0, 0.0); nf];
-    let mut sry = vec![Complex64::new(0.0, 0.0); nf];
-    let mut srr = vec![0.0; nf];
-    let mut segments = 0;
-    let seg_fft = |x: &[f64]| -> Vec<Complex64> {
-        let mean = x.iter().sum::<f64>() / x.len() as f64;
-        let mut buf: Vec<Complex64> = x
-            .iter()
-            .zip(&window)
-            .map(|(v, w)| Complex64::new((v - mean) * w, 0.0))
-            .collect();
-        fft.process(&mut buf);
-        buf
-    };
+    let mut sums = Spectra::new(nf);
     let mut per_window = Vec::with_capacity(windows.len());
     for &(w0, w1) in windows {
         let w1 = w1.min(n);
-        let before = segments;
+        let before = sums.segments;
         let mut start = w0;
         while start + nseg <= w1 {
-            let fu = seg_fft(&u[start..start + nseg]);
-            let fy = seg_fft(&y[start..start + nseg]);
-            let fr = r.map(|r| seg_fft(&r[start..start + nseg]));
-            for k in 0..nf {
-                suu[k] += fu[k].norm_sqr();
-                syy[k] += fy[k].norm_sqr();
-                suy[k] += fu[k].conj() * fy[k];
-                if let Some(fr) = &fr {
-                    sru[k] += fr[k].conj() * fu[k];
-                    sry[k] += fr[k].conj() * fy[k];
-                    srr[k] += fr[k].norm_sqr();
-                }
-            }
-            segments += 1;
+            let seg = |x: &[f64]| segment_fft(&x[start..start + nseg], &window, fft.as_ref());
+            let fu = seg(u);
+            let fy = seg(y);
+            let fr = r.map(seg);
+            sums.add(&fu, &fy, fr.as_deref());
             start += hop;
         }
-        per_window.push(segments - before);
+        per_window.push(sums.segments - before);
     }
     let df = 1.0 / (nseg as f64 * dt);
-    let mut f_hz = Vec::with_capacity(nf);
-    let mut h = Vec::with_capacity(nf);
-    let mut coherence = Vec::with_capacity(nf);
-    let mut coherence_instrument = Vec::new();
-    for k in 0..nf {
-        if r.is_some() {
-            let c = |s: Complex64, p: f64| {
-                if srr[k] > 0.0 && p > 0.0 {
-                    s.norm_sqr() / (srr[k] * p)
-                } else {
-                    0.0
-                }
-            };
-            coherence_instrument.push((c(sru[k], suu[k]), c(sry[k], syy[k])));
+    Ok((sums.frf(df, r.is_some()), per_window))
+}
+
+/// The spectrum of one segment `x`, its mean removed, through `window`.
+fn segment_fft(x: &[f64], window: &[f64], fft: &dyn Fft<f64>) -> Vec<Complex64> {
+    let mean = x.iter().sum::<f64>() / x.len() as f64;
+    let mut buf: Vec<Complex64> = x
+        .iter()
+        .zip(window)
+        .map(|(v, w)| Complex64::new((v - mean) * w, 0.0))
+        .collect();
+    fft.process(&mut buf);
+    buf
+}
+
+/// Auto and cross spectra of torque `u`, response `y` and instrument `r`, summed over segments.
+struct Spectra {
+    suu: Vec<f64>,
+    syy: Vec<f64>,
+    suy: Vec<Complex64>,
+    sru: Vec<Complex64>,
+    sry: Vec<Complex64>,
+    srr: Vec<f64>,
+    segments: usize,
+}
+
+impl Spectra {
+    fn new(nf: usize) -> Self {
+        Spectra {
+            suu: vec![0.0; nf],
+            syy: vec![0.0; nf],
+            suy: vec![Complex64::new(0.0, 0.0); nf],
+            sru: vec![Complex64::new(0.0, 0.0); nf],
+            sry: vec![Complex64::new(0.0, 0.0); nf],
+            srr: vec![0.0; nf],
+            segments: 0,
         }
-        f_hz.push(k as f64 * df);
-        let hk = if r.is_some() {
-            if sru[k].norm() > 0.0 {
-                sry[k] / sru[k]
+    }
+
+    /// Adds one segment's spectra.
+    fn add(&mut self, fu: &[Complex64], fy: &[Complex64], fr: Option<&[Complex64]>) {
+        for k in 0..self.suu.len() {
+            self.suu[k] += fu[k].norm_sqr();
+            self.syy[k] += fy[k].norm_sqr();
+            self.suy[k] += fu[k].conj() * fy[k];
+            if let Some(fr) = fr {
+                self.sru[k] += fr[k].conj() * fu[k];
+                self.sry[k] += fr[k].conj() * fy[k];
+                self.srr[k] += fr[k].norm_sqr();
+            }
+        }
+        self.segments += 1;
+    }
+
+    /// The response on bins `df` Hz apart: `sry / sru` with an instrument, else `suy / suu`.
+    fn frf(self, df: f64, instrument: bool) -> Frf {
+        let Spectra {
+            suu,
+            syy,
+            suy,
+            sru,
+            sry,
+            srr,
+            segments,
+        } = self;
+        let nf = suu.len();
+        let mut f_hz = Vec::with_capacity(nf);
+        let mut h = Vec::with_capacity(nf);
+        let mut coherence = Vec::with_capacity(nf);
+        let mut coherence_instrument = Vec::new();
+        for k in 0..nf {
+            if instrument {
+                let c = |s: Complex64, p: f64| {
+                    if srr[k] > 0.0 && p > 0.0 {
+                        s.norm_sqr() / (srr[k] * p)
+                    } else {
+                        0.0
+                    }
+                };
+                coherence_instrument.push((c(sru[k], suu[k]), c(sry[k], syy[k])));
+            }
+            f_hz.push(k as f64 * df);
+            let hk = if instrument {
+                if sru[k].norm() > 0.0 {
+                    sry[k] / sru[k]
+                } else {
+                    Complex64::new(0.0, 0.0)
+                }
+            } else if suu[k] > 0.0 {
+                suy[k] / suu[k]
             } else {
                 Complex64::new(0.0, 0.0)
-            }
-        } else if suu[k] > 0.0 {
-            suy[k] / suu[k]
-        } else {
-            Complex64::new(0.0, 0.0)
-        };
-        h.push(hk);
-        let c = if suu[k] > 0.0 && syy[k] > 0.0 {
-            suy[k].norm_sqr() / (suu[k] * syy[k])
-        } else {
-            0.0
-        };
-        coherence.push(c);
-    }
-    Ok((
+            };
+            h.push(hk);
+            let c = if suu[k] > 0.0 && syy[k] > 0.0 {
+                suy[k].norm_sqr() / (suu[k] * syy[k])
+            } else {
+                0.0
+            };
+            coherence.push(c);
+        }
         Frf {
             f_hz,
             h,
             coherence,
             segments,
             coherence_instrument,
-        },
-        per_window,
-    ))
+        }
+    }
 }

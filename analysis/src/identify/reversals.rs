@@ -139,50 +139,12 @@ pub fn reversal_effects(
     let (Some(m), Some(l)) = (motor, load) else {
         return Some(e);
     };
-    // motor units per load unit: the travel of each window, motor over load
-    let (mut sml, mut sll) = (0.0, 0.0);
-    for &(a, b, _) in windows {
-        let (dm, dl) = (m[b - 1] - m[a], l[b - 1] - l[a]);
-        sml += dm * dl;
-        sll += dl * dl;
-    }
-    if sll.is_nan() || sll <= 0.0 {
+    let Some(r) = travel_ratio(m, l, windows) else {
         return Some(e);
-    }
-    let r = sml / sll;
-    // the deflection near each side of the reversal: the last quarter of the window before, the
-    // first quarter of the one after
-    let lost: Vec<f64> = pairs
-        .iter()
-        .map(|&(i, j)| {
-            let (a0, b0, _) = windows[i];
-            let (a1, b1, _) = windows[j];
-            let before = (b0 - (b0 - a0) / 4)..b0;
-            let after = a1..(a1 + (b1 - a1) / 4);
-            let defl = |k: std::ops::Range<usize>| {
-                let n = k.len().max(1) as f64;
-                k.map(|k| m[k] - r * l[k]).sum::<f64>() / n
-            };
-            (defl(before) - defl(after)).abs() / r.abs()
-        })
-        .collect();
+    };
+    let lost = lost_motions(m, l, r, windows, &pairs);
     let (lm, lm_ci) = mean_ci(&lost);
-    let len = ((0.001 / dt).round() as usize).max(1);
-    let (swings, lopsided): (Vec<f64>, Vec<f64>) = windows
-        .iter()
-        .filter_map(|&(a, b, _)| {
-            let (a, b) = (a + (b - a) / 4, b - (b - a) / 4);
-            let defl: Vec<f64> = (a..b).map(|k| (m[k] - r * l[k]) / r).collect();
-            let d = moving_average(&defl, len);
-            if d.len() < 100 {
-                return None;
-            }
-            let (lo, mid, hi) = (quantile(&d, 0.005), quantile(&d, 0.5), quantile(&d, 0.995));
-            // lifting off the flank moves the deflection one way only: towards the gap's middle
-            let lopsided = (hi - mid).max(mid - lo) / (hi - mid).min(mid - lo).max(1e-15);
-            Some((hi - lo, lopsided))
-        })
-        .unzip();
+    let (swings, lopsided) = flank_swings(m, l, r, dt, windows);
     if !swings.is_empty() {
         e.flank_swing_m = Some(quantile(&swings, 0.5));
         e.flank_lopsided = Some(quantile(&lopsided, 0.5));
@@ -196,16 +158,7 @@ pub fn reversal_effects(
     e.lost_motion_m = Some(lm);
     e.lost_motion_ci_m = Some(lm_ci);
     e.elastic_m = Some(elastic);
-    // what the load measurement resolves: twice its quantum (the smallest gap between the
-    // distinct values it recorded), and never below 1 nm
-    let mut levels: Vec<f64> = l.iter().copied().filter(|x| x.is_finite()).collect();
-    levels.sort_by(f64::total_cmp);
-    let quantum = levels
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .filter(|d| *d > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let floor = (2.0 * quantum).clamp(MIN_DEAD_BAND_M, f64::MAX);
+    let floor = load_resolution(l);
     e.resolution_m = Some(floor);
     e.backlash_seen = lm - lm_ci > elastic + floor;
     e.backlash_m = Some((lm - elastic).max(0.0));
@@ -215,6 +168,87 @@ pub fn reversal_effects(
                 .zip(e.backlash_m)
                 .is_some_and(|(sw, gap)| sw > 0.5 * gap));
     Some(e)
+}
+
+/// Motor units per load unit: the travel of each window, motor over load (least squares);
+/// `None` without load travel.
+fn travel_ratio(m: &[f64], l: &[f64], windows: &[(usize, usize, i8)]) -> Option<f64> {
+    let (mut sml, mut sll) = (0.0, 0.0);
+    for &(a, b, _) in windows {
+        let (dm, dl) = (m[b - 1] - m[a], l[b - 1] - l[a]);
+        sml += dm * dl;
+        sll += dl * dl;
+    }
+    if sll.is_nan() || sll <= 0.0 {
+        return None;
+    }
+    Some(sml / sll)
+}
+
+/// The lost motion at each reversal of `pairs`, load units: the shift of the deflection (motor
+/// less `r` times load) near each side of the reversal, the last quarter of the window before
+/// against the first quarter of the one after.
+fn lost_motions(
+    m: &[f64],
+    l: &[f64],
+    r: f64,
+    windows: &[(usize, usize, i8)],
+    pairs: &[(usize, usize)],
+) -> Vec<f64> {
+    pairs
+        .iter()
+        .map(|&(i, j)| {
+            let (a0, b0, _) = windows[i];
+            let (a1, b1, _) = windows[j];
+            let before = (b0 - (b0 - a0) / 4)..b0;
+            let after = a1..(a1 + (b1 - a1) / 4);
+            let defl = |k: std::ops::Range<usize>| {
+                let n = k.len().max(1) as f64;
+                k.map(|k| m[k] - r * l[k]).sum::<f64>() / n
+            };
+            (defl(before) - defl(after)).abs() / r.abs()
+        })
+        .collect()
+}
+
+/// The deflection's swing within each window's middle half (range holding 99 % of it, averaged
+/// over 1 ms) and how lopsided it is about its median; windows too short are left out.
+fn flank_swings(
+    m: &[f64],
+    l: &[f64],
+    r: f64,
+    dt: f64,
+    windows: &[(usize, usize, i8)],
+) -> (Vec<f64>, Vec<f64>) {
+    let len = ((0.001 / dt).round() as usize).max(1);
+    windows
+        .iter()
+        .filter_map(|&(a, b, _)| {
+            let (a, b) = (a + (b - a) / 4, b - (b - a) / 4);
+            let defl: Vec<f64> = (a..b).map(|k| (m[k] - r * l[k]) / r).collect();
+            let d = moving_average(&defl, len);
+            if d.len() < 100 {
+                return None;
+            }
+            let (lo, mid, hi) = (quantile(&d, 0.005), quantile(&d, 0.5), quantile(&d, 0.995));
+            // lifting off the flank moves the deflection one way only: towards the gap's middle
+            let lopsided = (hi - mid).max(mid - lo) / (hi - mid).min(mid - lo).max(1e-15);
+            Some((hi - lo, lopsided))
+        })
+        .unzip()
+}
+
+/// What the load measurement resolves: twice its quantum (the smallest gap between the
+/// distinct values it recorded), and never below [`MIN_DEAD_BAND_M`].
+fn load_resolution(l: &[f64]) -> f64 {
+    let mut levels: Vec<f64> = l.iter().copied().filter(|x| x.is_finite()).collect();
+    levels.sort_by(f64::total_cmp);
+    let quantum = levels
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    (2.0 * quantum).clamp(MIN_DEAD_BAND_M, f64::MAX)
 }
 
 /// Moving average over `n` samples (centred; the ends average what they have).

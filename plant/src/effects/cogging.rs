@@ -23,6 +23,11 @@ use feedloop_model::params::{ConfigError, Fields, Range};
 
 use super::{check_keys, put, Ctx};
 
+/// The key of a period along the travel, m (also a pitch error's period).
+pub const PERIOD_M: &str = "period_m";
+/// The key of a phase, rad (also a pitch error's phase).
+pub const PHASE_RAD: &str = "phase_rad";
+
 /// One cogging harmonic in motor units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct CoggingHarmonic {
@@ -77,17 +82,17 @@ impl CoggingParams {
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
         if ctx.kind == AxisKind::Rigid {
-            check_keys(f, table, &["amplitude_n", "period_m", "phase_rad"])?;
+            check_keys(f, table, &["amplitude_n", PERIOD_M, PHASE_RAD])?;
             let amplitude = f.f64("amplitude_n", Range::NonNegative)?;
-            let period_m = f.f64("period_m", Range::Positive)?;
-            let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+            let period_m = f.f64(PERIOD_M, Range::Positive)?;
+            let phase_rad = f.f64_or(PHASE_RAD, Range::Finite, 0.0)?;
             return Ok(Self {
                 amplitude,
                 period: CoggingPeriod::Metres(period_m),
                 phase_rad,
             });
         }
-        check_keys(f, table, &["amplitude_nm", "periods_per_rev", "phase_rad"])?;
+        check_keys(f, table, &["amplitude_nm", "periods_per_rev", PHASE_RAD])?;
         let amplitude = f.f64("amplitude_nm", Range::NonNegative)?;
         let n = f.opt_i64("periods_per_rev", 1, 100_000)?.ok_or_else(|| {
             f.error(
@@ -95,7 +100,7 @@ impl CoggingParams {
                 "is required but missing (a positive integer)",
             )
         })?;
-        let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+        let phase_rad = f.f64_or(PHASE_RAD, Range::Finite, 0.0)?;
         Ok(Self {
             amplitude,
             period: CoggingPeriod::PerRev(n),
@@ -109,14 +114,14 @@ impl CoggingParams {
         match self.period {
             CoggingPeriod::Metres(p) => {
                 put(&mut t, "amplitude_n", self.amplitude);
-                put(&mut t, "period_m", p);
+                put(&mut t, PERIOD_M, p);
             }
             CoggingPeriod::PerRev(n) => {
                 put(&mut t, "amplitude_nm", self.amplitude);
                 t.insert("periods_per_rev".into(), toml::Value::Integer(n));
             }
         }
-        put(&mut t, "phase_rad", self.phase_rad);
+        put(&mut t, PHASE_RAD, self.phase_rad);
         t
     }
 

@@ -20,7 +20,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, Ctx};
+use super::{one_table, read_one, Ctx};
 
 /// `[effects.constant_force]`: the force on the load, N (`force_n`), or the torque on a rotary
 /// axis, N m (`torque_nm`); positive along +x.
@@ -46,17 +46,13 @@ impl ConstantForceParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        let key = key(ctx.kind);
-        check_keys(f, table, &[key])?;
-        let value = f.f64(key, Range::Finite)?;
+        let value = read_one(f, table, key(ctx.kind), Range::Finite)?;
         Ok(Self { value })
     }
 
     /// The model-file table.
     pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        let mut t = toml::Table::new();
-        put(&mut t, key(ctx.kind), self.value);
-        t
+        one_table(key(ctx.kind), self.value)
     }
 
     /// The load torque in motor units.

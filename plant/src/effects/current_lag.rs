@@ -16,7 +16,7 @@
 use feedloop_model::params::{ConfigError, Fields, Range};
 use nalgebra::DMatrix;
 
-use super::{check_keys, put};
+use super::{one_table, read_one};
 
 /// Mean over a period of the share of the distance to the held command still left:
 /// `tau / period (1 - exp(-period / tau))` (the applied torque is its [`relax`] by this).
@@ -49,15 +49,12 @@ pub struct CurrentLagParams {
 impl CurrentLagParams {
     /// Reads `[effects.current_lag]`.
     pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
-        check_keys(f, table, &["tau_s"])?;
-        let tau_s = f.f64("tau_s", Range::Within(1e-9, 10.0))?;
+        let tau_s = read_one(f, table, "tau_s", Range::Within(1e-9, 10.0))?;
         Ok(Self { tau_s })
     }
 
     /// The model-file table.
     pub fn to_table(&self) -> toml::Table {
-        let mut t = toml::Table::new();
-        put(&mut t, "tau_s", self.tau_s);
-        t
+        one_table("tau_s", self.tau_s)
     }
 }

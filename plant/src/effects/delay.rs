@@ -18,6 +18,9 @@ use feedloop_model::params::{ConfigError, Fields};
 
 use super::check_keys;
 
+/// The key of the delay in whole control periods.
+pub const DELAY_CYCLES: &str = "delay_cycles";
+
 /// The delay line: the commands of the last `delay_cycles` periods (allocated when the model is
 /// built).
 #[derive(Debug, Clone)]
@@ -94,10 +97,10 @@ pub struct DelayParams {
 impl DelayParams {
     /// Reads `[effects.delay]`.
     pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
-        check_keys(f, table, &["delay_cycles"])?;
-        let n = f.opt_i64("delay_cycles", 0, 10_000)?.ok_or_else(|| {
+        check_keys(f, table, &[DELAY_CYCLES])?;
+        let n = f.opt_i64(DELAY_CYCLES, 0, 10_000)?.ok_or_else(|| {
             f.error(
-                "delay_cycles",
+                DELAY_CYCLES,
                 "is required but missing (a whole number of cycles)",
             )
         })?;
@@ -107,7 +110,7 @@ impl DelayParams {
     /// The model-file table.
     pub fn to_table(&self) -> toml::Table {
         let mut t = toml::Table::new();
-        t.insert("delay_cycles".into(), toml::Value::Integer(self.cycles));
+        t.insert(DELAY_CYCLES.into(), toml::Value::Integer(self.cycles));
         t
     }
 

@@ -221,6 +221,24 @@ pub(crate) fn put(t: &mut toml::Table, key: impl Into<String>, value: f64) {
     t.insert(key.into(), toml::Value::Float(value));
 }
 
+/// Reads a table of one number, `key` (its only key), within `range`.
+pub(crate) fn read_one(
+    f: &mut Fields<'_>,
+    table: &toml::Table,
+    key: &str,
+    range: Range,
+) -> Result<f64, ConfigError> {
+    check_keys(f, table, &[key])?;
+    f.f64(key, range)
+}
+
+/// The model-file table of one number, `key`.
+pub(crate) fn one_table(key: &str, value: f64) -> toml::Table {
+    let mut t = toml::Table::new();
+    put(&mut t, key, value);
+    t
+}
+
 /// Reads a friction table of one level per direction on the body its `side` names:
 /// `{stem}_{unit}` for positive velocity and `{stem}_neg_{unit}` for negative (default: the
 /// positive one), both >= 0, and no other key. Returns the side and the two levels.

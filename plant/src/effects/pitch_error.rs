@@ -23,6 +23,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
+use super::cogging::{PERIOD_M, PHASE_RAD};
 use super::{check_keys, put, table_error, Ctx};
 
 /// Pitch error parameters (load units, m).
@@ -79,8 +80,8 @@ impl PitchErrorParams {
     pub fn to_table(&self) -> toml::Table {
         let mut t = toml::Table::new();
         put(&mut t, "amplitude_m", self.amplitude_m);
-        put(&mut t, "period_m", self.period_m);
-        put(&mut t, "phase_rad", self.phase_rad);
+        put(&mut t, PERIOD_M, self.period_m);
+        put(&mut t, PHASE_RAD, self.phase_rad);
         put(&mut t, "slope_um_per_m", self.slope_um_per_m);
         t
     }
@@ -110,11 +111,11 @@ impl PitchErrorParams {
         check_keys(
             f,
             table,
-            &["amplitude_m", "period_m", "phase_rad", "slope_um_per_m"],
+            &["amplitude_m", PERIOD_M, PHASE_RAD, "slope_um_per_m"],
         )?;
         let amplitude_m = f.f64("amplitude_m", Range::NonNegative)?;
-        let period_m = f.f64_or("period_m", Range::Positive, lead_m)?;
-        let phase_rad = f.f64_or("phase_rad", Range::Finite, 0.0)?;
+        let period_m = f.f64_or(PERIOD_M, Range::Positive, lead_m)?;
+        let phase_rad = f.f64_or(PHASE_RAD, Range::Finite, 0.0)?;
         let slope_um = f.f64_or("slope_um_per_m", Range::Within(-1e4, 1e4), 0.0)?;
         if amplitude_m * 2.0 * std::f64::consts::PI / period_m >= 0.5 {
             return Err(f.error(

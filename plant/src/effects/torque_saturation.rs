@@ -15,7 +15,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, Ctx};
+use super::{one_table, read_one, Ctx};
 
 /// The applied command: `u` clamped to `+-limit`.
 #[inline]
@@ -47,16 +47,12 @@ impl TorqueSaturationParams {
         table: &toml::Table,
         ctx: &Ctx,
     ) -> Result<Self, ConfigError> {
-        let key = key(ctx.kind);
-        check_keys(f, table, &[key])?;
-        let limit = f.f64(key, Range::Positive)?;
+        let limit = read_one(f, table, key(ctx.kind), Range::Positive)?;
         Ok(Self { limit })
     }
 
     /// The model-file table.
     pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        let mut t = toml::Table::new();
-        put(&mut t, key(ctx.kind), self.limit);
-        t
+        one_table(key(ctx.kind), self.limit)
     }
 }
