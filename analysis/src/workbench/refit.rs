@@ -308,7 +308,7 @@ pub fn best_effect(
         needed: (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d)),
         // a base column that the effect's own columns span (the damping beside a friction with
         // viscous slopes) cannot be refitted beside it: held from the start
-        collinear: spanned_base(id, d, base),
+        collinear: held_from_start(id, model, d, base, base_now),
         p,
     };
     let (mut best, reason, best_i) = scorer.best_on(&grid);
@@ -338,6 +338,21 @@ fn search_grid(id: EffectId, model: &WbModel, d: &AxisData) -> Result<Vec<Vec<f6
     if id == EffectId::Backlash {
         if let Some(h) = backlash_hyper(model, d) {
             grid = vec![h];
+        }
+    }
+    if id == EffectId::TorqueSaturation && held_at_controller_limit(model, d) {
+        // a drive that clamps far below what its controller asks for keeps the recorded torque
+        // at the controller's limit most of the time: no quantile of the record bounds the
+        // drive's limit from below, so the search starts at a hundredth of the peak
+        if let Some(hi) = grid
+            .iter()
+            .filter_map(|h| h.first().copied())
+            .reduce(f64::max)
+        {
+            let (lo, n) = (hi / 100.0, 40);
+            grid = (0..n)
+                .map(|i| vec![lo * (hi / lo).powf(i as f64 / (n - 1) as f64)])
+                .collect();
         }
     }
     if grid.is_empty() {
@@ -380,6 +395,38 @@ fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<V
     )
     .ok()
     .map(|r| r.effect.hyper)
+}
+
+/// The base columns an effect is refitted without from the start: those its own columns span
+/// ([`spanned_base`]), and for a torque saturation on a record held at the controller's limit
+/// the inertias: where the clamp binds, the applied torque's scale and the inertia trade off
+/// exactly (a tenth of the limit fits as well with a tenth of the inertia), so the clamp is
+/// found against the inertias as they are.
+fn held_from_start(
+    id: EffectId,
+    model: &WbModel,
+    d: &AxisData,
+    base: &[&[f64]],
+    base_now: &[f64],
+) -> Vec<usize> {
+    let mut held = spanned_base(id, d, base);
+    if id == EffectId::TorqueSaturation && held_at_controller_limit(model, d) {
+        held.extend((0..base.len()).filter(|i| base_now.get(*i).is_some_and(|v| *v > 0.0)));
+        held.sort_unstable();
+        held.dedup();
+    }
+    held
+}
+
+/// Whether the recorded torque sits at the model's controller limit (within 0.1 %) for at least
+/// 1 % of the samples: the loop asked for all it may, the motion could not follow.
+pub(super) fn held_at_controller_limit(model: &WbModel, d: &AxisData) -> bool {
+    let (Some(lim), Some(y)) = (model.file.controller.torque_limit, &d.torque_raw) else {
+        return false;
+    };
+    let (a, b) = d.range;
+    let at = y[a..b].iter().filter(|x| x.abs() >= 0.999 * lim).count();
+    lim > 0.0 && b > a && at * 100 >= b - a
 }
 
 /// What an effect is refitted on (the arguments of [`best_effect`]).
