@@ -576,6 +576,52 @@ fn a_drive_clamp_far_below_the_controllers_limit_is_named_saturation() {
     }
 }
 
+/// Dry friction on a record whose reversals all fall in its last blocks (a long one-way crawl,
+/// then moves back and forth), where the blocks that move one way only cannot tell friction from
+/// a constant force: named first, its level within 10 %.
+#[test]
+fn friction_with_its_reversals_only_in_the_last_blocks_is_named() {
+    let mut cmd = Vec::new();
+    let mut pos = 0.0f64;
+    // 6 s of slow travel one way (40 mm/s with a cosine start), then four 20 mm moves each way
+    let crawl = (6.0 / DT) as usize;
+    for k in 0..crawl {
+        let t = k as f64 * DT;
+        let ramp = if t < 0.5 {
+            0.5 * (1.0 - (PI * t / 0.5).cos())
+        } else {
+            1.0
+        };
+        pos += 0.04 * ramp * DT;
+        cmd.push(pos);
+    }
+    for i in 0..8 {
+        let d = if i % 2 == 0 { -0.02 } else { 0.02 };
+        let n = (0.4 / DT) as usize;
+        let start = pos;
+        for k in 1..=n {
+            let u = k as f64 / n as f64;
+            cmd.push(start + d * (u - (2.0 * PI * u).sin() / (2.0 * PI)));
+        }
+        pos = start + d;
+        cmd.extend(std::iter::repeat_n(pos, (0.05 / DT) as usize));
+    }
+    let hidden = "[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 80.0\n";
+    let tr = simulate_cmd(&format!("{}{hidden}{SENSOR}", base()), cmd);
+    let (_, _, dg) = diagnose_trace(&tr, &base());
+    let top = dg.candidates.iter().find(|c| c.significant);
+    let top = top.unwrap_or_else(|| panic!("nothing named: {}", dg.verdict));
+    assert_eq!(top.class, "friction", "{}", dg.verdict);
+    let fc = top
+        .params
+        .get("fc_n")
+        .or(top.params.get("fc_pos_n"))
+        .copied();
+    let fc = fc.unwrap_or_else(|| panic!("{:?}", top.params));
+    println!("{} fc {fc}: {}", top.effect, top.evidence);
+    assert!((fc / 80.0 - 1.0).abs() < 0.1, "fc {fc}");
+}
+
 /// A drive with velocity and torque feed-forward: with `[controller] velocity_ff` and
 /// `torque_ff_kgm2` in the model the controller channel reads the drive (the record follows the
 /// law within its noise); without them the same record departs from the law by far more.
