@@ -254,6 +254,9 @@ pub(super) fn keep(
     }
 }
 
+/// The accuracy of the best linear scales, um/m: a cumulative lead error below it is not named.
+const SCALE_ACCURACY_UM_PER_M: f64 = 1.0;
+
 /// `backlash` or `pitch_error` scored on the deflection channel (residual `rd`, base columns
 /// `dcols`: compliance and zero offset).
 pub(super) fn deflection_candidate(
@@ -301,15 +304,31 @@ pub(super) fn deflection_candidate(
     // numerical noise, however much of a residual at that level it explains
     let resolvable = rms(&e.contribution(d)[a..b]) >= DEFLECTION_FLOOR_M * load_to_motor(d);
     let params = flat(&e.to_table(kind, d.r));
+    // a lead error is a periodic error of at least that size, or a cumulative one beyond the
+    // accuracy of the best linear scales (1 um/m): a slope below that, however resolvable over
+    // the travel, is a scale's own error or a misfit of another kind
+    let lead_error = id != EffectId::PitchError
+        || params
+            .get("amplitude_m")
+            .is_some_and(|a| *a >= DEFLECTION_FLOOR_M)
+        || params
+            .get("slope_um_per_m")
+            .is_some_and(|s| s.abs() >= SCALE_ACCURACY_UM_PER_M);
     let contribution = decimate(&e.contribution(d), a, b);
-    let mut ev = if resolvable {
-        evidence(&e, d)
-    } else {
+    let mut ev = if !resolvable {
         format!(
             "{}; below the 1 nm any feed-drive encoder resolves: not significant",
             evidence(&e, d)
         )
+    } else if !lead_error {
+        format!(
+            "{}; its periodic part below 1 nm and its slope below the {SCALE_ACCURACY_UM_PER_M} um/m of the best linear scales: not significant",
+            evidence(&e, d)
+        )
+    } else {
+        evidence(&e, d)
     };
+    let resolvable = resolvable && lead_error;
     if let Some(why) = &doubtful {
         ev = format!("{ev}; {why}: doubtful, not significant");
     }
