@@ -596,6 +596,24 @@ fn tune_prints_its_figures_with_four_significant_digits() {
     }
 }
 
+/// `tune --svg` and `--apply` into folders that do not exist yet: made before the grid is
+/// computed (it computed the whole grid, then failed with exit 2 on the missing folder).
+#[test]
+fn tune_makes_the_folders_of_its_outputs() {
+    let dir = scratch("tune_folders");
+    let job = repo("examples/jobs/tune-ramp.toml");
+    let svg = dir.join("plots/tune/heat.svg");
+    let applied = dir.join("jobs/tuned/job.toml");
+    let args = cli(
+        "tune --grid kp_per_s=120:120:1,kv_nms_per_rad=9:9:1,tv_s=0.002:0.02:2",
+        &[("--job", &job), ("--svg", &svg), ("--apply", &applied)],
+    );
+    let o = run(&args);
+    assert!(o.status.success(), "{}", describe(&args, &o));
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+    assert!(std::fs::metadata(&applied).unwrap().len() > 0);
+}
+
 #[test]
 fn tune_without_axis_tunes_every_axis_of_the_xy_ramp_in_turn() {
     let d = scratch("tune-xy");

@@ -273,6 +273,14 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
     let grid = t::parse_grid(&a.grid)?;
     let weights = parse_weights(&a.weights)?;
     let (axes, skipped) = tunable_axes(&a, &job, weights)?;
+    // the folders of what is written at the end, made before the grid is computed (as `sim` and
+    // `run` make theirs): a missing folder must not cost the whole search
+    for p in a.svg.iter().chain(a.apply.iter()) {
+        if let Some(d) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(d)
+                .with_context(|| format!("{}: cannot create folder", d.display()))?;
+        }
+    }
     let tuned = tune_axes(&a, &job, &grid, weights, &axes)?;
     let several = tuned.len() > 1;
     if let Some(p) = &a.svg {
