@@ -166,8 +166,21 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("feedloop: error: {e:#}");
+            eprintln!("feedloop: error: {}", error_text(&e));
             ExitCode::from(2)
         }
     }
+}
+
+/// An error with its causes, each said once: a message that already quotes its cause (`FILE:
+/// cannot read trace: No such file or directory`) is not followed by that cause again.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !text.contains(&c) {
+            text = format!("{text}: {c}");
+        }
+    }
+    text
 }

@@ -294,3 +294,28 @@ fn trace_import_errors_name_the_source_file_and_its_line() {
     );
     assert!(!out.exists(), "a refused import wrote its output");
 }
+
+/// A file that does not exist: the message names it and says the cause once (the trace reader's
+/// message already quotes its cause, and the cause was printed again after it).
+#[test]
+fn a_missing_file_is_named_with_its_cause_said_once() {
+    let dir = scratch("missing_file");
+    let missing = dir.join("no-such-trace.csv");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/xy-x.toml");
+    let out = Command::new(bin())
+        .arg("compare")
+        .arg("--trace")
+        .arg(&missing)
+        .arg("--model")
+        .arg(&model)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&missing.display().to_string()), "{err}");
+    let cause = std::io::Error::from(std::io::ErrorKind::NotFound).to_string();
+    let said = err.matches("os error 2").count();
+    assert_eq!(said, 1, "the cause ({cause}) said {said} times: {err}");
+}
