@@ -18,6 +18,7 @@ use super::scoring::*;
 use super::signal::rms;
 use super::words::{class_of, constant_force_words, evidence, fmt, reversals};
 use feedloop_model::model::AxisKind;
+use feedloop_plant::effects::EffectParams;
 
 /// One candidate per base parameter, refitted alone.
 pub(super) fn base_parameter_candidates(
@@ -308,12 +309,8 @@ pub(super) fn deflection_candidate(
     // accuracy of the best linear scales (1 um/m): a slope below that, however resolvable over
     // the travel, is a scale's own error or a misfit of another kind
     let lead_error = id != EffectId::PitchError
-        || params
-            .get("amplitude_m")
-            .is_some_and(|a| *a >= DEFLECTION_FLOOR_M)
-        || params
-            .get("slope_um_per_m")
-            .is_some_and(|s| s.abs() >= SCALE_ACCURACY_UM_PER_M);
+        || matches!(e.to_params(kind, d.r), EffectParams::PitchError(p)
+            if p.amplitude_m >= DEFLECTION_FLOOR_M || p.slope_um_per_m.abs() >= SCALE_ACCURACY_UM_PER_M);
     let contribution = decimate(&e.contribution(d), a, b);
     let mut ev = if !resolvable {
         format!(

@@ -27,6 +27,7 @@ mod gap_sizing;
 pub mod import;
 pub mod law;
 pub mod lsq;
+mod pinned;
 pub mod refit;
 pub mod report;
 mod scoring;

@@ -12,6 +12,7 @@ use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
+use super::pinned::held_at_controller_limit;
 use super::signal::{quantile, span};
 use feedloop_model::units::sig;
 
@@ -416,17 +417,6 @@ fn held_from_start(
         held.dedup();
     }
     held
-}
-
-/// Whether the recorded torque sits at the model's controller limit (within 0.1 %) for at least
-/// 1 % of the samples: the loop asked for all it may, the motion could not follow.
-pub(super) fn held_at_controller_limit(model: &WbModel, d: &AxisData) -> bool {
-    let (Some(lim), Some(y)) = (model.file.controller.torque_limit, &d.torque_raw) else {
-        return false;
-    };
-    let (a, b) = d.range;
-    let at = y[a..b].iter().filter(|x| x.abs() >= 0.999 * lim).count();
-    lim > 0.0 && b > a && at * 100 >= b - a
 }
 
 /// What an effect is refitted on (the arguments of [`best_effect`]).
