@@ -14,3 +14,18 @@ pub fn on_path() -> Option<PathBuf> {
         .flat_map(|b| std::env::split_paths(&path).map(move |d| d.join(b)))
         .find(|p| p.is_file())
 }
+
+/// The flags every headless run of it takes here: no sandbox, GPU, QUIC, first-run page or
+/// background traffic, a 1400 x 1000 window, and a DevTools port chosen by the browser.
+pub const HEADLESS_FLAGS: [&str; 10] = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--window-size=1400,1000",
+    "--remote-debugging-port=0",
+];

@@ -151,18 +151,9 @@ impl Cdp {
 /// Starts headless Chromium with a DevTools port and opens a session on its page.
 fn chromium(browser: &Path, profile: &Path) -> (Proc, Cdp) {
     let mut child = Command::new(browser)
+        .args(feedloop_cli::browser::HEADLESS_FLAGS)
         .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
             "--hide-scrollbars",
-            "--window-size=1400,1000",
-            "--remote-debugging-port=0",
             &format!("--user-data-dir={}", profile.display()),
             "about:blank",
         ])

@@ -191,10 +191,10 @@ fn condition_deflection(
 /// (with its offset), and is significant only when that is material, so the simpler law is named
 /// unless the data ask for the richer one. The same holds for `stribeck_friction` (see below).
 pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
-    let Some(coulomb) = cands
+    let Some((coulomb, coulomb_named)) = cands
         .iter()
         .find(|c| c.effect == EffectId::CoulombFriction.id())
-        .map(|c| c.error_reduction_pct)
+        .map(|c| (c.error_reduction_pct, c.significant))
     else {
         return;
     };
@@ -221,12 +221,12 @@ pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
     // the data name, it keeps its own cut where that rise lowers the error materially beyond
     // it (a rise the data show ranks it first), else it is credited with what it adds and not
     // named
-    let coulomb_named = cands
-        .iter()
-        .any(|c| c.effect == EffectId::CoulombFriction.id() && c.significant);
+    if !coulomb_named {
+        return;
+    }
     for c in cands
         .iter_mut()
-        .filter(|c| coulomb_named && c.effect == EffectId::StribeckFriction.id() && c.significant)
+        .filter(|c| c.effect == EffectId::StribeckFriction.id() && c.significant)
     {
         let extra = c.error_reduction_pct - coulomb;
         if extra < min_pct {

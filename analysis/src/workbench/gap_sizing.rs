@@ -16,7 +16,7 @@
 use super::data::AxisData;
 use super::effects::{EffectId, WbModel};
 use super::refit::deflection;
-use super::signal::quantile;
+use super::signal::{golden_section, quantile};
 use super::window::window_sim;
 
 /// The factors of the least-squares gap tried first (half to twice it, about 12 % apart).
@@ -48,73 +48,51 @@ fn median_half_gap(model: &WbModel, i: usize, d: &AxisData) -> Option<f64> {
     (h.is_finite() && h > 0.0).then_some(h)
 }
 
-/// Resizes every `backlash` effect of `model` to the gap whose windowed simulation on `d` fits
-/// best (see the module's note). Returns, per resized effect, the least-squares gap and the
-/// windowed simulation errors before and after, in the effect's coefficient (motor units).
-pub(super) fn size_gaps_on_window(
-    model: &mut WbModel,
-    d: &AxisData,
-    window_s: f64,
-) -> Vec<(f64, f64, f64)> {
-    let mut out = Vec::new();
-    for i in 0..model.effects.len() {
-        if model.effects[i].id != EffectId::Backlash {
-            continue;
-        }
-        let g0 = model.effects[i].coef[0];
-        if !(g0.is_finite() && g0 > 0.0) {
-            continue;
-        }
-        let error_at = |g: f64| -> Option<f64> {
-            let mut trial = model.clone();
-            trial.effects[i].coef[0] = g;
-            window_sim(&trial, d, window_s)
-                .headline_nrmse_pct()
-                .filter(|e| e.is_finite())
-        };
-        let Some(e0) = error_at(g0) else { continue };
-        let mut best = (1.0, e0);
-        let mut factors: Vec<f64> = COARSE.iter().copied().filter(|f| *f != 1.0).collect();
-        if let Some(m) = median_half_gap(model, i, d).filter(|m| (m / g0 - 1.0).abs() > 0.05) {
-            factors.extend(COARSE.iter().map(|f| f * m / g0));
-        }
-        for f in factors {
-            if let Some(e) = error_at(g0 * f) {
-                if e < best.1 {
-                    best = (f, e);
-                }
-            }
-        }
-        // golden section on the log of the factor, within one coarse step each side
-        let step = 1.122f64.ln();
-        let (mut lo, mut hi) = (best.0.ln() - step, best.0.ln() + step);
-        let phi = (5f64.sqrt() - 1.0) / 2.0;
-        let at = |x: f64, best: &mut (f64, f64)| {
-            let e = error_at(g0 * x.exp()).unwrap_or(f64::INFINITY);
-            if e < best.1 {
-                *best = (x.exp(), e);
-            }
-            e
-        };
-        let (mut a, mut b) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
-        let (mut ea, mut eb) = (at(a, &mut best), at(b, &mut best));
-        for _ in 0..GOLDEN_STEPS {
-            if ea < eb {
-                hi = b;
-                (b, eb) = (a, ea);
-                a = hi - phi * (hi - lo);
-                ea = at(a, &mut best);
-            } else {
-                lo = a;
-                (a, ea) = (b, eb);
-                b = lo + phi * (hi - lo);
-                eb = at(b, &mut best);
-            }
-        }
-        if best.0 != 1.0 {
-            model.effects[i].coef[0] = g0 * best.0;
-            out.push((g0, e0, best.1));
+/// Resizes the `backlash` effect of `model` to the gap whose windowed simulation on `d` fits
+/// best (see the module's note); a model without one, or without a windowed simulation, is
+/// left as it is.
+pub(super) fn size_gaps_on_window(model: &mut WbModel, d: &AxisData, window_s: f64) {
+    let Some(i) = model
+        .effects
+        .iter()
+        .position(|e| e.id == EffectId::Backlash)
+    else {
+        return;
+    };
+    let g0 = model.effects[i].coef[0];
+    if !(g0.is_finite() && g0 > 0.0) {
+        return;
+    }
+    let error_at = |g: f64| -> Option<f64> {
+        let mut trial = model.clone();
+        trial.effects[i].coef[0] = g;
+        window_sim(&trial, d, window_s)
+            .headline_nrmse_pct()
+            .filter(|e| e.is_finite())
+    };
+    let Some(e0) = error_at(g0) else { return };
+    // (factor of the least-squares gap, its windowed simulation error)
+    let mut best = (1.0, e0);
+    let mut factors: Vec<f64> = COARSE.iter().copied().filter(|f| *f != 1.0).collect();
+    if let Some(m) = median_half_gap(model, i, d).filter(|m| (m / g0 - 1.0).abs() > 0.05) {
+        factors.extend(COARSE.iter().map(|f| f * m / g0));
+    }
+    for f in factors {
+        if let Some(e) = error_at(g0 * f).filter(|e| *e < best.1) {
+            best = (f, e);
         }
     }
-    out
+    // golden section on the log of the factor, within one coarse step each side, keeping the
+    // best point it evaluates
+    let step = 1.122f64.ln();
+    golden_section(best.0.ln() - step, best.0.ln() + step, GOLDEN_STEPS, |x| {
+        let e = error_at(g0 * x.exp()).unwrap_or(f64::INFINITY);
+        if e < best.1 {
+            best = (x.exp(), e);
+        }
+        e
+    });
+    if best.0 != 1.0 {
+        model.effects[i].coef[0] = g0 * best.0;
+    }
 }

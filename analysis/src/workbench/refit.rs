@@ -13,7 +13,7 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::lsq::{blocks, cross_validate, normals_masked, Cv};
 use super::pinned::held_at_controller_limit;
-use super::signal::{quantile, span};
+use super::signal::{golden_section, quantile, span};
 use feedloop_model::units::sig;
 
 /// Folds of the blocked cross-validation.
@@ -73,11 +73,6 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
     )
     .max(1e-12);
     let fs = 1.0 / d.dt;
-    let logspace = |lo: f64, hi: f64, n: usize| -> Vec<f64> {
-        (0..n)
-            .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
-            .collect()
-    };
     match id {
         EffectId::StribeckFriction => {
             let mut g = Vec::new();
@@ -268,6 +263,13 @@ pub struct Refit {
 /// of `fit --add`).
 pub type Untestable = String;
 
+/// `n` values from `lo` to `hi`, evenly spaced on a log scale.
+fn logspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+        .collect()
+}
+
 /// Best-scoring variant of effect `id` on `y` with `base` columns free (see [`Refit`]).
 /// `base_now` holds the current values of the base parameters whose columns are `base` (0 for
 /// those not checked, empty when those columns are not base parameters; see [`inertias_now`]):
@@ -350,9 +352,9 @@ fn search_grid(id: EffectId, model: &WbModel, d: &AxisData) -> Result<Vec<Vec<f6
             .filter_map(|h| h.first().copied())
             .reduce(f64::max)
         {
-            let (lo, n) = (hi / 100.0, 40);
-            grid = (0..n)
-                .map(|i| vec![lo * (hi / lo).powf(i as f64 / (n - 1) as f64)])
+            grid = logspace(hi / 100.0, hi, 40)
+                .into_iter()
+                .map(|l| vec![l])
                 .collect();
         }
     }
@@ -545,30 +547,12 @@ impl Scorer<'_> {
     fn refine(&self, grid: &[Vec<f64>], best_i: usize) -> Option<Refit> {
         let lo = grid[best_i.saturating_sub(1)][0].ln();
         let hi = grid[(best_i + 1).min(grid.len() - 1)][0].ln();
-        let g = 0.5 * (5f64.sqrt() - 1.0);
-        let (mut a, mut b) = (lo, hi);
         let score = |x: f64| {
             self.eval(vec![x.exp()])
                 .map(|r| r.cv.rms)
                 .unwrap_or(f64::INFINITY)
         };
-        let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
-        let (mut fc, mut fd) = (score(c), score(dd));
-        for _ in 0..12 {
-            if fc < fd {
-                b = dd;
-                dd = c;
-                fd = fc;
-                c = b - g * (b - a);
-                fc = score(c);
-            } else {
-                a = c;
-                c = dd;
-                fc = fd;
-                dd = a + g * (b - a);
-                fd = score(dd);
-            }
-        }
+        let (a, b) = golden_section(lo, hi, 12, score);
         self.eval(vec![(0.5 * (a + b)).exp()]).ok()
     }
 }

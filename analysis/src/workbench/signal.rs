@@ -277,6 +277,31 @@ pub fn autocorrelation(x: &[f64], max_lag: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Golden-section search for the minimum of `f` on `[lo, hi]`: `steps` narrowings of the
+/// bracket, each with one new evaluation; returns the last bracket.
+pub fn golden_section(lo: f64, hi: f64, steps: usize, mut f: impl FnMut(f64) -> f64) -> (f64, f64) {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = (lo, hi);
+    let (mut c, mut dd) = (b - g * (b - a), a + g * (b - a));
+    let (mut fc, mut fd) = (f(c), f(dd));
+    for _ in 0..steps {
+        if fc < fd {
+            b = dd;
+            dd = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = dd;
+            fc = fd;
+            dd = a + g * (b - a);
+            fd = f(dd);
+        }
+    }
+    (a, b)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

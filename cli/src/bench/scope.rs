@@ -339,18 +339,7 @@ impl ScopeBench<'_> {
         let profile = dir.join("browser-profile");
         let mut chrome = Command::new(&self.browser);
         chrome
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--window-size=1400,1000",
-                "--remote-debugging-port=0",
-            ])
+            .args(feedloop_cli::browser::HEADLESS_FLAGS)
             .arg(format!("--user-data-dir={}", profile.display()))
             .arg(url)
             .stdout(Stdio::null())
