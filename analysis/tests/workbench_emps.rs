@@ -14,15 +14,17 @@ use feedloop_analysis::workbench::{
 use feedloop_model::EffectId;
 use feedloop_trace::Trace;
 
+/// A record shipped in `examples/data/emps/` (see its README).
+fn shipped(name: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/data/emps")
+        .join(name);
+    assert!(p.exists(), "the shipped record {} is missing", p.display());
+    p
+}
+
 fn data_file() -> Option<PathBuf> {
-    let p =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_estimation.csv");
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipped: {} is absent", p.display());
-        None
-    }
+    Some(shipped("emps_estimation.csv"))
 }
 
 fn setup() -> Option<(WbModel, feedloop_analysis::workbench::data::AxisData)> {
@@ -143,11 +145,7 @@ fn emps_fit_with_coulomb_and_offset_reproduces_the_published_estimates() {
 fn pulses_record(
     added_input: Option<&str>,
 ) -> Option<feedloop_analysis::workbench::data::AxisData> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_pulses.csv");
-    if !p.exists() {
-        eprintln!("skipped: {} is absent", p.display());
-        return None;
-    }
+    let p = shipped("emps_pulses.csv");
     let tr = Trace::read(&p).unwrap();
     let model_path =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/emps-nominal.toml");

@@ -1,8 +1,8 @@
 //! The workbench on real records of machines nobody here made (issue 30): the EMPS benchmark and
 //! three joints of a KUKA KR300 robot (data of Weigand et al., JonasWeigand/Robot_Identification,
-//! MIT licence; see `../shared/data/kuka/README.md`). Never silently wrong: a requested effect is
+//! MIT licence; see `examples/data/kuka/README.md`). Never silently wrong: a requested effect is
 //! fitted or refused with its reason, and every effect of the library is either ranked or listed
-//! as untested with a reason. Each test is skipped, with a message, when its data are absent.
+//! as untested with a reason. The records are shipped in `examples/data/`.
 
 use std::path::{Path, PathBuf};
 
@@ -16,16 +16,13 @@ use feedloop_analysis::workbench::{
 use feedloop_model::EffectId;
 use feedloop_trace::Trace;
 
+/// A record shipped in `examples/data/` (see the README of its folder).
 fn shared(rel: &str) -> Option<PathBuf> {
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../examples/data")
         .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipped: {} is absent", p.display());
-        None
-    }
+    assert!(p.exists(), "the shipped record {} is missing", p.display());
+    Some(p)
 }
 
 fn emps() -> Option<(WbModel, AxisData)> {

@@ -1,4 +1,4 @@
-//! `feedloop learn quadrant`: the learning passes of seed 004's quadrant compensator.
+//! `feedloop learn quadrant`: the learning passes of the quadrant compensator (the quadrant-crossing patent, docs/sources.md).
 
 use std::path::PathBuf;
 use std::process::ExitCode;

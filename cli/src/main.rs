@@ -93,14 +93,14 @@ enum Command {
     },
     /// Live scope of a running loop (or of recorded traces) in the browser.
     Scope(scope::ScopeArgs),
-    /// Identification of seeds 000/001: load inertia, screw stiffness.
+    /// Identification: load inertia, screw stiffness.
     #[command(subcommand)]
     Identify(identify::IdentifyCmd),
-    /// Grid search of control parameters on the ramp test of seed 001.
+    /// Grid search of control parameters on a constant-velocity ramp test.
     Tune(identify::TuneArgs),
-    /// Write an excitation command (seed 001) as a trace a job can play.
+    /// Write an excitation command as a trace a job can play.
     Excite(identify::ExciteArgs),
-    /// Learning compensators (seed 004's quadrant compensator).
+    /// Learning compensators (the quadrant compensator).
     #[command(subcommand)]
     Learn(learn::LearnCmd),
     /// Benchmarks of the running loop.

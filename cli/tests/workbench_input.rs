@@ -247,11 +247,11 @@ fn fit_without_a_torque_column_lists_the_columns_it_has() {
     );
 }
 
-/// The EMPS estimation record (see ../shared/data/emps/README.md), when it is there.
+/// The EMPS estimation record shipped in `examples/data/emps/` (see its README).
 fn emps() -> Option<PathBuf> {
-    let p =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emps/emps_estimation.csv");
-    p.exists().then_some(p)
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/data/emps/emps_estimation.csv");
+    assert!(p.exists(), "the shipped record {} is missing", p.display());
+    Some(p)
 }
 
 #[test]

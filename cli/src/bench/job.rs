@@ -1,4 +1,4 @@
-//! The benchmark's chain as a job (the X-C grinder with the four seed controllers, written
+//! The benchmark's chain as a job (the X-C grinder with the four controllers of the patents, written
 //! beside the run) and its two processes run to the end: what `bench latency` and `bench scope`
 //! both measure.
 
@@ -16,7 +16,7 @@ const MODEL_X: &str = include_str!("../../../examples/models/xc-x.toml");
 const MODEL_C: &str = include_str!("../../../examples/models/xc-c.toml");
 const QUADRANT_TABLE: &str = include_str!("../../../examples/tables/xy-circle-quadrant.toml");
 
-/// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four seed controllers on two
+/// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four controllers of the patents on two
 /// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for
 /// `cycles`.
 pub(super) fn bench_job(

@@ -24,7 +24,7 @@ use latency::LatencyOpts;
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchCmd {
     /// Round-trip latency and period jitter of a realtime run: the X-C grinder of
-    /// `examples/jobs/xc-full-chain.toml`, all four seed controllers on two axes.
+    /// `examples/jobs/xc-full-chain.toml`, all four controllers of the patents on two axes.
     Latency {
         /// Cycles to run.
         #[arg(long, default_value_t = 100_000)]

@@ -1,5 +1,5 @@
-//! `feedloop identify inertia`: load inertia from the deviation th - thL at a load position
-//! (seed 000).
+//! `feedloop identify inertia`: load inertia from the deviation between the position command
+//! and the load position at a load position (the load-inertia patent, docs/sources.md).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -46,7 +46,7 @@ pub struct InertiaArgs {
     /// Half width of the least-squares window around --at, load units.
     #[arg(long, default_value_t = 2e-3)]
     pub window: f64,
-    /// command-load (the patent's th - thL, command minus load position) | motor-load (the
+    /// command-load (the position command minus the load position, as the load-inertia patent reads it) | motor-load (the
     /// screw's twist, motor position in load units minus load position).
     #[arg(long, value_enum, default_value = "command-load")]
     pub deviation: DeviationArg,
@@ -283,7 +283,7 @@ fn print_inertia(a: &InertiaArgs, est: &inertia::InertiaEstimate) -> anyhow::Res
     );
     if let (Some(b), Some(jc)) = (est.literal_bias_percent, est.jl_continuous_model_kgm2) {
         println!(
-            "literal feedforward: the patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
+            "literal feedforward: the load-inertia patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
         );
     }
     Ok(())

@@ -17,9 +17,9 @@ pub use tune::{tune, TuneArgs};
 /// `feedloop identify ...`.
 #[derive(clap::Subcommand, Debug)]
 pub enum IdentifyCmd {
-    /// Load inertia from the deviation th - thL at a load position (seed 000).
+    /// Load inertia from the deviation between the position command and the load position (load-inertia patent).
     Inertia(InertiaArgs),
-    /// Stiffness and load inertia from the torque -> motor velocity FRF (seed 001).
+    /// Stiffness and load inertia from the torque -> motor velocity FRF (stiffness-identification patent).
     Stiffness(StiffnessArgs),
 }
 

@@ -1,5 +1,5 @@
 //! `feedloop identify stiffness`: stiffness and load inertia from the torque -> motor velocity
-//! FRF (seed 001).
+//! FRF (the stiffness-identification patent, docs/sources.md).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
