@@ -177,6 +177,11 @@ impl<'a> Fields<'a> {
         }
     }
 
+    /// The table itself.
+    pub fn table(&self) -> &'a toml::Table {
+        self.table
+    }
+
     /// The file this table came from.
     pub fn file(&self) -> &'a Path {
         self.file
