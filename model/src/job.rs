@@ -254,11 +254,11 @@ impl Job {
         };
         let axes = read_axes(&mut f, path, dir)?;
         let chain = match f.raw("chain") {
-            Some(v) => read_chain(&f, v, path, &axes)?,
+            Some(v) => read_chain(&f, v, &axes)?,
             None => Vec::new(),
         };
         let couplers = match f.raw("couplers") {
-            Some(v) => read_couplers(&f, v, path, &axes)?,
+            Some(v) => read_couplers(&f, v, &axes)?,
             None => Vec::new(),
         };
         let safety = safety_options(f.opt_table("safety")?, path, &axes)?;
@@ -353,22 +353,36 @@ fn axis_index(axes: &[JobAxis], name: &str) -> Option<usize> {
     axes.iter().position(|a| a.name == name)
 }
 
+/// The tables of the array of tables `name` (`v`, read from `f`'s table), each with its dotted
+/// key `name[i]`; an element that is no table is an error when the iteration reaches it.
+fn array_of_tables<'a>(
+    f: &Fields<'_>,
+    v: &'a toml::Value,
+    name: &str,
+) -> Result<impl Iterator<Item = Result<(String, &'a toml::Table), ConfigError>>, ConfigError> {
+    let arr = v
+        .as_array()
+        .ok_or_else(|| f.error(name, format!("must be an array of tables ([[{name}]])")))?;
+    let (file, name) = (f.file().to_path_buf(), name.to_string());
+    Ok(arr.iter().enumerate().map(move |(i, e)| {
+        let key = format!("{name}[{i}]");
+        match e.as_table() {
+            Some(t) => Ok((key, t)),
+            None => Err(ConfigError::new(&file, &key, "must be a table")),
+        }
+    }))
+}
+
 /// The `[[chain]]` tables (`v`): one stage of one axis each, at most one per axis and stage.
 fn read_chain(
     f: &Fields<'_>,
     v: &toml::Value,
-    path: &Path,
     axes: &[JobAxis],
 ) -> Result<Vec<ChainEntry>, ConfigError> {
-    let arr = v
-        .as_array()
-        .ok_or_else(|| f.error("chain", "must be an array of tables ([[chain]])"))?;
+    let path = f.file();
     let mut chain = Vec::new();
-    for (i, e) in arr.iter().enumerate() {
-        let key = format!("chain[{i}]");
-        let t = e
-            .as_table()
-            .ok_or_else(|| ConfigError::new(path, &key, "must be a table"))?;
+    for item in array_of_tables(f, v, "chain")? {
+        let (key, t) = item?;
         let mut cf = Fields::new(t, path, &key);
         let axis = cf.str("axis")?;
         let axis = axis_index(axes, axis).ok_or_else(|| {
@@ -415,18 +429,12 @@ fn read_chain(
 fn read_couplers(
     f: &Fields<'_>,
     v: &toml::Value,
-    path: &Path,
     axes: &[JobAxis],
 ) -> Result<Vec<CouplerEntry>, ConfigError> {
-    let arr = v
-        .as_array()
-        .ok_or_else(|| f.error("couplers", "must be an array of tables ([[couplers]])"))?;
+    let path = f.file();
     let mut couplers = Vec::new();
-    for (i, e) in arr.iter().enumerate() {
-        let key = format!("couplers[{i}]");
-        let t = e
-            .as_table()
-            .ok_or_else(|| ConfigError::new(path, &key, "must be a table"))?;
+    for item in array_of_tables(f, v, "couplers")? {
+        let (key, t) = item?;
         let mut cf = Fields::new(t, path, &key);
         let plugin = cf.str("plugin")?.to_string();
         let names_v = cf.opt_str_array("axes")?.unwrap_or_default();

@@ -177,6 +177,11 @@ impl<'a> Fields<'a> {
         }
     }
 
+    /// The table itself.
+    pub fn table(&self) -> &'a toml::Table {
+        self.table
+    }
+
     /// The file this table came from.
     pub fn file(&self) -> &'a Path {
         self.file
@@ -373,56 +378,56 @@ impl<'a> Fields<'a> {
 
     /// An optional array of numbers.
     pub fn opt_f64_array(&mut self, key: &str) -> Result<Option<Vec<f64>>, ConfigError> {
-        let Some(v) = self.raw(key) else {
-            return Ok(None);
-        };
-        let arr = v.as_array().ok_or_else(|| {
-            self.wrong_type(
-                key,
-                format!("must be an array of numbers, got {}", v.type_str()),
-            )
-        })?;
-        let mut out = Vec::with_capacity(arr.len());
-        for (i, x) in arr.iter().enumerate() {
-            let f = match x {
-                toml::Value::Float(f) => *f,
+        self.opt_array(key, "numbers", |f, i, x| {
+            let v = match x {
+                toml::Value::Float(v) => *v,
                 toml::Value::Integer(n) => *n as f64,
                 other => {
-                    return Err(self.wrong_type(
+                    return Err(f.wrong_type(
                         key,
                         format!("element {i} must be a number, got {}", other.type_str()),
                     ))
                 }
             };
-            if !f.is_finite() {
-                return Err(self.out_of_range(key, format!("element {i} must be finite, got {f}")));
+            if !v.is_finite() {
+                return Err(f.out_of_range(key, format!("element {i} must be finite, got {v}")));
             }
-            out.push(f);
-        }
-        Ok(Some(out))
+            Ok(v)
+        })
     }
 
     /// An optional array of strings.
     pub fn opt_str_array(&mut self, key: &str) -> Result<Option<Vec<String>>, ConfigError> {
+        self.opt_array(key, "strings", |f, i, x| {
+            x.as_str().map(str::to_string).ok_or_else(|| {
+                f.wrong_type(
+                    key,
+                    format!("element {i} must be a string, got {}", x.type_str()),
+                )
+            })
+        })
+    }
+
+    /// An optional array of `what` (e.g. "numbers"), each element read by `elem` (given this
+    /// table, the element's index and its value); the first element refused ends the reading.
+    fn opt_array<T>(
+        &mut self,
+        key: &str,
+        what: &str,
+        elem: impl Fn(&Self, usize, &toml::Value) -> Result<T, ConfigError>,
+    ) -> Result<Option<Vec<T>>, ConfigError> {
         let Some(v) = self.raw(key) else {
             return Ok(None);
         };
         let arr = v.as_array().ok_or_else(|| {
             self.wrong_type(
                 key,
-                format!("must be an array of strings, got {}", v.type_str()),
+                format!("must be an array of {what}, got {}", v.type_str()),
             )
         })?;
         arr.iter()
             .enumerate()
-            .map(|(i, x)| {
-                x.as_str().map(str::to_string).ok_or_else(|| {
-                    self.wrong_type(
-                        key,
-                        format!("element {i} must be a string, got {}", x.type_str()),
-                    )
-                })
-            })
+            .map(|(i, x)| elem(self, i, x))
             .collect::<Result<Vec<_>, _>>()
             .map(Some)
     }

@@ -195,14 +195,7 @@ pub(crate) fn random_segments(
             format!("must be >= min_segment_s ({min_s} s), got {max_s}"),
         ));
     }
-    let tr_s = f.f64_or("transition_s", Range::Positive, 0.5 * min_s)?;
-    ctx.at_least_periods(&f, "transition_s", tr_s, 2.0)?;
-    if tr_s > min_s {
-        return Err(f.error(
-            "transition_s",
-            format!("must be <= min_segment_s ({min_s} s), got {tr_s}"),
-        ));
-    }
+    let tr_s = read_transition(&mut f, ctx, 0.5 * min_s, ("min_segment_s", min_s))?;
     let seed = f.opt_i64("seed", 0, i64::MAX)?.unwrap_or(1) as u64;
     let return_s = f.opt_f64("return_s", Range::Positive)?;
     if let Some(r) = return_s {
@@ -257,6 +250,25 @@ pub(crate) fn random_segments(
     Ok(out)
 }
 
+/// `transition_s` (default `default_s`, at least two periods), at most the key `limit` names
+/// (its name and value).
+fn read_transition(
+    f: &mut Fields,
+    ctx: &Ctx,
+    default_s: f64,
+    (limit_key, limit_s): (&str, f64),
+) -> Result<f64, ConfigError> {
+    let tr_s = f.f64_or("transition_s", Range::Positive, default_s)?;
+    ctx.at_least_periods(f, "transition_s", tr_s, 2.0)?;
+    if tr_s > limit_s {
+        return Err(f.error(
+            "transition_s",
+            format!("must be <= {limit_key} ({limit_s} s), got {tr_s}"),
+        ));
+    }
+    Ok(tr_s)
+}
+
 /// `kind = "prbs"`.
 pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
     let start = start_positions(&mut f, ctx)?;
@@ -264,14 +276,7 @@ pub(crate) fn prbs(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Conf
     let order = f.opt_i64("order", 2, 20)?.unwrap_or(9) as u32;
     let bit_s = f.f64("bit_s", Range::Positive)?;
     ctx.at_least_periods(&f, "bit_s", bit_s, 2.0)?;
-    let tr_s = f.f64_or("transition_s", Range::Positive, 0.25 * bit_s)?;
-    ctx.at_least_periods(&f, "transition_s", tr_s, 2.0)?;
-    if tr_s > bit_s {
-        return Err(f.error(
-            "transition_s",
-            format!("must be <= bit_s ({bit_s} s), got {tr_s}"),
-        ));
-    }
+    let tr_s = read_transition(&mut f, ctx, 0.25 * bit_s, ("bit_s", bit_s))?;
     let periods = f.opt_i64("periods", 1, 10_000)?.unwrap_or(1) as usize;
     let dwell_s = f.f64_or("dwell_after_s", Range::NonNegative, 0.0)?;
     let travel = traverse::read_travel(&mut f, ctx)?;

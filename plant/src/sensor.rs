@@ -75,7 +75,6 @@ pub(crate) fn parse(model: &ModelFile) -> Result<SensorParams, ConfigError> {
     };
     check_keys(
         &f,
-        &model.sensor,
         &[
             k_qm,
             k_ql,

@@ -13,8 +13,8 @@ use std::f64::consts::PI;
 
 use super::data::AxisData;
 use super::effects::{dead_band, sgn};
-use super::lsq::{blocks, cross_validate, normals, normals_masked, Cv};
-use super::refit::FOLDS;
+use super::lsq::{blocks, cross_validate, normals, Cv};
+use super::refit::{cv_cols_masked, FOLDS};
 use super::scoring::fold_wins;
 use super::signal::{filtfilt_butter4, mean, nrmse_pct, quantile, rms, span};
 
@@ -215,11 +215,11 @@ fn cv_with(
     bl: &[(usize, usize)],
     mask: Option<&[f64]>,
 ) -> Cv {
-    let mut cols: Vec<&[f64]> = base.to_vec();
-    for i in chosen {
-        cols.extend(terms[*i].cols.iter().map(|c| c.as_slice()));
-    }
-    cross_validate(&normals_masked(&cols, res, bl, mask))
+    let extra: Vec<&[f64]> = chosen
+        .iter()
+        .flat_map(|i| terms[*i].cols.iter().map(|c| c.as_slice()))
+        .collect();
+    cv_cols_masked(base, &extra, res, bl, mask)
 }
 
 /// The generic peer: a sparse regression of the residual on the dictionary, as an

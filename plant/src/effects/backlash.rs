@@ -22,7 +22,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, needs_transmission, put, Ctx};
+use super::{check_keys, needs_transmission, put, Ctx, EffectTable};
 
 /// Contact state at deflection `d` (motor units) with half gap `gap_half`: +1 driving in +, -1
 /// driving in -, 0 inside the gap.
@@ -79,27 +79,25 @@ pub struct BacklashParams {
     pub gap: f64,
 }
 
-impl BacklashParams {
+impl EffectTable for BacklashParams {
     /// Reads `[effects.backlash]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         needs_transmission(f, ctx, "backlash")?;
         let key = format!("gap_{}", ctx.load_units().pos);
-        check_keys(f, table, &[&key])?;
+        check_keys(f, &[&key])?;
         let gap = f.f64(&key, Range::NonNegative)?;
         Ok(Self { gap })
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         let mut t = toml::Table::new();
         put(&mut t, format!("gap_{}", ctx.load_units().pos), self.gap);
         t
     }
+}
 
+impl BacklashParams {
     /// The full gap in motor rad (`None` for a zero gap: no backlash).
     pub(crate) fn motor(&self, ctx: &Ctx) -> Option<f64> {
         let gap_motor = self.gap * ctx.load_units().vel_to_motor;

@@ -21,7 +21,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, Ctx};
+use super::{check_keys, put, Ctx, EffectTable};
 
 /// The key of a period along the travel, m (also a pitch error's period).
 pub const PERIOD_M: &str = "period_m";
@@ -74,15 +74,11 @@ pub struct CoggingParams {
     pub phase_rad: f64,
 }
 
-impl CoggingParams {
+impl EffectTable for CoggingParams {
     /// Reads one `[effects.cogging]` table.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         if ctx.kind == AxisKind::Rigid {
-            check_keys(f, table, &["amplitude_n", PERIOD_M, PHASE_RAD])?;
+            check_keys(f, &["amplitude_n", PERIOD_M, PHASE_RAD])?;
             let amplitude = f.f64("amplitude_n", Range::NonNegative)?;
             let period_m = f.f64(PERIOD_M, Range::Positive)?;
             let phase_rad = f.f64_or(PHASE_RAD, Range::Finite, 0.0)?;
@@ -92,7 +88,7 @@ impl CoggingParams {
                 phase_rad,
             });
         }
-        check_keys(f, table, &["amplitude_nm", "periods_per_rev", PHASE_RAD])?;
+        check_keys(f, &["amplitude_nm", "periods_per_rev", PHASE_RAD])?;
         let amplitude = f.f64("amplitude_nm", Range::NonNegative)?;
         let n = f.opt_i64("periods_per_rev", 1, 100_000)?.ok_or_else(|| {
             f.error(
@@ -109,7 +105,7 @@ impl CoggingParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self) -> toml::Table {
+    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
         let mut t = toml::Table::new();
         match self.period {
             CoggingPeriod::Metres(p) => {
@@ -124,7 +120,9 @@ impl CoggingParams {
         put(&mut t, PHASE_RAD, self.phase_rad);
         t
     }
+}
 
+impl CoggingParams {
     /// The harmonic in motor units.
     pub(crate) fn motor(&self) -> CoggingHarmonic {
         CoggingHarmonic {

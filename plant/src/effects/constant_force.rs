@@ -20,7 +20,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{one_table, read_one, Ctx};
+use super::{one_table, read_one, Ctx, EffectTable};
 
 /// `[effects.constant_force]`: the force on the load, N (`force_n`), or the torque on a rotary
 /// axis, N m (`torque_nm`); positive along +x.
@@ -39,22 +39,20 @@ fn key(kind: AxisKind) -> &'static str {
     }
 }
 
-impl ConstantForceParams {
+impl EffectTable for ConstantForceParams {
     /// Reads `[effects.constant_force]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
-        let value = read_one(f, table, key(ctx.kind), Range::Finite)?;
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
+        let value = read_one(f, key(ctx.kind), Range::Finite)?;
         Ok(Self { value })
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         one_table(key(ctx.kind), self.value)
     }
+}
 
+impl ConstantForceParams {
     /// The load torque in motor units.
     pub(crate) fn motor(&self, ctx: &Ctx) -> f64 {
         self.value * ctx.load_units().torque_to_motor

@@ -24,7 +24,7 @@
 
 use feedloop_model::params::{ConfigError, Fields};
 
-use super::{level_pair_table, read_level_pair, stribeck_friction, Ctx, Side};
+use super::{level_pair_table, read_level_pair, stribeck_friction, Ctx, EffectTable, Side};
 
 /// Dry friction of one body, motor units (`coulomb_friction`, or `stribeck_friction` with a
 /// higher breakaway level).
@@ -111,22 +111,20 @@ pub struct CoulombFrictionParams {
     pub fc_neg: f64,
 }
 
-impl CoulombFrictionParams {
+impl EffectTable for CoulombFrictionParams {
     /// Reads one `[effects.coulomb_friction]` table.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
-        let (side, fc, fc_neg) = read_level_pair(f, table, ctx, "fc", |u| u.torque)?;
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
+        let (side, fc, fc_neg) = read_level_pair(f, ctx, "fc", |u| u.torque)?;
         Ok(Self { side, fc, fc_neg })
     }
 
     /// The model-file table (`fc_neg_*` only where it differs).
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         level_pair_table(ctx, self.side, "fc", |u| u.torque, (self.fc, self.fc_neg))
     }
+}
 
+impl CoulombFrictionParams {
     /// In motor units.
     pub(crate) fn motor(&self, ctx: &Ctx) -> DryFriction {
         let t = ctx.units(self.side).torque_to_motor;

@@ -16,7 +16,7 @@
 use feedloop_model::params::{ConfigError, Fields, Range};
 use nalgebra::DMatrix;
 
-use super::{one_table, read_one};
+use super::{one_table, read_one, Ctx, EffectTable};
 
 /// Mean over a period of the share of the distance to the held command still left:
 /// `tau / period (1 - exp(-period / tau))` (the applied torque is its [`relax`] by this).
@@ -46,15 +46,15 @@ pub struct CurrentLagParams {
     pub tau_s: f64,
 }
 
-impl CurrentLagParams {
+impl EffectTable for CurrentLagParams {
     /// Reads `[effects.current_lag]`.
-    pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
-        let tau_s = read_one(f, table, "tau_s", Range::Within(1e-9, 10.0))?;
+    fn read(f: &mut Fields<'_>, _ctx: &Ctx) -> Result<Self, ConfigError> {
+        let tau_s = read_one(f, "tau_s", Range::Within(1e-9, 10.0))?;
         Ok(Self { tau_s })
     }
 
     /// The model-file table.
-    pub fn to_table(&self) -> toml::Table {
+    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
         one_table("tau_s", self.tau_s)
     }
 }

@@ -16,7 +16,7 @@
 
 use feedloop_model::params::{ConfigError, Fields};
 
-use super::check_keys;
+use super::{check_keys, Ctx, EffectTable};
 
 /// The key of the delay in whole control periods.
 pub const DELAY_CYCLES: &str = "delay_cycles";
@@ -94,10 +94,10 @@ pub struct DelayParams {
     pub cycles: i64,
 }
 
-impl DelayParams {
+impl EffectTable for DelayParams {
     /// Reads `[effects.delay]`.
-    pub(crate) fn read(f: &mut Fields<'_>, table: &toml::Table) -> Result<Self, ConfigError> {
-        check_keys(f, table, &[DELAY_CYCLES])?;
+    fn read(f: &mut Fields<'_>, _ctx: &Ctx) -> Result<Self, ConfigError> {
+        check_keys(f, &[DELAY_CYCLES])?;
         let n = f.opt_i64(DELAY_CYCLES, 0, 10_000)?.ok_or_else(|| {
             f.error(
                 DELAY_CYCLES,
@@ -108,12 +108,14 @@ impl DelayParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self) -> toml::Table {
+    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
         let mut t = toml::Table::new();
         t.insert(DELAY_CYCLES.into(), toml::Value::Integer(self.cycles));
         t
     }
+}
 
+impl DelayParams {
     /// The delay line's length in periods (a negative count is no delay).
     pub(crate) fn motor(&self) -> usize {
         self.cycles.max(0) as usize

@@ -25,7 +25,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, put_side, read_side, Ctx, DryFriction, Side, Viscous};
+use super::{check_keys, put, put_side, read_side, Ctx, DryFriction, EffectTable, Side, Viscous};
 
 /// `[effects.directional_friction]` in the units of its body.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,20 +42,16 @@ pub struct DirectionalFrictionParams {
     pub c_neg: f64,
 }
 
-impl DirectionalFrictionParams {
+impl EffectTable for DirectionalFrictionParams {
     /// Reads one `[effects.directional_friction]` table.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         let (side, u) = read_side(f, ctx)?;
         let (k_fp, k_fn) = (
             format!("fc_pos_{}", u.torque),
             format!("fc_neg_{}", u.torque),
         );
         let (k_cp, k_cn) = (format!("c_pos_{}", u.visc), format!("c_neg_{}", u.visc));
-        check_keys(f, table, &["side", &k_fp, &k_fn, &k_cp, &k_cn])?;
+        check_keys(f, &["side", &k_fp, &k_fn, &k_cp, &k_cn])?;
         Ok(Self {
             side,
             fc_pos: f.f64(&k_fp, Range::NonNegative)?,
@@ -66,7 +62,7 @@ impl DirectionalFrictionParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         let u = ctx.units(self.side);
         let mut t = toml::Table::new();
         put(&mut t, format!("fc_pos_{}", u.torque), self.fc_pos);
@@ -76,7 +72,9 @@ impl DirectionalFrictionParams {
         put_side(&mut t, self.side, ctx);
         t
     }
+}
 
+impl DirectionalFrictionParams {
     /// Its dry and its viscous part, in motor units.
     pub(crate) fn motor(&self, ctx: &Ctx) -> (DryFriction, Viscous) {
         let u = ctx.units(self.side);

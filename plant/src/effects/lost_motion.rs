@@ -33,7 +33,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, needs_transmission, put, Ctx};
+use super::{check_keys, needs_transmission, put, Ctx, EffectTable};
 
 /// `[effects.lost_motion]` as the model file gives it (load units).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,20 +44,16 @@ pub struct LostMotionParams {
     pub transition: f64,
 }
 
-impl LostMotionParams {
+impl EffectTable for LostMotionParams {
     /// Reads `[effects.lost_motion]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         needs_transmission(f, ctx, "lost_motion")?;
         let u = ctx.load_units();
         let (lost_key, tr_key) = (
             format!("lost_motion_{}", u.pos),
             format!("transition_{}", u.pos),
         );
-        check_keys(f, table, &[&lost_key, &tr_key])?;
+        check_keys(f, &[&lost_key, &tr_key])?;
         let lost = f.f64(&lost_key, Range::NonNegative)?;
         let transition = match f.opt_f64(&tr_key, Range::Positive)? {
             Some(t) if t < lost => {
@@ -75,14 +71,16 @@ impl LostMotionParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         let u = ctx.load_units();
         let mut t = toml::Table::new();
         put(&mut t, format!("lost_motion_{}", u.pos), self.lost);
         put(&mut t, format!("transition_{}", u.pos), self.transition);
         t
     }
+}
 
+impl LostMotionParams {
     /// The law in motor units (`None` for no lost motion).
     pub(crate) fn motor(&self, ctx: &Ctx) -> Option<LostMotion> {
         let k = ctx.load_units().vel_to_motor;

@@ -147,12 +147,8 @@ impl Ctx {
 /// Refuses keys not in `known`: the error suggests the nearest known key (the shared rule of
 /// [`feedloop_model::params::nearest`]; else one with the same stem, as the axis/side fixes the
 /// unit suffix) and lists the keys this table accepts.
-pub(crate) fn check_keys(
-    f: &Fields<'_>,
-    table: &toml::Table,
-    known: &[&str],
-) -> Result<(), ConfigError> {
-    for key in table.keys() {
+pub(crate) fn check_keys(f: &Fields<'_>, known: &[&str]) -> Result<(), ConfigError> {
+    for key in f.table().keys() {
         if !known.contains(&key.as_str()) {
             let stem = |k: &str| k.split('_').next().unwrap_or("").to_string();
             let same_stem = |k: &&str| !stem(key).is_empty() && stem(k) == stem(key);
@@ -222,13 +218,8 @@ pub(crate) fn put(t: &mut toml::Table, key: impl Into<String>, value: f64) {
 }
 
 /// Reads a table of one number, `key` (its only key), within `range`.
-pub(crate) fn read_one(
-    f: &mut Fields<'_>,
-    table: &toml::Table,
-    key: &str,
-    range: Range,
-) -> Result<f64, ConfigError> {
-    check_keys(f, table, &[key])?;
+pub(crate) fn read_one(f: &mut Fields<'_>, key: &str, range: Range) -> Result<f64, ConfigError> {
+    check_keys(f, &[key])?;
     f.f64(key, range)
 }
 
@@ -244,7 +235,6 @@ pub(crate) fn one_table(key: &str, value: f64) -> toml::Table {
 /// positive one), both >= 0, and no other key. Returns the side and the two levels.
 pub(crate) fn read_level_pair(
     f: &mut Fields<'_>,
-    table: &toml::Table,
     ctx: &Ctx,
     stem: &str,
     unit: fn(&Units) -> &'static str,
@@ -252,7 +242,7 @@ pub(crate) fn read_level_pair(
     let (side, u) = read_side(f, ctx)?;
     let key = format!("{stem}_{}", unit(&u));
     let key_neg = format!("{stem}_neg_{}", unit(&u));
-    check_keys(f, table, &["side", &key, &key_neg])?;
+    check_keys(f, &["side", &key, &key_neg])?;
     let pos = f.f64(&key, Range::NonNegative)?;
     let neg = f.f64_or(&key_neg, Range::NonNegative, pos)?;
     Ok((side, pos, neg))
@@ -283,12 +273,56 @@ pub(crate) fn put_side(t: &mut toml::Table, side: Side, ctx: &Ctx) {
     }
 }
 
-/// One `[effects.<id>]` table in typed form: the parameters as the model file gives them, in
-/// the units of the body they act on (the units their keys name). Each effect's file reads and
-/// writes its own keys; the plant converts these to motor units ([`EffectSet`]), the workbench
-/// to its regressor form.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum EffectParams {
+/// The typed form of one `[effects.<id>]` table: the parameters as the model file gives them,
+/// in the units of the body they act on (the units their keys name). Each effect's file
+/// implements it for its parameters, so that its keys are spelled there only.
+pub trait EffectTable: Sized {
+    /// Reads one table (every key checked, errors naming the dotted key).
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError>;
+
+    /// The model-file table (the keys [`EffectTable::read`] reads, floats unrounded).
+    fn to_table(&self, ctx: &Ctx) -> toml::Table;
+}
+
+/// Declares [`EffectParams`], a variant per effect named as its [`EffectId`] and holding the
+/// effect's [`EffectTable`], with the dispatch of reading and writing: an effect is one line of
+/// the list below, and the match over [`EffectId`] it generates is exhaustive.
+macro_rules! effect_params {
+    ($($(#[$doc:meta])* $variant:ident($params:ty),)*) => {
+        /// One `[effects.<id>]` table in typed form (see [`EffectTable`]). The plant converts
+        /// these to motor units ([`EffectSet`]), the workbench to its regressor form.
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        pub enum EffectParams {
+            $($(#[$doc])* $variant($params),)*
+        }
+
+        impl EffectParams {
+            /// Which effect.
+            pub fn id(&self) -> EffectId {
+                match self {
+                    $(EffectParams::$variant(_) => EffectId::$variant,)*
+                }
+            }
+
+            /// Reads one table of effect `id` (every key checked, errors naming the dotted key).
+            fn read(id: EffectId, f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
+                Ok(match id {
+                    $(EffectId::$variant => EffectParams::$variant(<$params>::read(f, ctx)?),)*
+                })
+            }
+
+            /// The model-file table of these parameters (the keys the plant reads, floats
+            /// unrounded).
+            pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+                match self {
+                    $(EffectParams::$variant(p) => p.to_table(ctx),)*
+                }
+            }
+        }
+    };
+}
+
+effect_params! {
     /// `viscous_friction`.
     ViscousFriction(ViscousFrictionParams),
     /// `coulomb_friction`.
@@ -320,26 +354,6 @@ pub enum EffectParams {
 }
 
 impl EffectParams {
-    /// Which effect.
-    pub fn id(&self) -> EffectId {
-        match self {
-            EffectParams::ViscousFriction(_) => EffectId::ViscousFriction,
-            EffectParams::CoulombFriction(_) => EffectId::CoulombFriction,
-            EffectParams::StribeckFriction(_) => EffectId::StribeckFriction,
-            EffectParams::Backlash(_) => EffectId::Backlash,
-            EffectParams::PitchError(_) => EffectId::PitchError,
-            EffectParams::Cogging(_) => EffectId::Cogging,
-            EffectParams::ConstantForce(_) => EffectId::ConstantForce,
-            EffectParams::ThirdMass(_) => EffectId::ThirdMass,
-            EffectParams::Delay(_) => EffectId::Delay,
-            EffectParams::CurrentLag(_) => EffectId::CurrentLag,
-            EffectParams::TorqueSaturation(_) => EffectId::TorqueSaturation,
-            EffectParams::Unbalance(_) => EffectId::Unbalance,
-            EffectParams::DirectionalFriction(_) => EffectId::DirectionalFriction,
-            EffectParams::LostMotion(_) => EffectId::LostMotion,
-        }
-    }
-
     /// The body a friction effect acts on (`None` for the other effects).
     pub fn side(&self) -> Option<Side> {
         match self {
@@ -357,67 +371,6 @@ impl EffectParams {
             | EffectParams::TorqueSaturation(_)
             | EffectParams::Unbalance(_)
             | EffectParams::LostMotion(_) => None,
-        }
-    }
-
-    /// Reads one table of effect `id` (every key checked, errors naming the dotted key).
-    fn read(
-        id: EffectId,
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
-        Ok(match id {
-            EffectId::ViscousFriction => {
-                EffectParams::ViscousFriction(ViscousFrictionParams::read(f, table, ctx)?)
-            }
-            EffectId::CoulombFriction => {
-                EffectParams::CoulombFriction(CoulombFrictionParams::read(f, table, ctx)?)
-            }
-            EffectId::StribeckFriction => {
-                EffectParams::StribeckFriction(StribeckFrictionParams::read(f, table, ctx)?)
-            }
-            EffectId::Backlash => EffectParams::Backlash(BacklashParams::read(f, table, ctx)?),
-            EffectId::PitchError => {
-                EffectParams::PitchError(PitchErrorParams::read(f, table, ctx)?)
-            }
-            EffectId::Cogging => EffectParams::Cogging(CoggingParams::read(f, table, ctx)?),
-            EffectId::ConstantForce => {
-                EffectParams::ConstantForce(ConstantForceParams::read(f, table, ctx)?)
-            }
-            EffectId::ThirdMass => EffectParams::ThirdMass(ThirdMassParams::read(f, table, ctx)?),
-            EffectId::Delay => EffectParams::Delay(DelayParams::read(f, table)?),
-            EffectId::CurrentLag => EffectParams::CurrentLag(CurrentLagParams::read(f, table)?),
-            EffectId::TorqueSaturation => {
-                EffectParams::TorqueSaturation(TorqueSaturationParams::read(f, table, ctx)?)
-            }
-            EffectId::Unbalance => EffectParams::Unbalance(UnbalanceParams::read(f, table, ctx)?),
-            EffectId::DirectionalFriction => {
-                EffectParams::DirectionalFriction(DirectionalFrictionParams::read(f, table, ctx)?)
-            }
-            EffectId::LostMotion => {
-                EffectParams::LostMotion(LostMotionParams::read(f, table, ctx)?)
-            }
-        })
-    }
-
-    /// The model-file table of these parameters (the keys the plant reads, floats unrounded).
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        match self {
-            EffectParams::ViscousFriction(p) => p.to_table(ctx),
-            EffectParams::CoulombFriction(p) => p.to_table(ctx),
-            EffectParams::StribeckFriction(p) => p.to_table(ctx),
-            EffectParams::Backlash(p) => p.to_table(ctx),
-            EffectParams::PitchError(p) => p.to_table(),
-            EffectParams::Cogging(p) => p.to_table(),
-            EffectParams::ConstantForce(p) => p.to_table(ctx),
-            EffectParams::ThirdMass(p) => p.to_table(ctx),
-            EffectParams::Delay(p) => p.to_table(),
-            EffectParams::CurrentLag(p) => p.to_table(),
-            EffectParams::TorqueSaturation(p) => p.to_table(ctx),
-            EffectParams::Unbalance(p) => p.to_table(),
-            EffectParams::DirectionalFriction(p) => p.to_table(ctx),
-            EffectParams::LostMotion(p) => p.to_table(ctx),
         }
     }
 }
@@ -570,7 +523,7 @@ pub fn read_effects(model: &ModelFile) -> Result<Vec<EffectParams>, ConfigError>
                 }
                 harmonics += 1;
             }
-            let p = EffectParams::read(effect, &mut f, table, &ctx)?;
+            let p = EffectParams::read(effect, &mut f, &ctx)?;
             // the friction laws a body may carry once each: one dry, one viscous
             let (dry, visc) = match effect {
                 EffectId::ViscousFriction => (false, true),

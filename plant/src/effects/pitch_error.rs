@@ -24,7 +24,7 @@ use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
 use super::cogging::{PERIOD_M, PHASE_RAD};
-use super::{check_keys, put, table_error, Ctx};
+use super::{check_keys, put, table_error, Ctx, EffectTable};
 
 /// Pitch error parameters (load units, m).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -75,44 +75,16 @@ pub struct PitchErrorParams {
     pub slope_um_per_m: f64,
 }
 
-impl PitchErrorParams {
-    /// The model-file table.
-    pub fn to_table(&self) -> toml::Table {
-        let mut t = toml::Table::new();
-        put(&mut t, "amplitude_m", self.amplitude_m);
-        put(&mut t, PERIOD_M, self.period_m);
-        put(&mut t, PHASE_RAD, self.phase_rad);
-        put(&mut t, "slope_um_per_m", self.slope_um_per_m);
-        t
-    }
-
-    /// The law's parameters.
-    pub(crate) fn motor(&self) -> PitchError {
-        PitchError {
-            amplitude_m: self.amplitude_m,
-            period_m: self.period_m,
-            phase_rad: self.phase_rad,
-            slope: self.slope_um_per_m * 1e-6,
-        }
-    }
-
+impl EffectTable for PitchErrorParams {
     /// Reads `[effects.pitch_error]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         let (AxisKind::BallScrew, Some(lead_m)) = (ctx.kind, ctx.lead_m) else {
             return Err(table_error(
             f,
             "pitch_error needs a screw (kind = \"ballscrew\"); use cogging for angle-periodic torque",
         ));
         };
-        check_keys(
-            f,
-            table,
-            &["amplitude_m", PERIOD_M, PHASE_RAD, "slope_um_per_m"],
-        )?;
+        check_keys(f, &["amplitude_m", PERIOD_M, PHASE_RAD, "slope_um_per_m"])?;
         let amplitude_m = f.f64("amplitude_m", Range::NonNegative)?;
         let period_m = f.f64_or(PERIOD_M, Range::Positive, lead_m)?;
         let phase_rad = f.f64_or(PHASE_RAD, Range::Finite, 0.0)?;
@@ -132,5 +104,27 @@ impl PitchErrorParams {
             phase_rad,
             slope_um_per_m: slope_um,
         })
+    }
+
+    /// The model-file table.
+    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
+        let mut t = toml::Table::new();
+        put(&mut t, "amplitude_m", self.amplitude_m);
+        put(&mut t, PERIOD_M, self.period_m);
+        put(&mut t, PHASE_RAD, self.phase_rad);
+        put(&mut t, "slope_um_per_m", self.slope_um_per_m);
+        t
+    }
+}
+
+impl PitchErrorParams {
+    /// The law's parameters.
+    pub(crate) fn motor(&self) -> PitchError {
+        PitchError {
+            amplitude_m: self.amplitude_m,
+            period_m: self.period_m,
+            phase_rad: self.phase_rad,
+            slope: self.slope_um_per_m * 1e-6,
+        }
     }
 }

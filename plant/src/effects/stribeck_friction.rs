@@ -22,7 +22,7 @@
 
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, put_side, read_side, Ctx, DryFriction, Side};
+use super::{check_keys, put, put_side, read_side, Ctx, DryFriction, EffectTable, Side};
 
 /// The Stribeck curve `g(r) = exp(-r^exponent)` at `r = |v| / vs`: the share of `fs - fc` added to
 /// the sliding level (see `coulomb_friction::DryLaw::sliding_level`).
@@ -56,43 +56,9 @@ pub struct StribeckFrictionParams {
     pub exponent: f64,
 }
 
-impl StribeckFrictionParams {
-    /// The model-file table (the negative-direction levels only where they differ).
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        let u = ctx.units(self.side);
-        let mut t = toml::Table::new();
-        put(&mut t, format!("fc_{}", u.torque), self.fc);
-        put(&mut t, format!("fs_{}", u.torque), self.fs);
-        if self.fc_neg != self.fc {
-            put(&mut t, format!("fc_neg_{}", u.torque), self.fc_neg);
-        }
-        if self.fs_neg != self.fs {
-            put(&mut t, format!("fs_neg_{}", u.torque), self.fs_neg);
-        }
-        put(&mut t, format!("vs_{}", u.vel), self.vs);
-        put(&mut t, "exponent", self.exponent);
-        put_side(&mut t, self.side, ctx);
-        t
-    }
-
-    /// In motor units.
-    pub(crate) fn motor(&self, ctx: &Ctx) -> DryFriction {
-        let u = ctx.units(self.side);
-        let t = u.torque_to_motor;
-        DryFriction {
-            fc: [self.fc * t, self.fc_neg * t],
-            fs: [self.fs * t, self.fs_neg * t],
-            vs: self.vs * u.vel_to_motor,
-            exponent: self.exponent,
-        }
-    }
-
+impl EffectTable for StribeckFrictionParams {
     /// Reads one `[effects.stribeck_friction]` table.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         let (side, u) = read_side(f, ctx)?;
         let k_fc = format!("fc_{}", u.torque);
         let k_fs = format!("fs_{}", u.torque);
@@ -101,7 +67,6 @@ impl StribeckFrictionParams {
         let k_vs = format!("vs_{}", u.vel);
         check_keys(
             f,
-            table,
             &[
                 "side", &k_fc, &k_fs, &k_fc_neg, &k_fs_neg, &k_vs, "exponent",
             ],
@@ -133,5 +98,37 @@ impl StribeckFrictionParams {
             vs,
             exponent,
         })
+    }
+
+    /// The model-file table (the negative-direction levels only where they differ).
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
+        let u = ctx.units(self.side);
+        let mut t = toml::Table::new();
+        put(&mut t, format!("fc_{}", u.torque), self.fc);
+        put(&mut t, format!("fs_{}", u.torque), self.fs);
+        if self.fc_neg != self.fc {
+            put(&mut t, format!("fc_neg_{}", u.torque), self.fc_neg);
+        }
+        if self.fs_neg != self.fs {
+            put(&mut t, format!("fs_neg_{}", u.torque), self.fs_neg);
+        }
+        put(&mut t, format!("vs_{}", u.vel), self.vs);
+        put(&mut t, "exponent", self.exponent);
+        put_side(&mut t, self.side, ctx);
+        t
+    }
+}
+
+impl StribeckFrictionParams {
+    /// In motor units.
+    pub(crate) fn motor(&self, ctx: &Ctx) -> DryFriction {
+        let u = ctx.units(self.side);
+        let t = u.torque_to_motor;
+        DryFriction {
+            fc: [self.fc * t, self.fc_neg * t],
+            fs: [self.fs * t, self.fs_neg * t],
+            vs: self.vs * u.vel_to_motor,
+            exponent: self.exponent,
+        }
     }
 }

@@ -21,7 +21,7 @@ use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 use nalgebra::DMatrix;
 
-use super::{check_keys, put, Ctx};
+use super::{check_keys, put, Ctx, EffectTable};
 
 /// The third mass in motor units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -81,15 +81,11 @@ fn keys(kind: AxisKind) -> (&'static str, &'static str, &'static str) {
     }
 }
 
-impl ThirdMassParams {
+impl EffectTable for ThirdMassParams {
     /// Reads `[effects.third_mass]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         let (km, kk, kc) = keys(ctx.kind);
-        check_keys(f, table, &[km, kk, kc])?;
+        check_keys(f, &[km, kk, kc])?;
         let mass = f.f64(km, Range::Positive)?;
         let stiffness = f.f64(kk, Range::Positive)?;
         let damping = f.f64_or(kc, Range::NonNegative, 0.0)?;
@@ -101,7 +97,7 @@ impl ThirdMassParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         let (km, kk, kc) = keys(ctx.kind);
         let mut t = toml::Table::new();
         put(&mut t, km, self.mass);
@@ -109,7 +105,9 @@ impl ThirdMassParams {
         put(&mut t, kc, self.damping);
         t
     }
+}
 
+impl ThirdMassParams {
     /// In motor units.
     pub(crate) fn motor(&self, ctx: &Ctx) -> ThirdMass {
         let r2 = ctx.load_units().vel_to_motor.powi(2);

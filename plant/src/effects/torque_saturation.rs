@@ -15,7 +15,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{one_table, read_one, Ctx};
+use super::{one_table, read_one, Ctx, EffectTable};
 
 /// The applied command: `u` clamped to `+-limit`.
 #[inline]
@@ -40,19 +40,15 @@ fn key(kind: AxisKind) -> &'static str {
     }
 }
 
-impl TorqueSaturationParams {
+impl EffectTable for TorqueSaturationParams {
     /// Reads `[effects.torque_saturation]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
-        let limit = read_one(f, table, key(ctx.kind), Range::Positive)?;
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
+        let limit = read_one(f, key(ctx.kind), Range::Positive)?;
         Ok(Self { limit })
     }
 
     /// The model-file table.
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         one_table(key(ctx.kind), self.limit)
     }
 }

@@ -27,7 +27,7 @@
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
-use super::{check_keys, put, table_error, Ctx};
+use super::{check_keys, put, table_error, Ctx, EffectTable};
 
 /// `[effects.unbalance]` as the model file gives it (at the load).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,13 +42,9 @@ pub struct UnbalanceParams {
     pub period_rad: f64,
 }
 
-impl UnbalanceParams {
+impl EffectTable for UnbalanceParams {
     /// Reads `[effects.unbalance]`.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
         if ctx.kind != AxisKind::Rotary {
             return Err(table_error(
                 f,
@@ -57,7 +53,6 @@ impl UnbalanceParams {
         }
         check_keys(
             f,
-            table,
             &["mgr_nm", "zero_angle_rad", "constant_nm", "period_rad"],
         )?;
         let mgr_nm = f.f64("mgr_nm", Range::NonNegative)?;
@@ -73,7 +68,7 @@ impl UnbalanceParams {
     }
 
     /// The model-file table.
-    pub fn to_table(&self) -> toml::Table {
+    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
         let mut t = toml::Table::new();
         put(&mut t, "mgr_nm", self.mgr_nm);
         put(&mut t, "zero_angle_rad", self.zero_angle_rad);
@@ -81,7 +76,9 @@ impl UnbalanceParams {
         put(&mut t, "period_rad", self.period_rad);
         t
     }
+}
 
+impl UnbalanceParams {
     /// The law, on the motor.
     pub(crate) fn motor(&self, ctx: &Ctx) -> Unbalance {
         Unbalance {

@@ -21,7 +21,7 @@
 
 use feedloop_model::params::{ConfigError, Fields};
 
-use super::{level_pair_table, read_level_pair, Ctx, Side};
+use super::{level_pair_table, read_level_pair, Ctx, EffectTable, Side};
 
 /// Viscous friction of one body, motor units: coefficient for positive / negative velocity.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,22 +59,20 @@ pub struct ViscousFrictionParams {
     pub c_neg: f64,
 }
 
-impl ViscousFrictionParams {
+impl EffectTable for ViscousFrictionParams {
     /// Reads one `[effects.viscous_friction]` table.
-    pub(crate) fn read(
-        f: &mut Fields<'_>,
-        table: &toml::Table,
-        ctx: &Ctx,
-    ) -> Result<Self, ConfigError> {
-        let (side, c, c_neg) = read_level_pair(f, table, ctx, "c", |u| u.visc)?;
+    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
+        let (side, c, c_neg) = read_level_pair(f, ctx, "c", |u| u.visc)?;
         Ok(Self { side, c, c_neg })
     }
 
     /// The model-file table (`c_neg_*` only where it differs).
-    pub fn to_table(&self, ctx: &Ctx) -> toml::Table {
+    fn to_table(&self, ctx: &Ctx) -> toml::Table {
         level_pair_table(ctx, self.side, "c", |u| u.visc, (self.c, self.c_neg))
     }
+}
 
+impl ViscousFrictionParams {
     /// In motor units.
     pub(crate) fn motor(&self, ctx: &Ctx) -> Viscous {
         let u = ctx.units(self.side);

@@ -50,6 +50,25 @@ pub enum AbiError {
     },
 }
 
+/// The required function `name` of the library `lib` loaded from `path`.
+///
+/// # Safety
+/// `T` must be the type the documented ABI gives the symbol.
+unsafe fn symbol<T: Copy>(
+    lib: &libloading::Library,
+    path: &str,
+    name: &'static str,
+) -> Result<T, AbiError> {
+    // SAFETY: the caller names the symbol's type.
+    match unsafe { lib.get::<T>(name) } {
+        Ok(f) => Ok(*f),
+        Err(_) => Err(AbiError::MissingSymbol {
+            path: path.to_string(),
+            symbol: name,
+        }),
+    }
+}
+
 /// A controller living in a shared library.
 pub struct LibController {
     id: String,
@@ -76,22 +95,10 @@ impl LibController {
         })?;
         // SAFETY: symbol types follow the documented ABI; a wrong signature is the library's bug.
         unsafe {
-            let sym = |name: &'static str| AbiError::MissingSymbol {
-                path: p.clone(),
-                symbol: name,
-            };
-            let version: AbiVersionFn = *lib
-                .get::<AbiVersionFn>(b"feedloop_plugin_abi_version\0")
-                .map_err(|_| sym("feedloop_plugin_abi_version"))?;
-            let create: CreateFn = *lib
-                .get::<CreateFn>(b"feedloop_plugin_create\0")
-                .map_err(|_| sym("feedloop_plugin_create"))?;
-            let step: StepFn = *lib
-                .get::<StepFn>(b"feedloop_plugin_step\0")
-                .map_err(|_| sym("feedloop_plugin_step"))?;
-            let destroy: DestroyFn = *lib
-                .get::<DestroyFn>(b"feedloop_plugin_destroy\0")
-                .map_err(|_| sym("feedloop_plugin_destroy"))?;
+            let version: AbiVersionFn = symbol(&lib, &p, "feedloop_plugin_abi_version")?;
+            let create: CreateFn = symbol(&lib, &p, "feedloop_plugin_create")?;
+            let step: StepFn = symbol(&lib, &p, "feedloop_plugin_step")?;
+            let destroy: DestroyFn = symbol(&lib, &p, "feedloop_plugin_destroy")?;
             let stages = lib
                 .get::<StagesFn>(b"feedloop_plugin_stages\0")
                 .ok()

@@ -123,7 +123,15 @@ pub fn run_scheduler(
     );
     let rec =
         Recorder::<SchedRecord>::start_with_tap(log_path, 1 << 16, Some(tap)).map_err(log_err)?;
-    let mut run = SchedLoop::new(cfg, cycle, axis_count, ep, stop, control, rec);
+    let with = Parts {
+        cfg,
+        cycle,
+        axis_count,
+        ep,
+        stop,
+        control,
+    };
+    let mut run = SchedLoop::new(with, rec);
     run.cycles()?;
     let mut out = run.out;
     out.dropped_records = run.rec.dropped();
@@ -134,12 +142,8 @@ pub fn run_scheduler(
 /// The scheduler loop's state from one cycle to the next. Its methods are the steps of a cycle,
 /// called in the order they run by [`SchedLoop::cycles`]; none allocates, locks or logs.
 struct SchedLoop<'a, 'c> {
-    cfg: &'a SchedulerConfig,
-    cycle: &'a mut ControlCycle,
-    axis_count: usize,
-    ep: &'a SchedulerEndpoint,
-    stop: &'a std::sync::atomic::AtomicBool,
-    control: Option<&'c mut crate::scheduler::control::ControlPlane>,
+    /// What it runs with.
+    with: Parts<'a, 'c>,
     rec: Recorder<SchedRecord>,
     tag: u64,
     cmd: ActuatorCommand,
@@ -160,16 +164,20 @@ struct SchedLoop<'a, 'c> {
     prev_end_ns: u64,
 }
 
+/// What the scheduler loop runs with, borrowed for the run: its configuration, the controller
+/// chains, the endpoint, the stop flag and the control plane.
+struct Parts<'a, 'c> {
+    cfg: &'a SchedulerConfig,
+    cycle: &'a mut ControlCycle,
+    axis_count: usize,
+    ep: &'a SchedulerEndpoint,
+    stop: &'a std::sync::atomic::AtomicBool,
+    control: Option<&'c mut crate::scheduler::control::ControlPlane>,
+}
+
 impl<'a, 'c> SchedLoop<'a, 'c> {
-    fn new(
-        cfg: &'a SchedulerConfig,
-        cycle: &'a mut ControlCycle,
-        axis_count: usize,
-        ep: &'a SchedulerEndpoint,
-        stop: &'a std::sync::atomic::AtomicBool,
-        control: Option<&'c mut crate::scheduler::control::ControlPlane>,
-        rec: Recorder<SchedRecord>,
-    ) -> Self {
+    fn new(with: Parts<'a, 'c>, rec: Recorder<SchedRecord>) -> Self {
+        let (cfg, cycle, axis_count) = (with.cfg, &with.cycle, with.axis_count);
         let tag = crate::shared::wire::instance_tag(&cfg.instance);
         let mut hello = ActuatorCommand::empty(axis_count as u32, tag);
         hello.flags = FLAG_HELLO;
@@ -180,12 +188,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
         };
         let period_ns = (cycle.period_s() * 1e9) as u64;
         Self {
-            cfg,
-            cycle,
-            axis_count,
-            ep,
-            stop,
-            control,
+            with,
             rec,
             tag,
             cmd: ActuatorCommand::empty(axis_count as u32, tag),
@@ -210,7 +213,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
     /// serve the control service) read top to bottom in the order they run.
     fn cycles(&mut self) -> Result<(), SchedulerError> {
         loop {
-            let stop_now = self.stop.load(std::sync::atomic::Ordering::Relaxed);
+            let stop_now = self.with.stop.load(std::sync::atomic::Ordering::Relaxed);
             if stop_now && !self.started {
                 self.out.end = SchedulerEnd::OperatorStop { cycle: 0 };
                 break;
@@ -235,7 +238,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             };
             if self.s.flags & FLAG_HELLO != 0 {
                 self.check_hello()?;
-                self.ep.send(self.hello)?;
+                self.with.ep.send(self.hello)?;
                 self.started = true;
                 continue;
             }
@@ -247,23 +250,23 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
                 self.out.end = end;
                 break;
             }
-            let (s, cycle) = (&self.s, &mut *self.cycle);
-            if let Some(c) = self.control.as_deref_mut() {
+            let (s, cycle) = (&self.s, &mut *self.with.cycle);
+            if let Some(c) = self.with.control.as_deref_mut() {
                 c.plant_deadline_misses = s.deadline_misses;
                 c.before_cycle(cycle, s.seq);
             }
-            if self.cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
+            if self.with.cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {
                 // samples arrive at the plant's cycle starts: keep the writer in the slack after
                 // them
                 self.rec.set_phase(c0, self.period_ns);
             }
-            let ep = self.ep;
+            let ep = self.with.ep;
             let mut lost_ns = ep
                 .poll_gap_ns()
                 .max(c0.saturating_sub(ep.last_poll_ns()))
                 .max(ep.wait_start_ns().saturating_sub(self.prev_end_ns));
             cycle.step(s, &mut self.cmd);
-            if let Some(c) = self.control.as_deref_mut() {
+            if let Some(c) = self.with.control.as_deref_mut() {
                 c.vet(cycle, &mut self.cmd);
             }
             self.flag_command(stop_now);
@@ -273,8 +276,8 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             self.prev_end_ns = now_ns();
             lost_ns = lost_ns.max(self.prev_end_ns - c1);
             ep.prepare_next(&self.cmd);
-            let (s, cycle) = (&self.s, &mut *self.cycle);
-            if let Some(c) = self.control.as_deref_mut() {
+            let (s, cycle) = (&self.s, &mut *self.with.cycle);
+            if let Some(c) = self.with.control.as_deref_mut() {
                 c.after_cycle(cycle, &self.cmd, s.seq);
             }
             self.out.commands += 1;
@@ -293,9 +296,9 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             };
             self.push_record(r);
             // the next cycle's references, while the plant steps
-            self.cycle.prepare(self.next_seq);
+            self.with.cycle.prepare(self.next_seq);
             let s = &self.s;
-            if let Some(h) = self.cfg.cycle_hook {
+            if let Some(h) = self.with.cfg.cycle_hook {
                 h(s.seq);
             }
             if s.flags & FLAG_END != 0 {
@@ -312,7 +315,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
         let seq = self.s.seq;
         if self.stop_sent {
             self.out.end = SchedulerEnd::OperatorStop { cycle: seq };
-        } else if seq + 1 < self.cycle.cycles() {
+        } else if seq + 1 < self.with.cycle.cycles() {
             self.out.end = SchedulerEnd::PlantEnded { cycle: seq };
         }
     }
@@ -330,9 +333,13 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
         // before the start an operator stop (or the launcher's death) ends the wait at once
         Ok(if self.started {
             // into the buffer kept across cycles: no copy of the whole sample on the way
-            self.ep.receive_until_into(deadline, &mut self.s)?
+            self.with.ep.receive_until_into(deadline, &mut self.s)?
         } else {
-            match self.ep.receive_until_or_stop(deadline, self.stop)? {
+            match self
+                .with
+                .ep
+                .receive_until_or_stop(deadline, self.with.stop)?
+            {
                 WaitOutcome::Got(m) => {
                     self.s = m;
                     WaitOutcome::Got(())
@@ -344,13 +351,13 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
 
     /// How a wait that timed out ends the run (an error when the plant never came).
     fn silence_end(&self) -> Result<SchedulerEnd, SchedulerError> {
-        if !self.started && self.stop.load(std::sync::atomic::Ordering::Relaxed) {
+        if !self.started && self.with.stop.load(std::sync::atomic::Ordering::Relaxed) {
             return Ok(SchedulerEnd::OperatorStop { cycle: 0 });
         }
         if !self.started {
             return Err(IpcError::PeerTimeout {
                 peer: "plant",
-                instance: self.cfg.instance.clone(),
+                instance: self.with.cfg.instance.clone(),
                 seconds: (now_ns() - self.t_start) as f64 * 1e-9,
             }
             .into());
@@ -373,6 +380,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
     fn catch_up(&mut self, c0: u64) -> Result<Option<u32>, IpcError> {
         let mut skipped = 0u32;
         let newest = self
+            .with
             .ep
             .empty_poll_ns()
             .is_some_and(|t| c0.saturating_sub(t) < self.period_ns / 4);
@@ -382,7 +390,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             }
         } else {
             let mut best = screen(&mut self.out, self.next_seq, None, self.s);
-            while let Some(newer) = self.ep.try_receive()? {
+            while let Some(newer) = self.with.ep.try_receive()? {
                 if newer.flags & FLAG_HELLO == 0 {
                     let before = best.is_some();
                     best = screen(&mut self.out, self.next_seq, best, newer);
@@ -412,10 +420,10 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
         if s.instance_tag != self.tag {
             return Err(IpcError::Handshake("plant belongs to another instance".into()).into());
         }
-        if s.axis_count as usize != self.axis_count {
+        if s.axis_count as usize != self.with.axis_count {
             return Err(IpcError::Handshake(format!(
                 "plant has {} axes, this scheduler drives {}: are both running the same job?",
-                s.axis_count, self.axis_count
+                s.axis_count, self.with.axis_count
             ))
             .into());
         }
@@ -444,7 +452,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             self.out.missing += s.seq - self.next_seq - u64::from(skipped);
         }
         if s.flags & FLAG_END != 0
-            && (s.seq >= self.cycle.cycles() || self.stop_sent || self.fault_sent)
+            && (s.seq >= self.with.cycle.cycles() || self.stop_sent || self.fault_sent)
         {
             return Some(end(s.seq));
         }
@@ -460,10 +468,14 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
         } else {
             self.cmd.flags &= !FLAG_STOP;
         }
-        let chain = self.cycle.chain();
+        let chain = self.with.cycle.chain();
         let nonfinite = chain.nonfinite_faults > self.nonfinite_seen;
         self.nonfinite_seen = chain.nonfinite_faults;
-        let on_probation = self.control.as_deref().is_some_and(|c| c.in_probation());
+        let on_probation = self
+            .with
+            .control
+            .as_deref()
+            .is_some_and(|c| c.in_probation());
         if chain.plugin_panics > 0 || (nonfinite && !on_probation) {
             // A plugin panicked or produced a non-finite torque (zeroed by the chain): its output
             // can no longer be trusted, the plant stops the axes. A controller just swapped in is
@@ -476,10 +488,10 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
     /// Completes the cycle's record with the command and the stages' signals, and hands it on.
     #[inline]
     fn push_record(&mut self, mut r: SchedRecord) {
-        for i in 0..self.axis_count {
+        for i in 0..self.with.axis_count {
             r.axes[i] = (self.cmd.axes[i].torque, self.cmd.axes[i].reference);
         }
-        for (st, sg) in r.stages.iter_mut().zip(self.cycle.chain().signals()) {
+        for (st, sg) in r.stages.iter_mut().zip(self.with.cycle.chain().signals()) {
             *st = (sg.vel_cmd, sg.torque_ff);
         }
         self.rec.push(r);

@@ -188,30 +188,23 @@ pub fn fit_pulse_at(
     if t(m) - t(s) < 2.0 * min_phase_s || t(e) - t(m) < 2.0 * min_phase_s {
         return None;
     }
-    let rise_sse = |split: f64| -> f64 {
-        if m <= s {
+    // the squared misfit of the phase from sample `a` to `b` with `split`: the rise toward the
+    // peak, or the fall from it
+    let phase_sse = |a: usize, b: usize, fall: bool, split: f64| -> f64 {
+        if b <= a {
             return 0.0;
         }
-        let span = t(m) - t(s);
-        (s..=m)
+        let span = t(b) - t(a);
+        (a..=b)
             .map(|j| {
-                let g = profile.rise((t(j) - t(s)) / span, split)[0];
-                (curve[j] - peak * g).powi(2)
+                let g = profile.rise((t(j) - t(a)) / span, split)[0];
+                let shape = if fall { 1.0 - g } else { g };
+                (curve[j] - peak * shape).powi(2)
             })
             .sum()
     };
-    let fall_sse = |split: f64| -> f64 {
-        if e <= m {
-            return 0.0;
-        }
-        let span = t(e) - t(m);
-        (m..=e)
-            .map(|j| {
-                let g = profile.rise((t(j) - t(m)) / span, split)[0];
-                (curve[j] - peak * (1.0 - g)).powi(2)
-            })
-            .sum()
-    };
+    let rise_sse = |split: f64| phase_sse(s, m, false, split);
+    let fall_sse = |split: f64| phase_sse(m, e, true, split);
     let mut pulse = Pulse {
         pass,
         start_s: t(s),
