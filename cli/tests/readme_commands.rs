@@ -132,3 +132,69 @@ fn the_trace_example_without_its_command_file_says_how_to_make_it() {
         .unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
 }
+
+/// The commands of the README's fenced blocks that run feedloop (`cargo run --release -- ...` or
+/// `feedloop ...`), as their arguments.
+fn readme_commands() -> Vec<Vec<String>> {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let mut cmds = Vec::new();
+    let mut in_block = false;
+    for line in readme.lines() {
+        if line.trim_start().starts_with("```") {
+            in_block = !in_block;
+            continue;
+        }
+        if !in_block {
+            continue;
+        }
+        let l = line.trim();
+        let rest = l
+            .strip_prefix("cargo run --release --")
+            .or_else(|| l.strip_prefix("feedloop "));
+        if let Some(rest) = rest {
+            cmds.push(rest.split_whitespace().map(str::to_string).collect());
+        }
+    }
+    cmds
+}
+
+#[test]
+fn every_feedloop_command_of_the_readme_runs_as_written() {
+    let cmds = readme_commands();
+    assert!(
+        !cmds.is_empty(),
+        "the README quotes no command that runs feedloop"
+    );
+    let d = scratch("tour");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    for (i, args) in cmds.iter().enumerate() {
+        // from the repository's root, as a new user runs it, its output in a scratch folder
+        let mut args = args.clone();
+        if let Some(k) = args.iter().position(|a| a == "--out") {
+            args[k + 1] = d.join(format!("out{i}")).display().to_string();
+        }
+        let o = Command::new(bin())
+            .current_dir(&root)
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "`feedloop {}` failed: {}",
+            args.join(" "),
+            text(&o.stderr)
+        );
+        if args.first().is_some_and(|a| a == "run" || a == "sim") {
+            let out = d.join(format!("out{i}"));
+            for f in ["trace.csv", "summary.json"] {
+                assert!(
+                    out.join(f).exists(),
+                    "`feedloop {}` wrote no {f}",
+                    args.join(" ")
+                );
+            }
+        }
+    }
+}
