@@ -356,3 +356,55 @@ fn a_weakly_excited_third_mass_brings_no_lead_error_with_it() {
         j["verdict"]
     );
 }
+
+#[test]
+fn a_right_model_under_up_to_five_times_the_shipped_sensor_noise_names_nothing() {
+    let dir = scratch("right_model_noise");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let x = std::fs::read_to_string(root.join("examples/models/xy-x.toml")).unwrap();
+    let y = root.join("examples/models/xy-y.toml");
+    let job = std::fs::read_to_string(root.join("examples/jobs/xy-circle.toml"))
+        .unwrap()
+        .replace("../models/xy-x.toml", "x.toml")
+        .replace("../models/xy-y.toml", &y.display().to_string());
+    // the shipped models' noise: 0.01 rad/s on the motor velocity, 5 nm on the scale
+    for times in [1.0, 3.0, 5.0] {
+        let d = dir.join(format!("n{times}"));
+        std::fs::create_dir_all(&d).unwrap();
+        let sensor = format!(
+            "\n[sensor]\nmotor_counts_per_rev = 1048576\nload_resolution_m = 5.0e-8\nmotor_vel_noise_rad_per_s = {}\nload_pos_noise_m = {}\nseed = 11\n",
+            0.01 * times,
+            5e-9 * times
+        );
+        std::fs::write(d.join("x.toml"), format!("{x}{sensor}")).unwrap();
+        std::fs::write(d.join("job.toml"), &job).unwrap();
+        let sim = Command::new(bin())
+            .arg("sim")
+            .arg(d.join("job.toml"))
+            .arg("--out")
+            .arg(d.join("sim"))
+            .output()
+            .unwrap();
+        assert!(sim.status.success(), "{}", text(&sim.stderr));
+        let out = wb(
+            "diagnose",
+            &d.join("sim/trace.csv"),
+            &d.join("x.toml"),
+            &["--axis".as_ref(), "x".as_ref(), "--json".as_ref()],
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let named: Vec<String> = j["candidates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["significant"] == true)
+            .map(|c| c["effect"].as_str().unwrap().to_string())
+            .collect();
+        assert!(
+            named.is_empty(),
+            "{times} x the noise: {named:?} named on the right model: {}",
+            j["verdict"]
+        );
+    }
+}

@@ -374,6 +374,15 @@ pub(super) fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candida
     }
 }
 
+/// Why a third-mass fit whose mass comes out zero or negative names no mode.
+const NEGATIVE_MASS: &str =
+    "its fitted mass is not positive, and no body on a spring has a negative mass";
+
+/// Whether a third-mass fit carries a positive mass.
+fn positive_mass(e: &Effect) -> bool {
+    e.coef.first().is_some_and(|m| *m > 0.0)
+}
+
 /// `third_mass`, searched where a mode shows: a structural mode of 50 to 150 Hz rings above
 /// the 100 Hz the torque channel keeps, and below it a mass that follows the table is the same
 /// as more load inertia. When the sampling allows a wider band than the channel's, the mode is
@@ -434,19 +443,25 @@ pub(super) fn mode_candidate(
     let params = flat(&e.to_table(d.kind, d.r));
     let (a, b) = d.range;
     let red = (100.0 * (ch.e0 - cv.rms) / ch.e0).max(ch.cut_pct(&cv));
+    // refitted on the torque channel, the mode must still carry a mass
+    let physical = positive_mass(&e);
+    let mut ev = format!(
+        "{}; in the band up to {} Hz it lowers the error by {:.1} % beyond a refit of the base parameters",
+        evidence(&e, d),
+        fmt(wide_hz),
+        wide.error_reduction_pct
+    );
+    if !physical {
+        ev = format!("{ev}; on the torque channel {NEGATIVE_MASS}: not significant");
+    }
     Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
-        significant: true,
+        significant: physical,
         // a mode that the data single out ranks before the inertia refit it also explains
-        error_reduction_pct: red.clamp(-100.0, 100.0),
-        evidence: format!(
-            "{}; in the band up to {} Hz it lowers the error by {:.1} % beyond a refit of the base parameters",
-            evidence(&e, d),
-            fmt(wide_hz),
-            wide.error_reduction_pct
-        ),
+        error_reduction_pct: if physical { red } else { ch.cut_pct(&cv) }.clamp(-100.0, 100.0),
+        evidence: ev,
         params,
         same_as: vec![],
         contribution: decimate(&e.contribution(d), a, b),
@@ -544,6 +559,10 @@ pub(super) fn scored_candidate(
     if let Some(why) = &doubtful {
         significant = false;
         ev = format!("{ev}; {why}: doubtful, not significant");
+    }
+    if id == EffectId::ThirdMass && !positive_mass(&e) {
+        significant = false;
+        ev = format!("{ev}; {NEGATIVE_MASS}: not significant");
     }
     let red = if significant {
         (100.0 * (reference.e0 - cv.rms) / reference.e0).max(extra)

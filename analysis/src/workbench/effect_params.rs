@@ -263,7 +263,7 @@ fn side_factors(kind: AxisKind, side: Side, r: f64) -> (f64, f64) {
 }
 
 /// Factor from a third mass in motor units to the model file's (`r^2` on a ball screw).
-fn third_mass_factor(kind: AxisKind, r: f64) -> f64 {
+pub(crate) fn third_mass_factor(kind: AxisKind, r: f64) -> f64 {
     match kind {
         AxisKind::BallScrew | AxisKind::Rotary => r * r,
         AxisKind::Rigid => 1.0,

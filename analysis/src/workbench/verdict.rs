@@ -123,6 +123,7 @@ pub(super) fn why_not_significant(evidence: &str) -> &str {
         "it lowers the cross-validated error in only",
         "edge of the range searched",
         "too few reversals",
+        "its fitted mass is not positive",
         "not significant",
     ]
     .iter()

@@ -57,6 +57,18 @@ pub(crate) fn units(kind: AxisKind) -> (&'static str, &'static str) {
     }
 }
 
+/// The mass (or, on a rotary axis, the inertia) a third-mass fit carries, in the model file's
+/// units at the load, with its sign: a negative one is no mass.
+pub(crate) fn third_mass_words(e: &Effect, d: &AxisData) -> String {
+    let m = e.coef.first().copied().unwrap_or(0.0)
+        * super::effect_params::third_mass_factor(d.kind, d.r);
+    if d.kind == AxisKind::Rotary {
+        format!("an inertia of {} kg m^2 at the load", fmt(m))
+    } else {
+        format!("a mass of {} kg", fmt(m))
+    }
+}
+
 pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
     let (tu, _) = units(d.kind);
     let kind = d.kind;
@@ -92,10 +104,10 @@ pub(crate) fn evidence(e: &Effect, d: &AxisData) -> String {
             if kind == AxisKind::Rigid { "m" } else { "rad" }
         ),
         EffectId::ThirdMass => format!(
-            "the residual follows a mode near {} Hz (damping ratio {}) carrying {} of inertia",
+            "the residual follows a mode near {} Hz (damping ratio {}) carrying {}",
             fmt(e.hyper[0]),
             e.hyper[1],
-            fmt(e.coef[0])
+            third_mass_words(e, d)
         ),
         EffectId::Delay => format!(
             "the recorded torque explains the motion best when shifted by {} cycles ({} ms)",
