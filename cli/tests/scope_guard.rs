@@ -120,6 +120,45 @@ fn the_scope_answers_its_own_host_with_its_token_only() {
         &["refused POST /api/trigger from", "403", "attacker.example"],
         5.0,
     );
+    scope.seen.extend(scope.log.try_iter());
+    assert!(
+        !scope.seen.iter().any(|l| l.contains("only protection")),
+        "a loopback scope warned: {:?}",
+        scope.seen
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_scope_bound_beyond_loopback_warns_and_still_checks_host_and_token() {
+    let d = scratch("scope-bind-any");
+    let t = trace(&d);
+    let mut scope = start_scope(&["--trace", t.to_str().unwrap(), "--bind", "0.0.0.0"]);
+    let warning = scope.wait_line(&["warning", "token", "only protection"], 5.0);
+    assert!(
+        warning.contains("not encrypted") && warning.contains("ssh -L"),
+        "{warning}"
+    );
+    let port = scope.addr.rsplit(':').next().unwrap().to_string();
+    assert!(scope.addr.starts_with("0.0.0.0:"), "{}", scope.addr);
+    let here = format!("127.0.0.1:{port}");
+    let with_token = [
+        ("x-scope-token", scope.token.as_str()),
+        ("x-scope-session", "p"),
+    ];
+    let r = request(&here, "GET", "/api/state", &with_token, "");
+    assert_eq!(r.code, 200, "{r:?}");
+    let foreign = format!("attacker.example:{port}");
+    let r = request(
+        &here,
+        "GET",
+        "/api/state",
+        &[with_token[0], with_token[1], ("Host", &foreign)],
+        "",
+    );
+    assert_eq!(r.code, 421, "{r:?}");
+    let r = request(&here, "GET", "/api/state", &[("x-scope-session", "p")], "");
+    assert_eq!(r.code, 401, "{r:?}");
     let _ = std::fs::remove_dir_all(&d);
 }
 

@@ -154,7 +154,7 @@ impl Guard {
                 format!(
                     "Host `{}` is not this scope's address ({}): a page under another name \
                      (DNS rebinding) is not answered",
-                    h.host.unwrap_or(""),
+                    shown(h.host.unwrap_or("")),
                     std::net::SocketAddr::new(self.bind, self.port)
                 ),
             );
@@ -173,8 +173,9 @@ impl Guard {
                     return refuse(
                         403,
                         format!(
-                            "a request from another site (Origin `{o}`) may not change the \
-                             scope; only its own page (http://{host}) may"
+                            "a request from another site (Origin `{}`) may not change the \
+                             scope; only its own page (http://{host}) may",
+                            shown(o)
                         ),
                     );
                 }
@@ -276,6 +277,27 @@ pub fn unescape(s: &str) -> String {
         i += 1;
     }
     String::from_utf8_lossy(&out).into_owned()
+}
+
+/// `s` as it may be shown on a terminal and in a log line: at most 100 characters, control
+/// characters escaped (a Host or Origin header is whatever the client sent).
+pub fn shown(s: &str) -> String {
+    let mut out: String = s
+        .chars()
+        .take(100)
+        .flat_map(|c| {
+            let esc = c
+                .is_control()
+                .then(|| c.escape_default().collect::<String>());
+            esc.unwrap_or_else(|| c.to_string())
+                .chars()
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    if s.chars().count() > 100 {
+        out.push_str("...");
+    }
+    out
 }
 
 /// `host` split into its name (IPv6 without brackets) and port (80 when absent); `None` when it
@@ -482,6 +504,18 @@ mod tests {
         );
         assert_eq!(code("GET", "/?token=", &[host]), None);
         assert_eq!(code("GET", "/", &[]), Some(421));
+    }
+
+    #[test]
+    fn what_a_client_sent_is_shown_escaped_and_cut() {
+        assert_eq!(
+            shown("evil\x1b[2J\r\nfeedloop scope: ok"),
+            "evil\\u{1b}[2J\\r\\nfeedloop scope: ok"
+        );
+        assert_eq!(shown(&"a".repeat(150)), format!("{}...", "a".repeat(100)));
+        let g = guard("127.0.0.1", false);
+        let r = g.check(&head("GET", "/", "x\n:8080")).unwrap_err();
+        assert!(!r.reason.contains('\n'), "{r:?}");
     }
 
     #[test]

@@ -166,8 +166,9 @@ fn handle(ctx: &Ctx, rq: Request) {
     };
     if let Err(r) = screened {
         eprintln!(
-            "feedloop scope: refused {} {path} from {peer}: {} {}",
+            "feedloop scope: refused {} {} from {peer}: {} {}",
             rq.method(),
+            super::guard::shown(&path),
             r.code,
             r.reason
         );
