@@ -2,7 +2,8 @@
 //! the page loads against a running realtime loop, plots receive data, a trigger on a swap
 //! captures it, a swap sent from the page reaches the loop and its answer appears, the capture
 //! saves as a trace and reloads into the view, a second browser is told the scope is taken, and
-//! the page says when the loop ends. A screenshot of each state is written to
+//! the page says when the loop ends; the page is opened at the address with its launch token, and
+//! a `--read-only` scope's page hides swaps and retunes. A screenshot of each state is written to
 //! `target/tmp/scope-e2e/` (the paths are printed). Without a browser the test says so and is
 //! skipped, except on CI (`CI=true`), where it fails.
 
@@ -370,6 +371,20 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         );
     }
     drop(_run2);
+
+    // A read-only scope (here of the saved capture): the page hides swaps and retunes.
+    let ro = start_scope(&["--trace", saved.to_str().unwrap(), "--read-only"]);
+    cdp.call(
+        "Page.navigate",
+        json!({"url": format!("http://{}/?token={}", ro.addr, ro.token)}),
+    );
+    cdp.wait_for(
+        "!!(window.scope && scope.state && scope.state.read_only && scope.frames > 0 && \
+         document.getElementById('swap-panel').hidden && \
+         document.getElementById('title').textContent.includes('read-only'))",
+        15.0,
+        "a read-only scope's page hides the swap panel",
+    );
     let _ = std::fs::remove_dir_all(&d);
 }
 
