@@ -2,82 +2,28 @@
 //! the page loads against a running realtime loop, plots receive data, a trigger on a swap
 //! captures it, a swap sent from the page reaches the loop and its answer appears, the capture
 //! saves as a trace and reloads into the view, a second browser is told the scope is taken, and
-//! the page says when the loop ends. A screenshot of each state is written to
+//! the page says when the loop ends; the page is opened at the address with its launch token, and
+//! a `--read-only` scope's page hides swaps and retunes. A screenshot of each state is written to
 //! `target/tmp/scope-e2e/` (the paths are printed). Without a browser the test says so and is
 //! skipped, except on CI (`CI=true`), where it fails.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod scope_common;
+
+use std::io::{BufRead, BufReader};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use base64::Engine;
 use serde_json::{json, Value};
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_feedloop")
-}
-
-fn repo(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
-}
+use scope_common::{bin, long_job, request, start_run, start_scope, Proc};
 
 /// The browser, or `None` after saying the test `what` is skipped (on CI a missing one fails).
 fn browser_or_skip(what: &str) -> Option<PathBuf> {
     let missing = format!("{}: {what}", feedloop_cli::browser::NOT_FOUND);
     feedloop_test_support::found_or_skip(feedloop_cli::browser::on_path(), missing)
-}
-
-/// Kills a child process when dropped (a failing test leaves nothing running).
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// A plain HTTP request to the scope; returns status code and body.
-fn http(addr: &str, method: &str, path: &str, session: &str, body: &str) -> (u16, String) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nx-scope-session: {session}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    )
-    .unwrap();
-    // read the head, then as many bytes as it announces (DevTools keeps the connection open)
-    let mut r = BufReader::new(s);
-    let mut status = String::new();
-    r.read_line(&mut status).unwrap();
-    let code = status[9..12].parse().unwrap();
-    let mut len = None;
-    loop {
-        let mut h = String::new();
-        r.read_line(&mut h).unwrap();
-        if h.trim().is_empty() {
-            break;
-        }
-        if let Some((k, v)) = h.split_once(':') {
-            if k.eq_ignore_ascii_case("content-length") {
-                len = v.trim().parse::<usize>().ok();
-            }
-        }
-    }
-    let mut body = Vec::new();
-    match len {
-        Some(n) => {
-            body.resize(n, 0);
-            r.read_exact(&mut body).unwrap();
-        }
-        None => {
-            r.read_to_end(&mut body).unwrap();
-        }
-    }
-    (code, String::from_utf8_lossy(&body).into_owned())
 }
 
 /// A DevTools-protocol session with one page.
@@ -187,8 +133,7 @@ fn chromium(browser: &Path, profile: &Path) -> (Proc, Cdp) {
     let port = port.expect("Chromium printed no DevTools address");
     let proc = Proc(child);
     let addr = format!("127.0.0.1:{port}");
-    let (_, list) = http(&addr, "GET", "/json/list", "-", "");
-    let targets: Value = serde_json::from_str(&list).unwrap();
+    let targets = request(&addr, "GET", "/json/list", &[], "").json();
     let ws_url = targets
         .as_array()
         .unwrap()
@@ -208,69 +153,6 @@ fn chromium(browser: &Path, profile: &Path) -> (Proc, Cdp) {
     )
 }
 
-/// `feedloop run JOB --out OUT` in realtime as `instance`, its output in `OUT.out`.
-fn start_run(job: &Path, out: &Path, instance: &str) -> Proc {
-    let log = out.with_extension("out");
-    Proc(
-        Command::new(bin())
-            .arg("run")
-            .arg(job)
-            .arg("--out")
-            .arg(out)
-            .args(["--mode", "realtime", "--instance", instance])
-            .stdout(std::fs::File::create(&log).unwrap())
-            .stderr(std::fs::File::create(log.with_extension("err")).unwrap())
-            .spawn()
-            .unwrap(),
-    )
-}
-
-/// A copy of the circle job running `turns` turns at 4 kHz, with model paths made absolute.
-fn long_job(dir: &Path, turns: f64) -> PathBuf {
-    let text = std::fs::read_to_string(repo("examples/jobs/xy-circle.toml"))
-        .unwrap()
-        .replace("turns = 2.0", &format!("turns = {turns}"))
-        // 4 kHz: the loop, the scope and the browser share this machine's cores with the other
-        // tests; the behaviour under test does not depend on the rate
-        .replace("period_s = 1.0e-4", "period_s = 2.5e-4")
-        .replace(
-            "\"../models/",
-            &format!("\"{}/", repo("examples/models").display()),
-        );
-    let p = dir.join("job.toml");
-    std::fs::write(&p, text).unwrap();
-    p
-}
-
-/// Starts `feedloop scope` with `args` and returns it and its address (from its first line).
-fn start_scope(args: &[&str]) -> (Proc, String, std::sync::mpsc::Receiver<String>) {
-    let mut child = Command::new(bin())
-        .arg("scope")
-        .args(args)
-        .args(["--port", "0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut out = BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    out.read_line(&mut line).unwrap();
-    let addr = line
-        .trim()
-        .strip_prefix("feedloop scope: open http://")
-        .unwrap_or_else(|| panic!("scope printed `{line}`"))
-        .trim_end_matches('/')
-        .to_string();
-    let (tx, rx) = std::sync::mpsc::channel();
-    let err = child.stderr.take().unwrap();
-    std::thread::spawn(move || {
-        for l in BufReader::new(err).lines().map_while(Result::ok) {
-            let _ = tx.send(l);
-        }
-    });
-    (Proc(child), addr, rx)
-}
-
 #[test]
 fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_its_capture() {
     let Some(browser) = browser_or_skip("scope not tested in a browser") else {
@@ -286,15 +168,16 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     let captures = d.join("captures");
 
     // The scope first: it waits for the loop and says so.
-    let (_scope, addr, scope_log) = start_scope(&[
+    let mut scope = start_scope(&[
         "--instance",
         &instance,
         "--captures",
         captures.to_str().unwrap(),
     ]);
-    let (code, body) = http(&addr, "GET", "/api/state", "probe", "");
-    assert_eq!(code, 200, "{body}");
-    let st: Value = serde_json::from_str(&body).unwrap();
+    let addr = scope.addr.clone();
+    let r = scope.api("GET", "/api/state", "probe", "");
+    assert_eq!(r.code, 200, "{r:?}");
+    let st = r.json();
     assert!(
         st["connection"].as_str().unwrap().contains("is running")
             || st["connection"].as_str().unwrap().contains("waiting"),
@@ -309,7 +192,11 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     cdp.run_log = d.join("run.out");
     cdp.call("Page.enable", json!({}));
     std::thread::sleep(Duration::from_secs(3)); // the probe's lease runs out
-    cdp.call("Page.navigate", json!({"url": format!("http://{addr}/")}));
+                                                // the address as the scope printed it, token included
+    cdp.call(
+        "Page.navigate",
+        json!({"url": format!("http://{addr}/?token={}", scope.token)}),
+    );
     cdp.wait_for(
         "!!(window.scope && scope.state && scope.state.running && scope.frames > 10 && scope.points > 1000)",
         40.0,
@@ -331,9 +218,9 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     cdp.screenshot(&shots.join("1-live.png"));
 
     // A second browser is told who holds the scope.
-    let (code, body) = http(&addr, "GET", "/api/state", "second-browser", "");
-    assert_eq!(code, 409, "{body}");
-    assert!(body.contains("another page"), "{body}");
+    let r = scope.api("GET", "/api/state", "second-browser", "");
+    assert_eq!(r.code, 409, "{r:?}");
+    assert!(r.body.contains("another page"), "{r:?}");
 
     // Trigger on a swap, then retune the velocity loop from the page.
     cdp.eval(
@@ -362,6 +249,13 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     assert!(
         answer["answer"]["swap"]["to"] == "pi_velocity"
             && answer["answer"]["swap"]["rolled_back"] == false,
+        "{answer}"
+    );
+    // recorded as sent from this page, at the browser's address
+    let origin = &answer["answer"]["swap"]["origin"];
+    assert_eq!(origin["via"], "scope", "{answer}");
+    assert!(
+        origin["peer"].as_str().unwrap().starts_with("127.0.0.1:"),
         "{answer}"
     );
     cdp.wait_for(
@@ -462,8 +356,8 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         "the restarted loop's cycles arrive",
     );
     cdp.screenshot(&shots.join("6-restarted.png"));
-    let lines: Vec<String> = scope_log.try_iter().collect();
-    let log = lines.join("\n");
+    scope.seen.extend(scope.log.try_iter());
+    let log = scope.seen.join("\n");
     for want in [
         "attached to loop",
         "refused a second page",
@@ -477,6 +371,20 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         );
     }
     drop(_run2);
+
+    // A read-only scope (here of the saved capture): the page hides swaps and retunes.
+    let ro = start_scope(&["--trace", saved.to_str().unwrap(), "--read-only"]);
+    cdp.call(
+        "Page.navigate",
+        json!({"url": format!("http://{}/?token={}", ro.addr, ro.token)}),
+    );
+    cdp.wait_for(
+        "!!(window.scope && scope.state && scope.state.read_only && scope.frames > 0 && \
+         document.getElementById('swap-panel').hidden && \
+         document.getElementById('title').textContent.includes('read-only'))",
+        15.0,
+        "a read-only scope's page hides the swap panel",
+    );
     let _ = std::fs::remove_dir_all(&d);
 }
 
@@ -498,10 +406,11 @@ fn a_recorded_trace_opens_in_the_scope_and_bad_arguments_are_named() {
         ));
     }
     std::fs::write(&t, text).unwrap();
-    let (_scope, addr, _) = start_scope(&["--trace", t.to_str().unwrap()]);
-    let (code, body) = http(&addr, "GET", "/api/state", "a", "");
-    assert_eq!(code, 200);
-    let st: Value = serde_json::from_str(&body).unwrap();
+    let scope = start_scope(&["--trace", t.to_str().unwrap()]);
+    let addr = scope.addr.clone();
+    let r = scope.api("GET", "/api/state", "a", "");
+    assert_eq!(r.code, 200);
+    let st = r.json();
     assert_eq!(st["mode"], "trace");
     let span = st["span_s"].as_array().unwrap();
     assert!(
@@ -509,14 +418,14 @@ fn a_recorded_trace_opens_in_the_scope_and_bad_arguments_are_named() {
             && (span[1].as_f64().unwrap() - 1.499).abs() < 1e-9
     );
     // a one-sample spike is kept by the envelope of a 100-column view
-    let (_, v) = http(
-        &addr,
-        "GET",
-        "/api/view?sig=x.torque,x.following_error&cols=100&t0=0.5&t1=1.5",
-        "a",
-        "",
-    );
-    let v: Value = serde_json::from_str(&v).unwrap();
+    let v = scope
+        .api(
+            "GET",
+            "/api/view?sig=x.torque,x.following_error&cols=100&t0=0.5&t1=1.5",
+            "a",
+            "",
+        )
+        .json();
     let hi: Vec<f64> = v["series"][0]["hi"]
         .as_array()
         .unwrap()

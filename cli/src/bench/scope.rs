@@ -124,14 +124,14 @@ fn rss_bytes(pid: u32) -> Option<u64> {
     Some(kb * 1024)
 }
 
-/// A GET without a page session (the scope's `/api/stats`).
-fn get(addr: &str, path: &str) -> Option<Value> {
+/// A GET with the scope's token but without a page session (the scope's `/api/stats`).
+fn get(addr: &str, token: &str, path: &str) -> Option<Value> {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).ok()?;
     s.set_read_timeout(Some(Duration::from_secs(2))).ok()?;
     write!(
         s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nx-scope-token: {token}\r\nConnection: close\r\n\r\n"
     )
     .ok()?;
     let mut out = String::new();
@@ -271,21 +271,21 @@ impl ScopeBench<'_> {
     fn watched_run(&self, kind: u8, dir: &Path, instance: &str) -> Result<Value> {
         let a = self.a;
         let (scope, url) = self.start_scope(dir, instance)?;
-        let addr = url
-            .trim_start_matches("http://")
-            .trim_end_matches('/')
-            .to_string();
+        // http://HOST:PORT/?token=T
+        let rest = url.trim_start_matches("http://");
+        let addr = rest.split('/').next().unwrap_or(rest).to_string();
+        let token = url.split_once("token=").map_or("", |(_, t)| t).to_string();
         let chrome = if kind == 2 {
             Some(self.start_browser(dir, &url)?)
         } else {
             None
         };
         let sampler = RssSampler::start(scope.0.id(), Duration::from_secs_f64(a.rss_every_s));
-        let before = get(&addr, "/api/stats");
+        let before = get(&addr, &token, "/api/stats");
         let ran = run_processes(
             &self.job, dir, self.wait, a.cycles, &self.cpus, None, instance,
         );
-        let after = get(&addr, "/api/stats");
+        let after = get(&addr, &token, "/api/stats");
         let rss = sampler.stop();
         drop(chrome);
         drop(scope);

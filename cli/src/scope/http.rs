@@ -14,6 +14,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
 use tiny_http::{Header, Method, Request, Response, Server};
 
+use super::guard::query;
 use super::store::{self, Condition, Store, Trigger, AXIS_SIGNALS, EVENT_KINDS, LATENCY};
 use super::{Ctx, Session, Shared, LEASE};
 
@@ -72,53 +73,24 @@ fn header(k: &str, v: &str) -> Header {
     Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("valid header")
 }
 
+/// `r` with the headers every answer carries (and never an Access-Control-Allow-Origin: no other
+/// site may read the scope).
+fn guarded<R: Read>(r: Response<R>) -> Response<R> {
+    r.with_header(header("Cache-Control", "no-store"))
+        .with_header(header("Referrer-Policy", "no-referrer"))
+        .with_header(header("X-Content-Type-Options", "nosniff"))
+        .with_header(header("X-Frame-Options", "DENY"))
+}
+
 fn reply(rq: Request, code: u16, kind: &str, body: String) {
     let r = Response::from_string(body)
         .with_status_code(code)
-        .with_header(header("Content-Type", kind))
-        .with_header(header("Cache-Control", "no-store"));
-    let _ = rq.respond(r);
+        .with_header(header("Content-Type", kind));
+    let _ = rq.respond(guarded(r));
 }
 
 fn reply_json(rq: Request, code: u16, v: &Value) {
     reply(rq, code, "application/json", v.to_string());
-}
-
-/// The query parameters of `url`.
-fn query(url: &str) -> Vec<(String, String)> {
-    let Some((_, q)) = url.split_once('?') else {
-        return Vec::new();
-    };
-    q.split('&')
-        .map(|kv| {
-            let (k, v) = kv.split_once('=').unwrap_or((kv, ""));
-            (k.to_string(), unescape(v))
-        })
-        .collect()
-}
-
-fn unescape(s: &str) -> String {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        match b[i] {
-            b'+' => out.push(b' '),
-            b'%' if i + 2 < b.len() => {
-                let hex = |c: u8| (c as char).to_digit(16);
-                match (hex(b[i + 1]), hex(b[i + 2])) {
-                    (Some(h), Some(l)) => {
-                        out.push((h * 16 + l) as u8);
-                        i += 2;
-                    }
-                    _ => out.push(b'%'),
-                }
-            }
-            c => out.push(c),
-        }
-        i += 1;
-    }
-    String::from_utf8_lossy(&out).into_owned()
 }
 
 fn param<'a>(q: &'a [(String, String)], k: &str) -> Option<&'a str> {
@@ -170,11 +142,38 @@ fn attach(sh: &mut Shared, token: &str, addr: &str, takeover: bool) -> Result<()
     Ok(())
 }
 
-/// Answers one request: the page's files and the stats need no session, the rest of the API
-/// the page's.
+/// The address of the request's peer, `IP:PORT`.
+fn peer(rq: &Request) -> String {
+    rq.remote_addr()
+        .map(|a| a.to_string())
+        .unwrap_or_else(|| "?".into())
+}
+
+/// Answers one request: screened first ([`super::guard`]: Host, token, Origin, read-only; every
+/// refusal logged with the peer's address), then the page's files and the stats need no
+/// session, the rest of the API the page's.
 fn handle(ctx: &Ctx, rq: Request) {
     let url = rq.url().to_string();
     let path = url.split('?').next().unwrap_or("").to_string();
+    let peer = peer(&rq);
+    let screened = {
+        let headers: Vec<(&str, &str)> = rq
+            .headers()
+            .iter()
+            .map(|h| (h.field.as_str().as_str(), h.value.as_str()))
+            .collect();
+        ctx.guard.screen(rq.method().as_str(), &url, &headers)
+    };
+    if let Err(r) = screened {
+        eprintln!(
+            "feedloop scope: refused {} {} from {peer}: {} {}",
+            rq.method(),
+            super::guard::shown(&path),
+            r.code,
+            r.reason
+        );
+        return reply_json(rq, r.code, &json!({"error": r.reason, "refused": r.code}));
+    }
     let q = query(&url);
     let Some(rq) = open_route(ctx, rq, &path) else {
         return;
@@ -182,7 +181,7 @@ fn handle(ctx: &Ctx, rq: Request) {
     let Some((rq, body)) = admit(ctx, rq, &path) else {
         return;
     };
-    api(ctx, rq, &path, &q, &body);
+    api(ctx, rq, &path, &q, &body, &peer);
 }
 
 /// Answers the page's files, the stats and a path outside the API; hands back any other request.
@@ -199,7 +198,7 @@ fn open_route(ctx: &Ctx, rq: Request, path: &str) -> Option<Request> {
         ),
         (Method::Get, "/scope.css") => reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string()),
         (Method::Get, "/api/stats") => {
-            // for benchmarks and scripts: no page session needed, nothing changes
+            // for benchmarks and scripts: the token, but no page session needed; nothing changes
             let sh = ctx.lock();
             let v = json!({
                 "views_served": ctx.views.load(Ordering::Relaxed),
@@ -227,10 +226,7 @@ fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
         .find(|h| h.field.equiv("x-scope-session"))
         .map(|h| h.value.as_str().to_string())
         .unwrap_or_default();
-    let addr = rq
-        .remote_addr()
-        .map(|a| a.to_string())
-        .unwrap_or_else(|| "?".into());
+    let addr = peer(&rq);
     let takeover = path == "/api/takeover";
     if let Err(e) = attach(&mut ctx.lock(), &token, &addr, takeover) {
         if !takeover {
@@ -265,8 +261,8 @@ fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
     Some((rq, body))
 }
 
-/// Answers an API request of the attached page.
-fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str) {
+/// Answers an API request of the attached page (at `peer`).
+fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str, peer: &str) {
     let name = rq
         .headers()
         .iter()
@@ -292,7 +288,7 @@ fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str) {
         }
         "/api/swap" => serde_json::from_str::<Value>(body)
             .map_err(|e| anyhow!("the swap request is not JSON: {e}"))
-            .and_then(|b| super::page_swap(ctx, &b))
+            .and_then(|b| super::page_swap(ctx, &b, peer))
             .and_then(|a| Ok(serde_json::to_value(a)?)),
         "/api/capture/save" => {
             let cap = ctx.lock().capture.clone();
@@ -319,9 +315,8 @@ fn reply_view_bin(ctx: &Ctx, rq: Request, q: &[(String, String)]) {
     match view_bin(ctx, q) {
         Ok(bytes) => {
             let r = Response::from_data(bytes)
-                .with_header(header("Content-Type", "application/octet-stream"))
-                .with_header(header("Cache-Control", "no-store"));
-            let _ = rq.respond(r);
+                .with_header(header("Content-Type", "application/octet-stream"));
+            let _ = rq.respond(guarded(r));
         }
         Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
     }
@@ -424,6 +419,7 @@ fn state(ctx: &Ctx) -> Value {
     let events: Vec<&store::Event> = s.events.iter().rev().take(300).collect();
     json!({
         "mode": if ctx.instance.is_some() { "live" } else { "trace" },
+        "read_only": ctx.guard.read_only,
         "instance": ctx.instance,
         "connection": sh.connection,
         "running": sh.running,

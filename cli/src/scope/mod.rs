@@ -6,6 +6,7 @@
 //! triggers on levels and on the loop's own events, saves and reloads captures as traces, and
 //! talks to the loop's control service. Nothing here runs in the loop's processes.
 
+pub mod guard;
 mod http;
 pub mod store;
 
@@ -18,7 +19,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use feedloop_model::units::si;
 use feedloop_runtime::scheduler::control::protocol::{Answer, Request, Status};
-use feedloop_runtime::scheduler::control::request;
+use feedloop_runtime::scheduler::control::{request, request_from, Origin};
 use feedloop_runtime::shared::clock::{now_ns, sleep_until_ns};
 use feedloop_runtime::shared::scope::{ReceivedBlock, ScopeRecords, ScopeSubscriber};
 use feedloop_trace::Trace;
@@ -41,9 +42,13 @@ pub struct ScopeArgs {
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
     /// Address to listen on; the page carries the loop's control service, so only the local
-    /// machine unless asked otherwise.
+    /// machine unless asked otherwise (beyond it, the token is the only protection and the
+    /// traffic is not encrypted: prefer an SSH tunnel, docs/scope.md).
     #[arg(long, default_value = "127.0.0.1")]
     pub bind: String,
+    /// Watch only: triggers and captures work, swaps and retunes are refused.
+    #[arg(long)]
+    pub read_only: bool,
     /// Seconds of the loop kept for the page (a bounded ring; older cycles are overwritten).
     #[arg(long, default_value_t = 20.0)]
     pub history_s: f64,
@@ -160,6 +165,8 @@ pub struct Ctx {
     pub stop: AtomicBool,
     /// Views (curve requests) served to the page.
     pub views: std::sync::atomic::AtomicU64,
+    /// Who is answered (Host, token, Origin, read-only).
+    pub guard: guard::Guard,
 }
 
 impl Ctx {
@@ -182,7 +189,7 @@ fn ring_cycles(history_s: f64, period_s: f64) -> usize {
 /// `feedloop scope`.
 pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
     checked(a)?;
-    let ctx = Arc::new(context(a)?);
+    let opened = opened(a)?;
     if !(0..=19).contains(&a.nice) {
         bail!("--nice {}: 0..19", a.nice);
     }
@@ -194,7 +201,18 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
         .server_addr()
         .to_ip()
         .context("the server has no IP address")?;
-    println!("feedloop scope: open http://{addr}/");
+    let guard = guard::Guard::new(addr.ip(), addr.port(), a.read_only)?;
+    if guard.beyond_loopback() {
+        eprintln!(
+            "feedloop scope: warning: listening on {addr}, beyond this machine: the token in the \
+             address is the only protection, and the traffic (token included) is not encrypted; \
+             prefer the default --bind 127.0.0.1 and an SSH tunnel (ssh -L {p}:127.0.0.1:{p} \
+             HOST), see docs/scope.md",
+            p = addr.port()
+        );
+    }
+    println!("feedloop scope: open {}", guard.url());
+    let ctx = Arc::new(context(a, opened, guard));
     let mut threads = http::serve(server.clone(), ctx.clone());
     if let Some(instance) = a.instance.clone() {
         let c = ctx.clone();
@@ -243,9 +261,16 @@ fn checked(a: &ScopeArgs) -> Result<()> {
     Ok(())
 }
 
-/// The scope's state at its start: the traces asked for (the first one shown), else an empty
-/// ring waiting for the loop.
-fn context(a: &ScopeArgs) -> Result<Ctx> {
+/// The traces asked for (the first one read: it is shown), and what the banner says.
+struct Opened {
+    traces: Vec<PathBuf>,
+    store: Store,
+    connection: String,
+}
+
+/// Reads the traces asked for (the first one is shown), else makes an empty ring waiting for the
+/// loop.
+fn opened(a: &ScopeArgs) -> Result<Opened> {
     let mut traces = Vec::new();
     if let Some(dir) = &a.report {
         traces = csv_files(dir)?;
@@ -269,7 +294,21 @@ fn context(a: &ScopeArgs) -> Result<Ctx> {
             ),
         ),
     };
-    Ok(Ctx {
+    Ok(Opened {
+        traces,
+        store,
+        connection,
+    })
+}
+
+/// The scope's state at its start.
+fn context(a: &ScopeArgs, o: Opened, guard: guard::Guard) -> Ctx {
+    let Opened {
+        traces,
+        store,
+        connection,
+    } = o;
+    Ctx {
         shared: Mutex::new(Shared {
             store,
             capture: None,
@@ -291,7 +330,8 @@ fn context(a: &ScopeArgs) -> Result<Ctx> {
         history_s: a.history_s,
         stop: AtomicBool::new(false),
         views: Default::default(),
-    })
+        guard,
+    }
 }
 
 fn csv_files(dir: &Path) -> Result<Vec<PathBuf>> {
@@ -516,8 +556,9 @@ fn contour_of(path: &Path) -> Result<store::ContourFn> {
     Ok(Box::new(move |t, rows| judge.error_m(&cycle, t, rows)))
 }
 
-/// Sends a swap from the page to the loop and keeps the answer for the plot.
-pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
+/// Sends a swap from the page at `peer` to the loop (its origin: that page) and keeps the answer
+/// for the plot.
+pub fn page_swap(ctx: &Ctx, body: &serde_json::Value, peer: &str) -> Result<PageAnswer> {
     let Some(instance) = &ctx.instance else {
         bail!("this scope shows recordings; swaps need a running loop (--instance)");
     };
@@ -542,7 +583,12 @@ pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
             params_file: Some("<page params>".into()),
         },
     );
-    let answer = request(instance, &req, Duration::from_secs(5))?;
+    let answer = request_from(
+        instance,
+        &req,
+        Origin::scope_page(peer),
+        Duration::from_secs(5),
+    )?;
     let mut sh = ctx.lock();
     let newest = sh.store.newest.unwrap_or(0);
     let (cycle, outcome, summary) = match &answer {
@@ -585,7 +631,7 @@ pub fn page_swap(ctx: &Ctx, body: &serde_json::Value) -> Result<PageAnswer> {
     sh.answers.push_back(a.clone());
     drop(sh);
     eprintln!(
-        "feedloop scope: swap from the page: {} ({})",
+        "feedloop scope: swap from the page at {peer}: {} ({})",
         a.summary, a.outcome
     );
     Ok(a)

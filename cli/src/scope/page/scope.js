@@ -2,6 +2,11 @@
 'use strict';
 
 const session = Math.random().toString(36).slice(2) + Date.now().toString(36);
+// The launch token `feedloop scope` printed in the page's address (?token=...): sent with every
+// API request. Kept for this tab, so a reload of the bare address still works.
+const token = new URLSearchParams(location.search).get('token') || sessionStorage.getItem('feedloop-scope-token') || '';
+if (token) sessionStorage.setItem('feedloop-scope-token', token);
+const sent = () => ({ 'x-scope-session': session, 'x-scope-token': token });
 const COLORS = ['#1f5fbf', '#d9480f', '#2b8a3e', '#862e9c', '#c92a2a', '#0b7285', '#5f3dc4', '#e67700'];
 const EVENT_COLORS = { deadline_miss: '#c92a2a', plant_overrun: '#e67700', stall: '#862e9c',
   swap: '#1b7f3a', rollback: '#b3261e', safety_stop: '#000000' };
@@ -15,7 +20,7 @@ const scope = window.scope = {
 const $ = (id) => document.getElementById(id);
 
 async function api(path, opts = {}) {
-  opts.headers = Object.assign({ 'x-scope-session': session }, opts.headers || {});
+  opts.headers = Object.assign(sent(), opts.headers || {});
   const r = await fetch(path, opts);
   const body = await r.json().catch(() => ({ error: 'answer is not JSON (' + r.status + ')' }));
   if (r.status === 409 && body.busy) {
@@ -235,7 +240,7 @@ function drawPane(pane, view, t0, t1) {
 // The binary view (see the server's `view_bin`): a JSON head, then f32 minima and maxima per
 // series relative to the series' offset; NaN where a column holds no cycle.
 async function viewBin(path) {
-  const r = await fetch(path, { headers: { 'x-scope-session': session } });
+  const r = await fetch(path, { headers: sent() });
   if (!r.ok) { await api(path); throw new Error('HTTP ' + r.status); }
   const buf = await r.arrayBuffer();
   const n = new DataView(buf).getUint32(0, true);
@@ -311,7 +316,9 @@ function drawHistogram(lat) {
 }
 
 function updateSidebar(st) {
-  $('title').textContent = 'feedloop scope - ' + (st.mode === 'live' ? 'loop ' + st.instance : 'recording');
+  $('title').textContent = 'feedloop scope - ' + (st.mode === 'live' ? 'loop ' + st.instance : 'recording') +
+    (st.read_only ? ' (read-only)' : '');
+  $('swap-panel').hidden = !!st.read_only;
   $('banner').textContent = st.connection + (st.period_s ? ' | period ' + (st.period_s * 1e6).toFixed(0) + ' us' : '') +
     (st.runs > 1 ? ' | run ' + st.runs + ' (the loop restarted)' : '');
   const lat = st.latency;

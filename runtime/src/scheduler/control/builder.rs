@@ -69,6 +69,9 @@ pub(super) struct Built {
     pub(super) controller: Result<Box<dyn Controller>, SwapError>,
     /// The stage's current (plugin, parameters) once this controller is confirmed.
     pub(super) entry: (String, toml::Table),
+    /// What the swap changes ([`SwapEvent::changed`](super::protocol::SwapEvent::changed)),
+    /// worked out here rather than in the cycle.
+    pub(super) changed: Vec<String>,
     /// What the builder found out about it.
     pub(super) check: Checked,
 }
@@ -125,27 +128,26 @@ pub(super) fn builder(
             }
             Err(mpsc::RecvError) => return,
         };
+        let refused = |e| Built {
+            controller: Err(e),
+            entry: Default::default(),
+            changed: Vec::new(),
+            check: Checked::default(),
+        };
         let built = match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
             Ok((c, entry)) => match judge(&job, c.as_ref(), &contexts, &model) {
                 Ok(check) => Built {
                     controller: Ok(c),
+                    changed: changes(&current[job.axis][job.stage.index()], &entry, &job),
                     entry,
                     check,
                 },
                 Err(e) => {
                     drop(c);
-                    Built {
-                        controller: Err(e),
-                        entry: Default::default(),
-                        check: Checked::default(),
-                    }
+                    refused(e)
                 }
             },
-            Err(e) => Built {
-                controller: Err(e),
-                entry: Default::default(),
-                check: Checked::default(),
-            },
+            Err(e) => refused(e),
         };
         if done.send(built).is_err() {
             return;
@@ -204,6 +206,41 @@ fn judge(
         }
     }
     Ok(check)
+}
+
+/// What replacing the stage's `current` entry by `new` changes, in words: the plugin when it
+/// differs, then each parameter whose value differs (a library's parameters are its own text:
+/// their lines as sent).
+fn changes(current: &StageEntry, new: &StageEntry, job: &BuildJob) -> Vec<String> {
+    const MOST: usize = 32;
+    let (cur_id, cur) = current;
+    let (new_id, params) = new;
+    let mut out = Vec::new();
+    if cur_id != new_id {
+        out.push(format!("plugin: {cur_id} -> {new_id}"));
+    }
+    if job.lib.is_some() {
+        let text = job.params.as_deref().unwrap_or("");
+        out.extend(
+            text.lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                .take(MOST)
+                .map(str::to_string),
+        );
+        return out;
+    }
+    for (k, v) in params {
+        match cur.get(k).filter(|_| cur_id == new_id) {
+            Some(old) if old == v => {}
+            Some(old) => out.push(format!("{k}: {old} -> {v}")),
+            None => out.push(format!("{k} = {v}")),
+        }
+        if out.len() >= MOST {
+            break;
+        }
+    }
+    out
 }
 
 fn build_one(

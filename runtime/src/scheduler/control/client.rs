@@ -2,13 +2,25 @@
 
 use std::time::Duration;
 
+use super::origin::Origin;
 use super::protocol::{Answer, Request};
 use super::wire::{service_name, ControlRequest, ControlResponse};
 use crate::shared::clock::now_ns;
 use crate::shared::ipc::{create_node, IpcError};
 
-/// Sends one request to the scheduler of `instance` and waits up to `timeout` for the answer.
+/// Sends one request to the scheduler of `instance` and waits up to `timeout` for the answer;
+/// its origin is this process, as the command line ([`Origin::command_line`]).
 pub fn request(instance: &str, req: &Request, timeout: Duration) -> Result<Answer, IpcError> {
+    request_from(instance, req, Origin::command_line(), timeout)
+}
+
+/// [`request`] sent on behalf of `origin` (e.g. a page of the scope).
+pub fn request_from(
+    instance: &str,
+    req: &Request,
+    origin: Origin,
+    timeout: Duration,
+) -> Result<Answer, IpcError> {
     let node = create_node(instance, "control-client")?;
     let setup = |what: &str, e: &dyn std::fmt::Debug| IpcError::Setup {
         what: what.to_string(),
@@ -28,7 +40,7 @@ pub fn request(instance: &str, req: &Request, timeout: Duration) -> Result<Answe
         .client_builder()
         .create()
         .map_err(|e| setup("create a control client", &e))?;
-    let msg = ControlRequest::new(req).map_err(|e| IpcError::Send(e.to_string()))?;
+    let msg = ControlRequest::new(req, origin).map_err(|e| IpcError::Send(e.to_string()))?;
     let start = now_ns();
     let limit = timeout.as_nanos() as u64;
     // The server connects lazily: resend until a response arrives.

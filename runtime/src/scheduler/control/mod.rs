@@ -11,6 +11,7 @@
 //! Before that, the builder refuses a plugin in a stage it does not fill, and a gain set the loop
 //! model (the one `feedloop tune` uses) finds unstable or marginal, unless `force`.
 
+pub mod origin;
 pub mod protocol;
 
 mod builder;
@@ -18,6 +19,7 @@ mod client;
 mod server;
 mod wire;
 
-pub use client::request;
+pub use client::{request, request_from};
+pub use origin::Origin;
 pub use server::{ControlPlane, Rejection};
 pub use wire::{ControlRequest, ControlResponse, REQUEST_BYTES, RESPONSE_BYTES};

@@ -13,6 +13,8 @@ use serde_json::Value;
 
 use feedloop_model::Stage;
 
+use super::origin::Origin;
+
 /// A request to the control service.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "op", rename_all = "lowercase")]
@@ -288,6 +290,15 @@ pub struct SwapEvent {
     /// What a forced swap was let through despite (and notes, e.g. margins not checked).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// What changed: `plugin: A -> B` for a new plugin, and each parameter the request set
+    /// whose value differs from the stage's current one (`key: old -> new`, `key = new` when it
+    /// had none).
+    #[serde(default)]
+    pub changed: Vec<String>,
+    /// Who asked for it: the command line (user, process id) or a scope page (its address);
+    /// null when the sender did not say.
+    #[serde(default)]
+    pub origin: Option<Origin>,
 }
 
 /// A number, or NaN for the `null` JSON writes for a non-finite one.
@@ -396,6 +407,8 @@ mod tests {
             gain_margin_db: None,
             forced: true,
             warnings: vec!["kept although marginal".into()],
+            changed: vec!["kv_nms_per_rad: 4.0 -> 4.75".into()],
+            origin: Some(Origin::scope_page("127.0.0.1:50412")),
         }
     }
 

@@ -11,6 +11,7 @@ use feedloop_model::job::Job;
 use iceoryx2::prelude::*;
 
 use super::builder::{builder, BuildJob, Built, LoopCheck, SwapError, ToBuilder};
+use super::origin::Origin;
 use super::protocol::{self, Answer, AxisStatus, Request, StagePlugins, Status, SwapEvent};
 use super::wire::{service_name, ControlRequest, ControlResponse, CtlActive, CtlServer};
 use crate::scheduler::cycle::ControlCycle;
@@ -28,6 +29,8 @@ pub struct Rejection {
     pub op: String,
     /// The reason given to the client.
     pub error: String,
+    /// Who sent it (null when the sender did not say).
+    pub origin: Option<Origin>,
 }
 
 /// At most this many refusals are kept (the count goes on).
@@ -49,6 +52,15 @@ struct Probation {
     faults_before: u64,
 }
 
+/// A swap request handed to the builder, or switched in and on probation: its answer is owed.
+struct Pending {
+    req: CtlActive,
+    axis: usize,
+    stage: Stage,
+    /// Who sent it (copied from the request: no allocation).
+    origin: Option<Origin>,
+}
+
 const HISTORY: usize = 101;
 const PROBATION_CYCLES: u32 = 10;
 
@@ -59,7 +71,7 @@ pub struct ControlPlane {
     to_builder: mpsc::Sender<ToBuilder>,
     from_builder: mpsc::Receiver<Built>,
     graveyard: mpsc::Sender<ToBuilder>,
-    pending: Option<(CtlActive, usize, Stage)>,
+    pending: Option<Pending>,
     probation: Option<Probation>,
     /// Every swap so far.
     pub swaps: Vec<SwapEvent>,
@@ -196,12 +208,13 @@ impl ControlPlane {
         let Ok(built) = self.from_builder.try_recv() else {
             return;
         };
-        let Some((req, axis, stage)) = self.pending.take() else {
+        let Some(pending) = self.pending.take() else {
             return;
         };
+        let (axis, stage) = (pending.axis, pending.stage);
         match built.controller {
             Err(reason) => {
-                self.refuse(&req, seq, "swap", reason.to_string());
+                self.refuse(&pending.req, seq, "swap", reason.to_string());
             }
             Ok(new) => {
                 let check = built.check;
@@ -232,6 +245,8 @@ impl ControlPlane {
                     gain_margin_db: check.margins.map(|m| m.1),
                     forced: check.force,
                     warnings: check.warnings,
+                    changed: built.changed,
+                    origin: pending.origin,
                 });
                 self.plugin_ids[axis].set(stage, Some(new_id));
                 self.probation = Some(Probation {
@@ -247,7 +262,7 @@ impl ControlPlane {
                     event: self.swaps.len() - 1,
                     faults_before: cycle.chain().nonfinite_faults,
                 });
-                self.pending = Some((req, axis, stage));
+                self.pending = Some(pending);
             }
         }
     }
@@ -350,9 +365,9 @@ impl ControlPlane {
             let ev = &mut self.swaps[p.event];
             ev.rolled_back = true;
             ev.reason = Some(reason.to_string());
-            if let Some((req, _, _)) = self.pending.take() {
+            if let Some(pending) = self.pending.take() {
                 respond(
-                    &req,
+                    &pending.req,
                     &Answer::Refused {
                         error: format!("rolled back: {reason}"),
                         swap: Some(ev.clone()),
@@ -372,9 +387,9 @@ impl ControlPlane {
                     gains: p.gains,
                 });
             }
-            if let Some((req, _, _)) = self.pending.take() {
+            if let Some(pending) = self.pending.take() {
                 respond(
-                    &req,
+                    &pending.req,
                     &Answer::Swapped {
                         swap: self.swaps[p.event].clone(),
                     },
@@ -415,7 +430,13 @@ impl ControlPlane {
                     if self.to_builder.send(ToBuilder::Build(job)).is_err() {
                         respond(&req, &Answer::refused("the plugin builder thread is gone"));
                     } else {
-                        self.pending = Some((req, axis, stage));
+                        let origin = Some(req.payload().origin).filter(Origin::is_known);
+                        self.pending = Some(Pending {
+                            req,
+                            axis,
+                            stage,
+                            origin,
+                        });
                     }
                 }
             },
@@ -460,6 +481,7 @@ impl ControlPlane {
                 t_s: seq as f64 * self.period_s,
                 op: op.to_string(),
                 error,
+                origin: Some(req.payload().origin).filter(Origin::is_known),
             });
         }
     }

@@ -5,6 +5,7 @@ use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 
+use super::origin::Origin;
 use super::protocol::{Answer, Request, RequestError};
 use crate::shared::ipc::IpcError;
 
@@ -13,10 +14,11 @@ pub const REQUEST_BYTES: usize = 8192;
 /// Capacity of a response's JSON text, bytes.
 pub const RESPONSE_BYTES: usize = 16384;
 
-/// A control request: a [`Request`] as JSON text, e.g. `{"op":"swap","axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_nms_per_rad = 4.0"}`.
+/// A control request: a [`Request`] as JSON text, e.g. `{"op":"swap","axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_nms_per_rad = 4.0"}`,
+/// and where it came from.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("FeedloopControlRequestV1")]
+#[type_name("FeedloopControlRequestV2")]
 pub struct ControlRequest {
     /// `wire::PROTOCOL_VERSION` of the sender.
     pub protocol: u32,
@@ -24,6 +26,8 @@ pub struct ControlRequest {
     pub len: u32,
     /// UTF-8 JSON.
     pub text: [u8; REQUEST_BYTES],
+    /// Who sent it (kept with the swaps it makes: the audit trail).
+    pub origin: Origin,
 }
 
 /// A control response: an [`Answer`] as JSON text; `code` 0 = done, 1 = refused (reason in the
@@ -46,6 +50,7 @@ impl Default for ControlRequest {
             protocol: crate::shared::wire::PROTOCOL_VERSION,
             len: 0,
             text: [0; REQUEST_BYTES],
+            origin: Origin::default(),
         }
     }
 }
@@ -61,8 +66,9 @@ impl Default for ControlResponse {
 }
 
 impl ControlRequest {
-    /// A request holding `req` (refused when its JSON is longer than the buffer).
-    pub fn new(req: &Request) -> Result<Self, RequestError> {
+    /// A request holding `req` sent from `origin` (refused when its JSON is longer than the
+    /// buffer).
+    pub fn new(req: &Request, origin: Origin) -> Result<Self, RequestError> {
         let s = json_text(req);
         if s.len() > REQUEST_BYTES {
             return Err(RequestError::TooLong {
@@ -73,6 +79,7 @@ impl ControlRequest {
         let mut r = Self::default();
         r.text[..s.len()].copy_from_slice(s.as_bytes());
         r.len = s.len() as u32;
+        r.origin = origin;
         Ok(r)
     }
 
