@@ -150,6 +150,9 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
     if let Some(e) = fitted.as_ref().and_then(|f| f.resized.clone()) {
         resize_candidate(&mut cands, e, d);
     }
+    // the table reads top down: what is significant first, each part in the order of its cut
+    // (a first candidate whose fit was refused no longer stands above the one named)
+    cands.sort_by_key(|c| !c.significant);
     let (white, ac) = residual_whiteness(d, &ch);
     let (residual_terms, sparse_peer) = dictionary_of(model, d, &ch, &opts.extra_terms);
     let mut verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
@@ -395,7 +398,7 @@ pub(super) fn condition_on_top(
             included.push(e);
         }
     }
-    cands[0].same_as.extend(included);
+    cands[ti].same_as.extend(included);
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
 }
 
