@@ -176,10 +176,17 @@ fn retunes_swaps_and_refusals_are_told_apart() {
         matches!(&retune, Ok(Verdict::Swap { plugin, margins: Some(_), .. }) if plugin == "pi_velocity"),
         "{retune:?}"
     );
-    let loud = r#""axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_ns_per_m = 1e9""#;
+    let loud =
+        r#""axis":"x","stage":"velocity","plugin":"pi_velocity","params":"kv_ns_per_m = 1e9""#;
     let unsafe_ = verdict(&dry, format!(r#"{{"op":"swap",{loud}}}"#).as_bytes()).unwrap_err();
-    assert!(unsafe_.contains("refused before it was applied"), "{unsafe_}");
-    let forced = verdict(&dry, format!(r#"{{"op":"swap",{loud},"force":true}}"#).as_bytes());
+    assert!(
+        unsafe_.contains("refused before it was applied"),
+        "{unsafe_}"
+    );
+    let forced = verdict(
+        &dry,
+        format!(r#"{{"op":"swap",{loud},"force":true}}"#).as_bytes(),
+    );
     assert!(
         matches!(&forced, Ok(Verdict::Swap { warnings, .. }) if warnings.iter().any(|w| w.contains("force"))),
         "{forced:?}"

@@ -23,6 +23,8 @@ fn dry_run() -> DryRun {
 
 fn main() {
     static DRY: OnceLock<DryRun> = OnceLock::new();
+    // built before the fork server starts (no threads): every run starts from the same state
+    DRY.get_or_init(dry_run);
     afl::fuzz!(|data: &[u8]| {
         let dry = DRY.get_or_init(dry_run);
         if let Err(a) = dry.answer(&request_from_bytes(data)) {
