@@ -212,6 +212,14 @@ fn retunes_swaps_and_refusals_are_told_apart() {
     )
     .unwrap_err();
     assert!(axis.contains("axis `z` does not exist"), "{axis}");
+    // a file named in the parameters is read only so far: /dev/zero would fill the memory
+    let zero =
+        std::fs::read(root().join("fuzz/regressions/control_request/table-dev-zero")).unwrap();
+    let refusal = match dry.answer(&request_from_bytes(&zero)) {
+        Err(a) => format!("{a:?}"),
+        Ok(v) => panic!("{v:?}"),
+    };
+    assert!(refusal.contains("larger than 64 MiB"), "{refusal}");
 }
 
 /// The files of `fuzz/<kind>/control_request`.
