@@ -1,3 +1,8 @@
-//! What the `feedloop` binary shares with the tests of this package: where the browser is.
+//! What the `feedloop` binary shares with the tests and the fuzz targets of this package: where
+//! the browser is, the scope (its request handling is fuzzed over a socket, [`scope_sandbox`]) and
+//! the signal handlers it installs.
 
 pub mod browser;
+pub mod scope;
+pub mod scope_sandbox;
+pub mod signals;

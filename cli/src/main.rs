@@ -10,9 +10,9 @@ mod control;
 mod identify;
 mod learn;
 mod processes;
-mod scope;
-mod signals;
 mod workbench_cmd;
+
+use feedloop_cli::{scope, signals};
 
 use std::path::PathBuf;
 use std::process::ExitCode;

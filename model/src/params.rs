@@ -94,10 +94,32 @@ impl ConfigError {
 /// The reason of a [`ConfigErrorKind::Missing`] error.
 const MISSING: &str = "is required but missing";
 
-/// Reads a TOML file into a table; a syntax error names the file and the line.
+/// Largest TOML file read, bytes (jobs, models and tables are kilobytes). A file named in a
+/// request's parameters (a swap's `table`) may be anything: `/dev/zero` must not be read until
+/// memory runs out.
+pub const MAX_TOML_BYTES: u64 = 64 << 20;
+
+/// Reads a TOML file into a table; a syntax error names the file and the line, a file larger
+/// than [`MAX_TOML_BYTES`] is refused after reading that much.
 pub fn read_toml_file(path: &Path) -> Result<toml::Table, ConfigError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| ConfigError::new(path, "", format!("cannot read file: {e}")))?;
+    use std::io::Read;
+    let cannot = |e: std::io::Error| ConfigError::new(path, "", format!("cannot read file: {e}"));
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .map_err(cannot)?
+        .take(MAX_TOML_BYTES + 1)
+        .read_to_string(&mut text)
+        .map_err(cannot)?;
+    if text.len() as u64 > MAX_TOML_BYTES {
+        return Err(ConfigError::new(
+            path,
+            "",
+            format!(
+                "cannot read file: larger than {} MiB (not a TOML file)",
+                MAX_TOML_BYTES >> 20
+            ),
+        ));
+    }
     parse_toml(path, &text)
 }
 
@@ -544,6 +566,14 @@ fn describe(v: &toml::Value) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_file_without_end_is_refused_after_the_limit_not_read_until_memory_runs_out() {
+        let e = super::read_toml_file(Path::new("/dev/zero")).unwrap_err();
+        assert!(e.to_string().contains("larger than 64 MiB"), "{e}");
+        let e = super::read_toml_file(Path::new("/no/such/file.toml")).unwrap_err();
+        assert!(e.to_string().contains("cannot read file"), "{e}");
+    }
 
     fn table(s: &str) -> toml::Table {
         s.parse().unwrap()

@@ -679,6 +679,31 @@ pub fn capture_trace(cap: &store::Capture, path: &Path, instance: Option<&str>) 
     Ok(Trace::from_columns(path, meta, columns, data)?)
 }
 
+/// A scope's state, its page server and the server's worker threads.
+pub type Serving = (
+    Arc<Ctx>,
+    Arc<tiny_http::Server>,
+    Vec<std::thread::JoinHandle<()>>,
+);
+
+/// The page's server of a scope started as `a` asks, on a free port of `a.bind`, but without the
+/// loop's feed, the status poller or the signal handlers: what the request fuzz target and the
+/// request property test drive ([`crate::scope_sandbox`]). Stop it by setting `ctx.stop` and
+/// unblocking the server once per worker. Its token is `token`.
+pub fn serve_sandbox(a: &ScopeArgs, token: &str) -> Result<Serving> {
+    checked(a)?;
+    let opened = opened(a)?;
+    let server = http::bind(&a.bind, 0)?;
+    let addr = server
+        .server_addr()
+        .to_ip()
+        .context("the server has no IP address")?;
+    let guard = guard::Guard::with_token(addr.ip(), addr.port(), a.read_only, token.into());
+    let ctx = Arc::new(context(a, opened, guard));
+    let threads = http::serve(server.clone(), ctx.clone());
+    Ok((ctx, server, threads))
+}
+
 #[cfg(test)]
 mod tests {
     use super::slack_slot;

@@ -9,6 +9,10 @@ use feedloop_control::controller::{AxisContext, Controller, PluginRegistry, Stag
 use feedloop_control::loop_model::{self, LoopGains};
 use feedloop_model::params::ConfigError;
 
+use feedloop_model::job::Job;
+
+use super::protocol::StagePlugins;
+use crate::scheduler::cycle::ControlCycle;
 use crate::scheduler::plugin_lib::AbiError;
 
 pub(super) struct BuildJob {
@@ -95,13 +99,86 @@ pub(super) struct LoopCheck {
     pub(super) delays_s: Vec<f64>,
 }
 
+/// What the builder builds and judges a swap against, from the chain a loop starts with.
+pub(super) struct ChainState {
+    /// Per axis, what its plugins are built for.
+    pub(super) contexts: Vec<AxisContext>,
+    /// Per axis and stage, the current plugin id and the parameters it was built from.
+    pub(super) current: Vec<[(String, toml::Table); 4]>,
+    /// The loop model's view of the chain.
+    pub(super) model: LoopCheck,
+}
+
+impl ChainState {
+    /// The state of `cycle`'s chain as `job` built it, and the plugin of each stage of each axis.
+    pub(super) fn of(job: &Job, cycle: &ControlCycle) -> (Self, Vec<StagePlugins>) {
+        let contexts: Vec<AxisContext> = cycle
+            .chain()
+            .axes()
+            .iter()
+            .map(|a| a.context.clone())
+            .collect();
+        let mut current: Vec<[(String, toml::Table); 4]> = Vec::new();
+        let mut plugin_ids = Vec::new();
+        let mut gains: Vec<[LoopGains; 4]> = Vec::new();
+        for (i, a) in cycle.chain().axes().iter().enumerate() {
+            let mut cur: [(String, toml::Table); 4] = Default::default();
+            let mut ids = StagePlugins::default();
+            let mut g = [LoopGains::default(); 4];
+            for st in Stage::ALL {
+                if let Some(c) = &a.stages[st.index()] {
+                    g[st.index()] = c.loop_gains();
+                    let params = job
+                        .chain
+                        .iter()
+                        .find(|e| e.axis == i && e.stage == st)
+                        .map(|e| e.params.clone())
+                        .unwrap_or_default();
+                    cur[st.index()] = (c.id().to_string(), params);
+                    ids.set(st, Some(c.id().to_string()));
+                }
+            }
+            current.push(cur);
+            plugin_ids.push(ids);
+            gains.push(g);
+        }
+        let model = LoopCheck {
+            initial: gains.clone(),
+            gains,
+            delays_s: (0..job.axes.len())
+                // this runtime applies a command within the period of its sample: the hold
+                // and the model's own [effects.delay] are the loop's delay
+                .map(|i| loop_model::loop_delay_s(job, i, 0))
+                .collect(),
+        };
+        let state = Self {
+            contexts,
+            current,
+            model,
+        };
+        (state, plugin_ids)
+    }
+
+    /// `job`'s controller built from its parameters (merged into the stage's current ones when
+    /// the plugin stays) and judged by the loop model, with the stage's entry once it is
+    /// confirmed; or why it is refused.
+    pub(super) fn build(
+        &self,
+        job: &BuildJob,
+        registry: &dyn PluginRegistry,
+        job_path: &Path,
+    ) -> Result<(Box<dyn Controller>, StageEntry, Checked), SwapError> {
+        let (c, entry) = build_one(job, registry, &self.contexts, &self.current, job_path)?;
+        let check = judge(job, c.as_ref(), &self.contexts, &self.model)?;
+        Ok((c, entry, check))
+    }
+}
+
 pub(super) fn builder(
     jobs: mpsc::Receiver<ToBuilder>,
     done: mpsc::Sender<Built>,
     registry: Arc<dyn PluginRegistry>,
-    contexts: Vec<AxisContext>,
-    mut current: Vec<[(String, toml::Table); 4]>,
-    mut model: LoopCheck,
+    mut state: ChainState,
     job_path: PathBuf,
 ) {
     // Blocks until there is work: no periodic wake-ups to preempt a spinning loop.
@@ -118,10 +195,10 @@ pub(super) fn builder(
                 entry,
                 gains,
             }) => {
-                if let Some(slot) = current.get_mut(axis) {
+                if let Some(slot) = state.current.get_mut(axis) {
                     slot[stage.index()] = entry;
                 }
-                if let Some(slot) = model.gains.get_mut(axis) {
+                if let Some(slot) = state.model.gains.get_mut(axis) {
                     slot[stage.index()] = gains;
                 }
                 continue;
@@ -134,18 +211,12 @@ pub(super) fn builder(
             changed: Vec::new(),
             check: Checked::default(),
         };
-        let built = match build_one(&job, registry.as_ref(), &contexts, &current, &job_path) {
-            Ok((c, entry)) => match judge(&job, c.as_ref(), &contexts, &model) {
-                Ok(check) => Built {
-                    controller: Ok(c),
-                    changed: changes(&current[job.axis][job.stage.index()], &entry, &job),
-                    entry,
-                    check,
-                },
-                Err(e) => {
-                    drop(c);
-                    refused(e)
-                }
+        let built = match state.build(&job, registry.as_ref(), &job_path) {
+            Ok((c, entry, check)) => Built {
+                controller: Ok(c),
+                changed: changes(&state.current[job.axis][job.stage.index()], &entry, &job),
+                entry,
+                check,
             },
             Err(e) => refused(e),
         };

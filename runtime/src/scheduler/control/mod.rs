@@ -11,6 +11,7 @@
 //! Before that, the builder refuses a plugin in a stage it does not fill, and a gain set the loop
 //! model (the one `feedloop tune` uses) finds unstable or marginal, unless `force`.
 
+pub mod dry_run;
 pub mod origin;
 pub mod protocol;
 

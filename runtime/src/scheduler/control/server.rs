@@ -5,12 +5,12 @@ use std::path::PathBuf;
 use std::sync::mpsc;
 use std::sync::Arc;
 
-use feedloop_control::controller::{AxisContext, Controller, PluginRegistry, Stage};
-use feedloop_control::loop_model::{self, LoopGains};
+use feedloop_control::controller::{Controller, PluginRegistry, Stage};
+use feedloop_control::loop_model::LoopGains;
 use feedloop_model::job::Job;
 use iceoryx2::prelude::*;
 
-use super::builder::{builder, BuildJob, Built, LoopCheck, SwapError, ToBuilder};
+use super::builder::{builder, BuildJob, Built, ChainState, SwapError, ToBuilder};
 use super::origin::Origin;
 use super::protocol::{self, Answer, AxisStatus, Request, StagePlugins, Status, SwapEvent};
 use super::wire::{service_name, ControlRequest, ControlResponse, CtlActive, CtlServer};
@@ -114,52 +114,14 @@ impl ControlPlane {
             what: "create the control server".into(),
             detail: format!("{e:?}"),
         })?;
-        let contexts: Vec<AxisContext> = cycle
-            .chain()
-            .axes()
-            .iter()
-            .map(|a| a.context.clone())
-            .collect();
-        let mut current: Vec<[(String, toml::Table); 4]> = Vec::new();
-        let mut plugin_ids = Vec::new();
-        let mut gains: Vec<[LoopGains; 4]> = Vec::new();
-        for (i, a) in cycle.chain().axes().iter().enumerate() {
-            let mut cur: [(String, toml::Table); 4] = Default::default();
-            let mut ids = StagePlugins::default();
-            let mut g = [LoopGains::default(); 4];
-            for st in Stage::ALL {
-                if let Some(c) = &a.stages[st.index()] {
-                    g[st.index()] = c.loop_gains();
-                    let params = job
-                        .chain
-                        .iter()
-                        .find(|e| e.axis == i && e.stage == st)
-                        .map(|e| e.params.clone())
-                        .unwrap_or_default();
-                    cur[st.index()] = (c.id().to_string(), params);
-                    ids.set(st, Some(c.id().to_string()));
-                }
-            }
-            current.push(cur);
-            plugin_ids.push(ids);
-            gains.push(g);
-        }
-        let model = LoopCheck {
-            initial: gains.clone(),
-            gains,
-            delays_s: (0..job.axes.len())
-                // this runtime applies a command within the period of its sample: the hold
-                // and the model's own [effects.delay] are the loop's delay
-                .map(|i| loop_model::loop_delay_s(job, i, 0))
-                .collect(),
-        };
+        let (state, plugin_ids) = ChainState::of(job, cycle);
         let (to_builder, jobs) = mpsc::channel::<ToBuilder>();
         let (done_tx, from_builder) = mpsc::channel::<Built>();
         let graveyard = to_builder.clone();
         let job_path: PathBuf = job.path.clone();
         std::thread::Builder::new()
             .name("feedloop-builder".into())
-            .spawn(move || builder(jobs, done_tx, registry, contexts, current, model, job_path))
+            .spawn(move || builder(jobs, done_tx, registry, state, job_path))
             .map_err(|e| IpcError::Setup {
                 what: "start the plugin builder thread".into(),
                 detail: e.to_string(),
@@ -487,25 +449,32 @@ impl ControlPlane {
     }
 
     fn parse_swap(&self, msg: protocol::SwapRequest) -> Result<BuildJob, SwapError> {
-        let axis = self
-            .names
-            .iter()
-            .position(|n| *n == msg.axis)
-            .ok_or_else(|| SwapError::UnknownAxis {
-                known: self.names.join(", "),
-                axis: msg.axis,
-            })?;
-        let stage = Stage::parse(&msg.stage).ok_or(SwapError::UnknownStage(msg.stage))?;
-        Ok(BuildJob {
-            axis,
-            stage,
-            plugin: msg.plugin,
-            params: msg.params,
-            lib: msg.lib,
-            force: msg.force,
-            params_file: msg.params_file,
-        })
+        build_job(&self.names, msg)
     }
+}
+
+/// The builder's job for swap request `msg` on a loop of axes `names`: its axis and stage found.
+pub(super) fn build_job(
+    names: &[String],
+    msg: protocol::SwapRequest,
+) -> Result<BuildJob, SwapError> {
+    let axis = names
+        .iter()
+        .position(|n| *n == msg.axis)
+        .ok_or_else(|| SwapError::UnknownAxis {
+            known: names.join(", "),
+            axis: msg.axis,
+        })?;
+    let stage = Stage::parse(&msg.stage).ok_or(SwapError::UnknownStage(msg.stage))?;
+    Ok(BuildJob {
+        axis,
+        stage,
+        plugin: msg.plugin,
+        params: msg.params,
+        lib: msg.lib,
+        force: msg.force,
+        params_file: msg.params_file,
+    })
 }
 
 fn finite_or(x: f64, d: f64) -> f64 {

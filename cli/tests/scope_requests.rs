@@ -1,0 +1,385 @@
+//! The scope's request handling, driven over loopback like anyone on the network would
+//! ([`feedloop_cli::scope_sandbox`]): random but well-formed-ish requests (methods, paths, queries
+//! with percent escapes, headers, JSON bodies of the wrong types, huge numbers and NaN-like
+//! strings) each get a well-formed answer, with a reason whenever they are refused; and the
+//! fuzz campaign's seeds and the inputs it ever crashed on (`fuzz/seeds/scope_request`,
+//! `fuzz/regressions/scope_request`) are answered so too. The inputs that found the known, not
+//! yet fixed defects of the HTTP server (`fuzz/known-defects/scope_request`) are fed by ignored
+//! tests, byte for byte.
+
+use std::path::{Path, PathBuf};
+
+use feedloop_cli::scope_sandbox::{judge, known_defect, Reply, Sandbox};
+use proptest::prelude::*;
+use serde_json::{json, Value};
+
+fn ask(sb: &Sandbox, raw: &[u8]) -> Option<Reply> {
+    sb.reset();
+    let answer = sb.ask(raw).expect("the scope answers in time");
+    judge(&answer).unwrap_or_else(|e| panic!("{e}\nrequest: {}", String::from_utf8_lossy(raw)))
+}
+
+/// A request's bytes: `method path HTTP/1.1`, the headers, a `Content-Length` and the body.
+fn request(method: &str, target: &str, headers: &[(String, String)], body: &[u8]) -> Vec<u8> {
+    let mut r = format!("{method} {target} HTTP/1.1\r\nHost: {{host}}\r\n");
+    for (k, v) in headers {
+        r += &format!("{k}: {v}\r\n");
+    }
+    r += &format!("Content-Length: {}\r\n\r\n", body.len());
+    let mut r = r.into_bytes();
+    r.extend_from_slice(body);
+    r
+}
+
+fn percent_escaped(s: &str) -> String {
+    s.bytes().map(|b| format!("%{b:02X}")).collect()
+}
+
+fn number_text() -> impl Strategy<Value = String> {
+    prop_oneof![
+        (-1e4..1e4f64).prop_map(|v| v.to_string()),
+        Just("1e308".to_string()),
+        Just("-1e999".to_string()),
+        Just("NaN".to_string()),
+        Just("inf".to_string()),
+        Just("-0".to_string()),
+        Just("18446744073709551617".to_string()),
+        Just("0x10".to_string()),
+        Just(String::new()),
+    ]
+}
+
+fn word() -> impl Strategy<Value = String> {
+    prop_oneof![
+        Just("x.cmd".to_string()),
+        Just("x.load,y.load".to_string()),
+        Just("latency_us".to_string()),
+        Just("live".to_string()),
+        Just("capture".to_string()),
+        Just("bin".to_string()),
+        "[a-z.,_%+=&?#/-]{0,12}",
+    ]
+}
+
+/// A query value: a number, a name, raw or percent-escaped, or a broken escape.
+fn query_value() -> impl Strategy<Value = String> {
+    prop_oneof![
+        number_text(),
+        word(),
+        prop_oneof![word(), "\\PC{0,8}"].prop_map(|w| percent_escaped(&w)),
+        Just("%".to_string()),
+        Just("%zz%4".to_string()),
+        Just("%e2%82".to_string()),
+        Just("a+b%20c".to_string()),
+    ]
+}
+
+fn query() -> impl Strategy<Value = String> {
+    let key = prop_oneof![
+        Just("sig"),
+        Just("t0"),
+        Just("t1"),
+        Just("span"),
+        Just("cols"),
+        Just("src"),
+        Just("fmt"),
+        Just("i"),
+        Just("token"),
+        Just(""),
+    ];
+    proptest::collection::vec((key, query_value()), 0..6).prop_map(|kv| {
+        kv.iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join("&")
+    })
+}
+
+fn path() -> impl Strategy<Value = String> {
+    prop_oneof![
+        8 => prop_oneof![
+            Just("/"), Just("/index.html"), Just("/scope.js"), Just("/scope.css"),
+            Just("/api/stats"), Just("/api/state"), Just("/api/view"), Just("/api/trigger"),
+            Just("/api/trigger/cancel"), Just("/api/swap"), Just("/api/capture/save"),
+            Just("/api/capture.csv"), Just("/api/open"), Just("/api/trace"), Just("/api/takeover"),
+        ].prop_map(str::to_string),
+        1 => "/[a-z/.%]{0,16}",
+        1 => "/api/[a-zA-Z0-9/._%-]{0,12}",
+    ]
+}
+
+/// A JSON value of any type, numbers that do not fit, NaN-like strings.
+fn json_value() -> impl Strategy<Value = Value> {
+    let leaf = prop_oneof![
+        Just(Value::Null),
+        any::<bool>().prop_map(Value::from),
+        (-1e6..1e6f64).prop_map(Value::from),
+        any::<i64>().prop_map(Value::from),
+        Just(json!(1e308)),
+        Just(json!(u64::MAX)),
+        prop_oneof![
+            Just("NaN"),
+            Just("Infinity"),
+            Just("-inf"),
+            Just("1e999"),
+            Just("")
+        ]
+        .prop_map(Value::from),
+        word().prop_map(Value::from),
+    ];
+    leaf.prop_recursive(2, 8, 3, |inner| {
+        prop_oneof![
+            proptest::collection::vec(inner.clone(), 0..3).prop_map(Value::from),
+            proptest::collection::btree_map("[a-z_]{1,6}", inner, 0..3)
+                .prop_map(|m| Value::Object(m.into_iter().collect())),
+        ]
+    })
+}
+
+/// A body the API reads: an object of its keys with plausible or wrong values, JSON of another
+/// shape, text that is not JSON, or a small trace.
+fn body() -> impl Strategy<Value = Vec<u8>> {
+    let key = prop_oneof![
+        Just("kind"),
+        Just("event"),
+        Just("signal"),
+        Just("level"),
+        Just("edge"),
+        Just("pre_s"),
+        Just("post_s"),
+        Just("axis"),
+        Just("stage"),
+        Just("plugin"),
+        Just("params"),
+        Just("force"),
+    ];
+    let plausible = prop_oneof![
+        Just(json!("level")),
+        Just(json!("event")),
+        Just(json!("swap")),
+        Just(json!("x.cmd")),
+        Just(json!("falling")),
+        Just(json!(0.01)),
+        Just(json!("velocity")),
+        Just(json!("kv_nms_per_rad = 4.0")),
+        Just(json!("kv_nms_per_rad = [")),
+    ];
+    let value = prop_oneof![plausible, json_value()];
+    prop_oneof![
+        4 => proptest::collection::vec((key, value), 0..6).prop_map(|kv| {
+            let m: serde_json::Map<String, Value> =
+                kv.into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+            Value::Object(m).to_string().into_bytes()
+        }),
+        1 => json_value().prop_map(|v| v.to_string().into_bytes()),
+        1 => proptest::collection::vec(any::<u8>(), 0..64),
+        1 => Just(b"# feedloop-trace v1\nt,x.cmd,x.load\n0,0,0\n0.001,1,1\n".to_vec()),
+    ]
+}
+
+fn headers() -> impl Strategy<Value = Vec<(String, String)>> {
+    let session = prop_oneof![
+        3 => Just(Some("page-one".to_string())),
+        1 => Just(Some(String::new())),
+        1 => Just(None),
+    ];
+    let other = proptest::collection::vec(
+        (
+            prop_oneof![
+                Just("x-trace-name".to_string()),
+                Just("Content-Type".to_string()),
+                Just("Origin".to_string()),
+                Just("x-scope-token".to_string()),
+                "[A-Za-z-]{1,10}",
+            ],
+            "[ -~]{0,20}",
+        ),
+        0..3,
+    );
+    let token = prop_oneof![
+        4 => Just(Some("{token}".to_string())),
+        1 => Just(Some("not-the-token".to_string())),
+        1 => Just(None),
+    ];
+    (session, token, other).prop_map(|(s, t, mut h)| {
+        if let Some(s) = s {
+            h.push(("x-scope-session".into(), s));
+        }
+        if let Some(t) = t {
+            h.push(("x-scope-token".into(), t));
+        }
+        h
+    })
+}
+
+fn method() -> impl Strategy<Value = String> {
+    prop_oneof![
+        4 => Just("GET".to_string()),
+        4 => Just("POST".to_string()),
+        1 => prop_oneof![Just("PUT"), Just("DELETE"), Just("OPTIONS"), Just("PATCH")]
+            .prop_map(str::to_string),
+        1 => "[A-Z]{1,7}",
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+    #[test]
+    fn every_request_gets_a_well_formed_answer_with_a_reason_when_refused(
+        m in method(),
+        p in path(),
+        q in query(),
+        h in headers(),
+        b in body(),
+    ) {
+        thread_local!(static SB: Sandbox = Sandbox::start().expect("the sandboxed scope starts"));
+        let target = if q.is_empty() { p.clone() } else { format!("{p}?{q}") };
+        let raw = request(&m, &target, &h, &b);
+        let reply = SB.with(|sb| ask(sb, &raw));
+        let reply = reply.unwrap_or_else(|| panic!("no answer to {target}"));
+        let session = h.iter().any(|(k, v)| k == "x-scope-session" && !v.is_empty());
+        let page_file = ["/", "/index.html", "/scope.js", "/scope.css", "/api/stats"];
+        if !p.starts_with("/api/") && !page_file.contains(&p.as_str()) {
+            prop_assert_eq!(reply.code, 404, "{}", target);
+        }
+        let tokens: Vec<&String> = h
+            .iter()
+            .filter(|(k, _)| k.eq_ignore_ascii_case("x-scope-token"))
+            .map(|(_, v)| v)
+            .collect();
+        let token = tokens.len() == 1 && tokens[0] == "{token}";
+        if p.starts_with("/api/") && !token {
+            // no token, another one, or a method the path does not take
+            prop_assert!([401, 403, 405].contains(&reply.code), "{} {}: {}", m, target, reply.code);
+        }
+        if p.starts_with("/api/") && p != "/api/stats" && token && !session {
+            // no page session, a foreign origin or a method the path does not take
+            prop_assert!([403, 405, 409].contains(&reply.code), "{} {}: {}", m, target, reply.code);
+        }
+    }
+}
+
+/// The files of `fuzz/<kind>/scope_request`.
+fn fuzz_inputs(kind: &str) -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz")
+        .join(kind)
+        .join("scope_request");
+    let mut out: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
+#[test]
+fn the_fuzz_seeds_and_regressions_are_answered_well() {
+    let sb = Sandbox::start().unwrap();
+    let seeds = fuzz_inputs("seeds");
+    assert!(seeds.len() >= 10, "seeds: {seeds:?}");
+    for f in seeds.iter().chain(&fuzz_inputs("regressions")) {
+        let raw = std::fs::read(f).unwrap();
+        let reply = ask(&sb, &raw);
+        assert!(reply.is_some(), "{}: no answer", f.display());
+    }
+}
+
+#[test]
+fn the_page_session_views_and_triggers_work_in_the_sandbox() {
+    let sb = Sandbox::start().unwrap();
+    let s = [
+        ("x-scope-session".to_string(), "p".to_string()),
+        ("x-scope-token".to_string(), "{token}".to_string()),
+    ];
+    let get = |target: &str| ask(&sb, &request("GET", target, &s, b"")).unwrap();
+    let json = |r: &Reply| serde_json::from_slice::<Value>(&r.body).unwrap();
+    let state = get("/api/state");
+    assert_eq!(state.code, 200);
+    assert_eq!(json(&state)["axes"], json!(["x", "y"]));
+    let view = get("/api/view?sig=x.cmd%2Cy.load&t0=0&t1=1.999&cols=10");
+    assert_eq!(view.code, 200);
+    let v = json(&view);
+    assert_eq!(v["series"].as_array().unwrap().len(), 2);
+    assert_eq!(v["series"][0]["lo"].as_array().unwrap().len(), 10);
+    let refused = ask(
+        &sb,
+        &request(
+            "POST",
+            "/api/trigger",
+            &s,
+            br#"{"kind":"level","signal":"x.cmd","level":"NaN"}"#,
+        ),
+    )
+    .unwrap();
+    assert_eq!(refused.code, 400);
+    assert!(json(&refused)["error"].as_str().unwrap().contains("level"));
+    let swap = ask(&sb, &request("POST", "/api/swap", &s, b"{}")).unwrap();
+    assert_eq!(swap.code, 400);
+    assert!(json(&swap)["error"]
+        .as_str()
+        .unwrap()
+        .contains("recordings"));
+}
+
+/// The inputs that found a known defect of the HTTP server whose name starts with `prefix`.
+fn known_defects(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
+    let found: Vec<_> = fuzz_inputs("known-defects")
+        .into_iter()
+        .filter(|f| f.file_name().unwrap().to_string_lossy().starts_with(prefix))
+        .map(|f| {
+            let raw = std::fs::read(&f).unwrap();
+            (f, raw)
+        })
+        .collect();
+    assert!(
+        !found.is_empty(),
+        "no known-defects/scope_request/{prefix}*"
+    );
+    found
+}
+
+#[test]
+fn the_fuzz_target_passes_over_the_inputs_of_the_known_defects_and_nothing_else() {
+    for (f, raw) in known_defects("") {
+        assert!(known_defect(&raw).is_some(), "{}", f.display());
+    }
+    for f in fuzz_inputs("seeds") {
+        assert_eq!(
+            known_defect(&std::fs::read(&f).unwrap()),
+            None,
+            "{}",
+            f.display()
+        );
+    }
+}
+
+/// Found by the fuzz campaign: tiny_http 0.12 allocates the unread rest of a body at
+/// once when the request is dropped, and a `Content-Length` beyond the machine's memory aborts
+/// the whole scope (this test's process with it), whatever the path, with no page session.
+#[test]
+#[ignore = "known defect of the scope's HTTP server (tiny_http 0.12): aborts the process"]
+fn a_content_length_beyond_memory_does_not_kill_the_scope() {
+    let sb = Sandbox::start().unwrap();
+    for (f, raw) in known_defects("huge-content-length") {
+        assert!(ask(&sb, &raw).is_some(), "{}: no answer", f.display());
+        let stats = request("GET", "/api/stats", &[], b"");
+        assert_eq!(
+            ask(&sb, &stats).map(|r| r.code),
+            Some(200),
+            "{}",
+            f.display()
+        );
+    }
+}
+
+/// Found by the fuzz campaign: a request line of HTTP/2.0 or HTTP/3.0 is never
+/// answered, and tiny_http keeps its connection open after the client finished sending.
+#[test]
+#[ignore = "known defect of the scope's HTTP server (tiny_http 0.12): no answer"]
+fn a_request_of_another_http_version_is_refused_and_closed() {
+    let sb = Sandbox::start().unwrap();
+    for (f, raw) in known_defects("hang") {
+        let answer = sb.ask(&raw);
+        assert!(answer.is_ok(), "{}: {answer:?}", f.display());
+    }
+}
