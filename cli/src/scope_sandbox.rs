@@ -26,46 +26,23 @@ pub const PERIOD_S: f64 = 1e-3;
 /// Longest an answer may take before the sandbox calls it a hang.
 const ANSWER_WITHIN: Duration = Duration::from_secs(10);
 
-/// Largest body the scope takes (its upload limit, 512 MiB).
-const MAX_BODY: u64 = 512 << 20;
-
-/// What is wrong, when `raw` hits one of the known defects of the scope's HTTP server (tiny_http
-/// 0.12, the newest there is), found by the fuzz campaign and not fixed yet:
+/// What is wrong, when `raw` hits one of the known defects of the scope's HTTP server that are
+/// not fixed yet: none now. The two the fuzz campaign found in tiny_http 0.12 (a `Content-Length`
+/// far beyond the bytes that come aborted the scope; a request line of another HTTP version than
+/// 1.0 and 1.1 was never answered) went with it: the scope's own server refuses such a body
+/// (413) before reading it and answers another version with 505 (their inputs are in
+/// `fuzz/regressions/scope_request`).
 ///
-/// - a `Content-Length` far beyond the bytes that come kills the whole scope: when the request
-///   is dropped, tiny_http allocates the unread rest of the body at once, and an allocation beyond
-///   the machine's memory aborts the process (any request, no page session needed);
-/// - a request line of an HTTP version other than 1.0 and 1.1 is never answered, and its
-///   connection stays open after the client has finished sending.
-///
-/// The fuzz target passes over such inputs so that its time goes to other faults; the ignored
-/// tests in `tests/scope_requests.rs` feed the inputs that found them, byte for byte.
+/// The fuzz target passes over the inputs this names, so that its time goes to other faults.
 pub fn known_defect(raw: &[u8]) -> Option<&'static str> {
-    for line in raw.split(|b| *b == b'\n') {
-        let line = String::from_utf8_lossy(line);
-        let line = line.trim_end_matches('\r');
-        if let Some((name, value)) = line.split_once(':') {
-            let value = value.trim();
-            if name.trim().eq_ignore_ascii_case("content-length")
-                && !value.is_empty()
-                && value.bytes().all(|b| b.is_ascii_digit())
-                && value.parse::<u64>().map_or(true, |n| n > MAX_BODY)
-            {
-                return Some("a Content-Length beyond the upload limit (tiny_http aborts)");
-            }
-        }
-        let version = line.rsplit(' ').next().unwrap_or("");
-        if version.starts_with("HTTP/") && version != "HTTP/1.0" && version != "HTTP/1.1" {
-            return Some("an HTTP version other than 1.0 and 1.1 (tiny_http leaves it unanswered)");
-        }
-    }
+    let _ = raw;
     None
 }
 
 /// A running sandboxed scope; stopped and its folder removed when dropped.
 pub struct Sandbox {
     ctx: Arc<Ctx>,
-    server: Arc<tiny_http::Server>,
+    server: Arc<scope::server::Server>,
     threads: Vec<std::thread::JoinHandle<()>>,
     addr: SocketAddr,
     dir: PathBuf,
@@ -160,10 +137,7 @@ impl Sandbox {
             read_only: false,
         };
         let (ctx, server, threads) = scope::serve_sandbox(&args, TOKEN)?;
-        let addr = server
-            .server_addr()
-            .to_ip()
-            .context("the sandbox's server has no IP address")?;
+        let addr = server.local_addr();
         Ok(Self {
             ctx,
             server,
@@ -215,9 +189,7 @@ impl Sandbox {
 impl Drop for Sandbox {
     fn drop(&mut self) {
         self.ctx.stop.store(true, Ordering::Relaxed);
-        for _ in 0..self.threads.len() {
-            self.server.unblock();
-        }
+        self.server.stop();
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
@@ -270,6 +242,21 @@ pub fn judge(bytes: &[u8]) -> Result<Option<Reply>, String> {
         check_reply(&reply)?;
         return Ok(Some(reply));
     }
+}
+
+/// Every final answer in `bytes` (interim `1xx` answers skipped), each judged as [`judge`] does.
+pub fn judge_all(bytes: &[u8]) -> Result<Vec<Reply>, String> {
+    let mut out = Vec::new();
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        let (reply, after) = read_reply(rest)?;
+        rest = after;
+        if !(100..200).contains(&reply.code) {
+            check_reply(&reply)?;
+            out.push(reply);
+        }
+    }
+    Ok(out)
 }
 
 fn check_reply(r: &Reply) -> Result<(), String> {
@@ -392,17 +379,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_known_defects_of_the_http_server_are_recognised() {
+    fn no_input_is_passed_over_as_a_known_defect() {
         let cl = |n: &str| format!("GET / HTTP/1.1\r\ncontent-LENGTH: {n}\r\n\r\n").into_bytes();
-        assert!(known_defect(&cl("444444444444444444")).is_some());
-        assert!(known_defect(&cl("99999999999999999999999")).is_some());
-        assert!(known_defect(&cl("536870913")).is_some());
-        assert_eq!(known_defect(&cl("536870912")), None);
-        assert_eq!(known_defect(&cl("-1")), None);
-        assert!(known_defect(b"GET /x HTTP/1.1\r\n\r\nGET /y HTTP/3.0\r\n\r\n").is_some());
-        assert!(known_defect(b"GET /x HTTP/2\r\n\r\n").is_some());
-        assert_eq!(known_defect(b"GET /x HTTP/1.0\r\n\r\n"), None);
-        assert_eq!(known_defect(b"GET /x?q=HTTP/1.1 HTTP/1.1\r\n\r\n"), None);
+        assert_eq!(known_defect(&cl("444444444444444444")), None);
+        assert_eq!(known_defect(b"GET /y HTTP/3.0\r\n\r\n"), None);
     }
 
     #[test]

@@ -3,13 +3,15 @@
 //! with percent escapes, headers, JSON bodies of the wrong types, huge numbers and NaN-like
 //! strings) each get a well-formed answer, with a reason whenever they are refused; and the
 //! fuzz campaign's seeds and the inputs it ever crashed on (`fuzz/seeds/scope_request`,
-//! `fuzz/regressions/scope_request`) are answered so too. The inputs that found the known, not
-//! yet fixed defects of the HTTP server (`fuzz/known-defects/scope_request`) are fed by ignored
-//! tests, byte for byte.
+//! `fuzz/regressions/scope_request`) are answered so too, the two that found defects of the
+//! former HTTP server (tiny_http 0.12) with the answers they must get.
 
+use std::io::{Read, Write};
+use std::net::TcpStream;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
-use feedloop_cli::scope_sandbox::{judge, known_defect, Reply, Sandbox};
+use feedloop_cli::scope_sandbox::{judge, judge_all, known_defect, Reply, Sandbox};
 use proptest::prelude::*;
 use serde_json::{json, Value};
 
@@ -321,9 +323,9 @@ fn the_page_session_views_and_triggers_work_in_the_sandbox() {
         .contains("recordings"));
 }
 
-/// The inputs that found a known defect of the HTTP server whose name starts with `prefix`.
-fn known_defects(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
-    let found: Vec<_> = fuzz_inputs("known-defects")
+/// The regression inputs whose name starts with `prefix`.
+fn regressions(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
+    let found: Vec<_> = fuzz_inputs("regressions")
         .into_iter()
         .filter(|f| f.file_name().unwrap().to_string_lossy().starts_with(prefix))
         .map(|f| {
@@ -331,21 +333,18 @@ fn known_defects(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
             (f, raw)
         })
         .collect();
-    assert!(
-        !found.is_empty(),
-        "no known-defects/scope_request/{prefix}*"
-    );
+    assert!(!found.is_empty(), "no regressions/scope_request/{prefix}*");
     found
 }
 
 #[test]
-fn the_fuzz_target_passes_over_the_inputs_of_the_known_defects_and_nothing_else() {
-    for (f, raw) in known_defects("") {
-        assert!(known_defect(&raw).is_some(), "{}", f.display());
-    }
-    for f in fuzz_inputs("seeds") {
+fn the_fuzz_target_passes_over_no_seed_or_regression() {
+    for f in fuzz_inputs("seeds")
+        .iter()
+        .chain(&fuzz_inputs("regressions"))
+    {
         assert_eq!(
-            known_defect(&std::fs::read(&f).unwrap()),
+            known_defect(&std::fs::read(f).unwrap()),
             None,
             "{}",
             f.display()
@@ -353,33 +352,96 @@ fn the_fuzz_target_passes_over_the_inputs_of_the_known_defects_and_nothing_else(
     }
 }
 
-/// Found by the fuzz campaign: tiny_http 0.12 allocates the unread rest of a body at
-/// once when the request is dropped, and a `Content-Length` beyond the machine's memory aborts
-/// the whole scope (this test's process with it), whatever the path, with no page session.
+/// Found by the fuzz campaign: tiny_http 0.12 allocated the unread rest of a body at once when
+/// the request was dropped, and a `Content-Length` beyond the machine's memory aborted the whole
+/// scope. The body is refused (413) before any of it is read, and the scope answers on.
 #[test]
-#[ignore = "known defect of the scope's HTTP server (tiny_http 0.12): aborts the process"]
-fn a_content_length_beyond_memory_does_not_kill_the_scope() {
+fn a_content_length_beyond_memory_is_refused_and_the_scope_answers_on() {
     let sb = Sandbox::start().unwrap();
-    for (f, raw) in known_defects("huge-content-length") {
-        assert!(ask(&sb, &raw).is_some(), "{}: no answer", f.display());
-        let stats = request("GET", "/api/stats", &[], b"");
-        assert_eq!(
-            ask(&sb, &stats).map(|r| r.code),
-            Some(200),
-            "{}",
-            f.display()
-        );
+    for (f, raw) in regressions("huge-content-length") {
+        let reply = ask(&sb, &raw);
+        assert_eq!(reply.as_ref().map(|r| r.code), Some(413), "{}", f.display());
+        let body: Value = serde_json::from_slice(&reply.unwrap().body).unwrap();
+        assert!(body["error"].as_str().unwrap().contains("MB"), "{body}");
+        let token = [("x-scope-token".to_string(), "{token}".to_string())];
+        let stats = request("GET", "/api/stats", &token, b"");
+        let stats = ask(&sb, &stats).map(|r| r.code);
+        assert_eq!(stats, Some(200), "{}", f.display());
     }
+    // with the scope's token and a page session too: refused before the body
+    let big = [
+        ("x-scope-token".to_string(), "{token}".to_string()),
+        ("x-scope-session".to_string(), "p".to_string()),
+    ];
+    let mut raw = request("POST", "/api/open", &big, b"");
+    let at = raw
+        .windows(17)
+        .position(|w| w == b"Content-Length: 0")
+        .unwrap();
+    raw.splice(at + 16..at + 17, b"536870913".iter().copied());
+    assert_eq!(ask(&sb, &raw).map(|r| r.code), Some(413));
 }
 
-/// Found by the fuzz campaign: a request line of HTTP/2.0 or HTTP/3.0 is never
-/// answered, and tiny_http keeps its connection open after the client finished sending.
+/// Found by the fuzz campaign: a request line of HTTP/2.0 or HTTP/3.0 was never answered, and
+/// tiny_http kept its connection open after the client finished sending. It gets 505 and the
+/// connection is closed, after the answers to the requests before it on the connection.
 #[test]
-#[ignore = "known defect of the scope's HTTP server (tiny_http 0.12): no answer"]
 fn a_request_of_another_http_version_is_refused_and_closed() {
     let sb = Sandbox::start().unwrap();
-    for (f, raw) in known_defects("hang") {
-        let answer = sb.ask(&raw);
-        assert!(answer.is_ok(), "{}: {answer:?}", f.display());
+    for (f, raw) in regressions("hang") {
+        let answer = sb
+            .ask(&raw)
+            .unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        let codes: Vec<u16> = judge_all(&answer)
+            .unwrap_or_else(|e| panic!("{}: {e}", f.display()))
+            .iter()
+            .map(|r| r.code)
+            .collect();
+        assert_eq!(codes.len(), 2, "{}: {codes:?}", f.display());
+        assert_eq!(codes[1], 505, "{}: {codes:?}", f.display());
+    }
+    // without closing the sending side: the scope closes the connection itself
+    let host = sb.host();
+    let mut s = TcpStream::connect(&host).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let raw =
+        format!("GET /api/stats HTTP/3.0\r\nHost: {host}\r\nx-scope-token: sandbox-token\r\n\r\n");
+    s.write_all(raw.as_bytes()).unwrap();
+    let mut answer = Vec::new();
+    s.read_to_end(&mut answer)
+        .expect("the scope closes the connection");
+    let reply = judge(&answer).unwrap().unwrap();
+    assert_eq!(reply.code, 505);
+    assert_eq!(reply.header("connection"), Some("close"));
+}
+
+/// Requests one after the other on one connection, sent at once or waiting for each answer,
+/// are answered in order; `Connection: close` ends the connection after its answer.
+#[test]
+fn requests_on_one_connection_are_answered_in_order() {
+    let sb = Sandbox::start().unwrap();
+    let host = sb.host();
+    let get = |path: &str, last: bool| {
+        let close = if last { "Connection: close\r\n" } else { "" };
+        format!(
+            "GET {path} HTTP/1.1\r\nHost: {host}\r\nx-scope-token: sandbox-token\r\n{close}\r\n"
+        )
+    };
+    let piped = get("/api/stats", false) + &get("/nothing", false) + &get("/api/stats", true);
+    let mut s = TcpStream::connect(&host).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(piped.as_bytes()).unwrap();
+    let mut answer = Vec::new();
+    s.read_to_end(&mut answer)
+        .expect("closed after the last answer");
+    let codes: Vec<u16> = judge_all(&answer).unwrap().iter().map(|r| r.code).collect();
+    assert_eq!(codes, [200, 404, 200]);
+    let mut s = TcpStream::connect(&host).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    for _ in 0..3 {
+        s.write_all(get("/api/stats", false).as_bytes()).unwrap();
+        let mut buf = [0u8; 4096];
+        let n = s.read(&mut buf).unwrap();
+        assert_eq!(judge(&buf[..n]).unwrap().unwrap().code, 200);
     }
 }

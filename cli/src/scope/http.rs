@@ -5,16 +5,15 @@
 //! scope's own state; none reaches the loop except a swap, which goes to the control service
 //! exactly as `feedloop swap` would.
 
-use std::io::Read;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::{json, Value};
-use tiny_http::{Header, Method, Request, Response, Server};
 
 use super::guard::query;
+use super::server::{Request, Response, Server};
 use super::store::{self, Condition, Store, Trigger, AXIS_SIGNALS, EVENT_KINDS, LATENCY};
 use super::{Ctx, Session, Shared, LEASE};
 
@@ -34,21 +33,18 @@ pub fn bind(addr: &str, port: u16) -> Result<Arc<Server>> {
     let ip: std::net::IpAddr = addr.parse().with_context(|| {
         format!("--bind `{addr}` is not an IP address (e.g. 127.0.0.1, 0.0.0.0)")
     })?;
-    match Server::http(std::net::SocketAddr::new(ip, port)) {
+    match Server::bind(std::net::SocketAddr::new(ip, port), MAX_UPLOAD) {
         Ok(s) => Ok(Arc::new(s)),
-        Err(e) => {
-            let io = e.downcast_ref::<std::io::Error>().map(|e| e.kind());
-            match io {
-                Some(std::io::ErrorKind::AddrInUse) => bail!(
-                    "port {port} on {addr} is in use (another scope or server?); pick another with \
-                     --port, or --port 0 for any free one"
-                ),
-                Some(std::io::ErrorKind::AddrNotAvailable) => {
-                    bail!("address {addr} is not one of this machine's (--bind)")
-                }
-                _ => Err(anyhow!("cannot listen on {addr}:{port}: {e}")),
+        Err(e) => match e.kind() {
+            std::io::ErrorKind::AddrInUse => bail!(
+                "port {port} on {addr} is in use (another scope or server?); pick another with \
+                 --port, or --port 0 for any free one"
+            ),
+            std::io::ErrorKind::AddrNotAvailable => {
+                bail!("address {addr} is not one of this machine's (--bind)")
             }
-        }
+            _ => Err(anyhow!("cannot listen on {addr}:{port}: {e}")),
+        },
     }
 }
 
@@ -69,24 +65,18 @@ pub fn serve(server: Arc<Server>, ctx: Arc<Ctx>) -> Vec<std::thread::JoinHandle<
         .collect()
 }
 
-fn header(k: &str, v: &str) -> Header {
-    Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("valid header")
-}
-
 /// `r` with the headers every answer carries (and never an Access-Control-Allow-Origin: no other
 /// site may read the scope).
-fn guarded<R: Read>(r: Response<R>) -> Response<R> {
-    r.with_header(header("Cache-Control", "no-store"))
-        .with_header(header("Referrer-Policy", "no-referrer"))
-        .with_header(header("X-Content-Type-Options", "nosniff"))
-        .with_header(header("X-Frame-Options", "DENY"))
+fn guarded(r: Response) -> Response {
+    r.with_header("Cache-Control", "no-store")
+        .with_header("Referrer-Policy", "no-referrer")
+        .with_header("X-Content-Type-Options", "nosniff")
+        .with_header("X-Frame-Options", "DENY")
 }
 
 fn reply(rq: Request, code: u16, kind: &str, body: String) {
-    let r = Response::from_string(body)
-        .with_status_code(code)
-        .with_header(header("Content-Type", kind));
-    let _ = rq.respond(guarded(r));
+    let r = Response::new(code, body).with_header("Content-Type", kind);
+    rq.respond(guarded(r));
 }
 
 fn reply_json(rq: Request, code: u16, v: &Value) {
@@ -144,9 +134,7 @@ fn attach(sh: &mut Shared, token: &str, addr: &str, takeover: bool) -> Result<()
 
 /// The address of the request's peer, `IP:PORT`.
 fn peer(rq: &Request) -> String {
-    rq.remote_addr()
-        .map(|a| a.to_string())
-        .unwrap_or_else(|| "?".into())
+    rq.peer().to_string()
 }
 
 /// Answers one request: screened first ([`super::guard`]: Host, token, Origin, read-only; every
@@ -160,9 +148,9 @@ fn handle(ctx: &Ctx, rq: Request) {
         let headers: Vec<(&str, &str)> = rq
             .headers()
             .iter()
-            .map(|h| (h.field.as_str().as_str(), h.value.as_str()))
+            .map(|(k, v)| (k.as_str(), v.as_str()))
             .collect();
-        ctx.guard.screen(rq.method().as_str(), &url, &headers)
+        ctx.guard.screen(rq.method(), &url, &headers)
     };
     if let Err(r) = screened {
         eprintln!(
@@ -186,18 +174,18 @@ fn handle(ctx: &Ctx, rq: Request) {
 
 /// Answers the page's files, the stats and a path outside the API; hands back any other request.
 fn open_route(ctx: &Ctx, rq: Request, path: &str) -> Option<Request> {
-    match (rq.method().clone(), path) {
-        (Method::Get, "/") | (Method::Get, "/index.html") => {
+    match (rq.method(), path) {
+        ("GET", "/") | ("GET", "/index.html") => {
             reply(rq, 200, "text/html; charset=utf-8", INDEX.to_string())
         }
-        (Method::Get, "/scope.js") => reply(
+        ("GET", "/scope.js") => reply(
             rq,
             200,
             "text/javascript; charset=utf-8",
             SCRIPT.to_string(),
         ),
-        (Method::Get, "/scope.css") => reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string()),
-        (Method::Get, "/api/stats") => {
+        ("GET", "/scope.css") => reply(rq, 200, "text/css; charset=utf-8", STYLE.to_string()),
+        ("GET", "/api/stats") => {
             // for benchmarks and scripts: the token, but no page session needed; nothing changes
             let sh = ctx.lock();
             let v = json!({
@@ -220,12 +208,7 @@ fn open_route(ctx: &Ctx, rq: Request, path: &str) -> Option<Request> {
 /// Attaches the request's page session (or refuses a second page) and reads a POST's body;
 /// hands back the request with its body, or `None` after answering an error.
 fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
-    let token = rq
-        .headers()
-        .iter()
-        .find(|h| h.field.equiv("x-scope-session"))
-        .map(|h| h.value.as_str().to_string())
-        .unwrap_or_default();
+    let token = rq.header("x-scope-session").unwrap_or_default().to_string();
     let addr = peer(&rq);
     let takeover = path == "/api/takeover";
     if let Err(e) = attach(&mut ctx.lock(), &token, &addr, takeover) {
@@ -235,27 +218,16 @@ fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
         reply_json(rq, 409, &json!({"error": e, "busy": true}));
         return None;
     }
+    // the server took the body (at most MAX_UPLOAD: a longer one was refused before it came)
     let mut body = String::new();
-    if *rq.method() == Method::Post {
-        if let Err(e) = rq
-            .as_reader()
-            .take(MAX_UPLOAD + 1)
-            .read_to_string(&mut body)
-        {
-            reply_json(
-                rq,
-                400,
-                &json!({"error": format!("reading the request: {e}")}),
-            );
-            return None;
-        }
-        if body.len() as u64 > MAX_UPLOAD {
-            reply_json(
-                rq,
-                413,
-                &json!({"error": format!("more than {} MB", MAX_UPLOAD >> 20)}),
-            );
-            return None;
+    if rq.method() == "POST" {
+        match String::from_utf8(rq.take_body()) {
+            Ok(b) => body = b,
+            Err(_) => {
+                let e = "reading the request: stream did not contain valid UTF-8";
+                reply_json(rq, 400, &json!({ "error": e }));
+                return None;
+            }
         }
     }
     Some((rq, body))
@@ -264,10 +236,8 @@ fn admit(ctx: &Ctx, mut rq: Request, path: &str) -> Option<(Request, String)> {
 /// Answers an API request of the attached page (at `peer`).
 fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str, peer: &str) {
     let name = rq
-        .headers()
-        .iter()
-        .find(|h| h.field.equiv("x-trace-name"))
-        .map(|h| h.value.as_str().to_string())
+        .header("x-trace-name")
+        .map(str::to_string)
         .unwrap_or_else(|| "uploaded.csv".into());
     let out: Result<Value> = match path {
         "/api/takeover" => Ok(json!({"ok": true})),
@@ -314,9 +284,9 @@ fn api(ctx: &Ctx, rq: Request, path: &str, q: &[(String, String)], body: &str, p
 fn reply_view_bin(ctx: &Ctx, rq: Request, q: &[(String, String)]) {
     match view_bin(ctx, q) {
         Ok(bytes) => {
-            let r = Response::from_data(bytes)
-                .with_header(header("Content-Type", "application/octet-stream"));
-            let _ = rq.respond(guarded(r));
+            let r =
+                Response::new(200, bytes).with_header("Content-Type", "application/octet-stream");
+            rq.respond(guarded(r));
         }
         Err(e) => reply_json(rq, 400, &json!({"error": format!("{e:#}")})),
     }

@@ -8,6 +8,7 @@
 
 pub mod guard;
 mod http;
+pub mod server;
 pub mod store;
 
 use std::path::{Path, PathBuf};
@@ -197,10 +198,7 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
     unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, a.nice) };
     crate::signals::install();
     let server = http::bind(&a.bind, a.port)?;
-    let addr = server
-        .server_addr()
-        .to_ip()
-        .context("the server has no IP address")?;
+    let addr = server.local_addr();
     let guard = guard::Guard::new(addr.ip(), addr.port(), a.read_only)?;
     if guard.beyond_loopback() {
         eprintln!(
@@ -232,10 +230,7 @@ pub fn run(a: &ScopeArgs) -> Result<ExitCode> {
         std::thread::sleep(Duration::from_millis(50));
     }
     ctx.stop.store(true, Ordering::Relaxed);
-    server.unblock();
-    for _ in 1..http::WORKERS {
-        server.unblock();
-    }
+    server.stop();
     for t in threads {
         let _ = t.join();
     }
@@ -682,22 +677,19 @@ pub fn capture_trace(cap: &store::Capture, path: &Path, instance: Option<&str>) 
 /// A scope's state, its page server and the server's worker threads.
 pub type Serving = (
     Arc<Ctx>,
-    Arc<tiny_http::Server>,
+    Arc<server::Server>,
     Vec<std::thread::JoinHandle<()>>,
 );
 
 /// The page's server of a scope started as `a` asks, on a free port of `a.bind`, but without the
 /// loop's feed, the status poller or the signal handlers: what the request fuzz target and the
 /// request property test drive ([`crate::scope_sandbox`]). Stop it by setting `ctx.stop` and
-/// unblocking the server once per worker. Its token is `token`.
+/// stopping the server. Its token is `token`.
 pub fn serve_sandbox(a: &ScopeArgs, token: &str) -> Result<Serving> {
     checked(a)?;
     let opened = opened(a)?;
     let server = http::bind(&a.bind, 0)?;
-    let addr = server
-        .server_addr()
-        .to_ip()
-        .context("the server has no IP address")?;
+    let addr = server.local_addr();
     let guard = guard::Guard::with_token(addr.ip(), addr.port(), a.read_only, token.into());
     let ctx = Arc::new(context(a, opened, guard));
     let threads = http::serve(server.clone(), ctx.clone());
