@@ -184,6 +184,97 @@ fn a_lockstep_run_prints_no_latency() {
 }
 
 /// Item 3: `compare` names the column an axis lacks (`x.load`, not `A.cmd`) and, for an axis
+/// that is not there, the prefixes the trace has and what an axis needs.
+#[test]
+fn compare_names_the_missing_column_and_the_axes_there_are() {
+    let d = scratch("compare");
+    let mut t = String::from("# feedloop-trace v1\nt,x.cmd,x.motor\n");
+    for k in 0..200 {
+        t.push_str(&format!("{},{},{}\n", k as f64 * 1e-3, k as f64 * 1e-4, k));
+    }
+    let tr = d.join("t.csv");
+    std::fs::write(&tr, t).unwrap();
+    let model = repo("examples/models/xy-x.toml");
+    let out = d.join("out");
+    let base = [
+        "compare",
+        "--trace",
+        s(&tr),
+        "--model",
+        s(&model),
+        "--out",
+        s(&out),
+    ];
+    for axis in [None, Some("x")] {
+        let mut a = base.to_vec();
+        if let Some(x) = axis {
+            a.extend(["--axis", x]);
+        }
+        let o = run(&a);
+        let (_, err) = text(&o);
+        assert!(!o.status.success(), "{}", describe(&o));
+        assert!(
+            err.contains("missing column `x.load`") && !err.contains("A.cmd`,"),
+            "{err}"
+        );
+    }
+    let mut a = base.to_vec();
+    a.extend(["--axis", "y"]);
+    let (_, err) = text(&run(&a));
+    assert!(
+        err.contains("no axis `y`")
+            && err.contains("column prefixes: x (no `x.load`)")
+            && err.contains("`A.cmd` and `A.load`"),
+        "{err}"
+    );
+}
+
+/// Item 3: an unknown `swap --plugin` is refused under its flag with the closest id.
+#[test]
+fn swap_refuses_an_unknown_plugin_under_its_flag() {
+    let o = run(&[
+        "swap",
+        "--instance",
+        "nobody-here",
+        "--axis",
+        "x",
+        "--stage",
+        "velocity",
+        "--plugin",
+        "pi_velocty",
+    ]);
+    let (_, err) = text(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("--plugin `pi_velocty`")
+            && err.contains("did you mean `pi_velocity`?")
+            && err.contains("position_p"),
+        "{err}"
+    );
+    assert!(!err.contains("<swap --params>"), "{err}");
+}
+
+/// Item 3: a range is printed with significant digits, not rows of zeros.
+#[test]
+fn a_range_refusal_prints_its_bounds_readably() {
+    let d = scratch("range");
+    let job = std::fs::read_to_string(repo("examples/jobs/single-axis-move.toml"))
+        .unwrap()
+        .replace(
+            "model = \"../models/xy-x.toml\"",
+            &format!("model = {:?}", s(&repo("examples/models/xy-x.toml"))),
+        )
+        + "\n[[chain]]\naxis = \"x\"\nstage = \"velocity\"\nplugin = \"pi_velocity\"\n\
+           params = { kv_nms_per_rad = 2e10 }\n";
+    let j = d.join("j.toml");
+    std::fs::write(&j, job).unwrap();
+    let (_, err) = text(&run(&["sim", s(&j), "--out", s(&d.join("o")), "--quiet"]));
+    assert!(
+        err.contains("must be within [1e-12, 1e9], got 2e10"),
+        "{err}"
+    );
+}
+
 /// Item 4: a best value on the edge of its grid is warned about, naming the parameter, the edge
 /// Item 5: `excite` prints the `file` line a job in the output's folder (or in `--for-job`'s)
 /// needs; a job that names its own folder twice is told the line to write, not to write the file
