@@ -276,6 +276,37 @@ fn a_range_refusal_prints_its_bounds_readably() {
 }
 
 /// Item 4: a best value on the edge of its grid is warned about, naming the parameter, the edge
+/// and a wider range (text and JSON); a best inside the grid is not.
+#[test]
+fn tune_warns_when_the_best_is_on_the_edge_of_the_grid() {
+    let job = repo("examples/jobs/tune-ramp.toml");
+    let grid = "kp_per_s=20:120:3,kv_nms_per_rad=4:8:3";
+    let o = run(&["tune", "--job", s(&job), "--grid", grid, "--json"]);
+    assert!(o.status.success(), "{}", describe(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let w = &v["edge_warnings"][0];
+    assert_eq!(w["parameter"], "kp_per_s", "{v}");
+    assert_eq!(w["edge"], "upper", "{v}");
+    assert_eq!(w["widened"], "kp_per_s=20:220:3", "{v}");
+    let (out, _) = text(&run(&["tune", "--job", s(&job), "--grid", grid]));
+    assert!(
+        out.contains("warning: the best kp_per_s is 120, the upper bound of its grid")
+            && out.contains("--grid kp_per_s=20:220:3"),
+        "{out}"
+    );
+    // kv 10 and 12 are rejected by the margins: the best kv 8 is inside, kp has one value
+    let o = run(&[
+        "tune",
+        "--job",
+        s(&job),
+        "--grid",
+        "kp_per_s=120:120:1,kv_nms_per_rad=4:12:5",
+        "--json",
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["edge_warnings"], serde_json::json!([]), "{v}");
+}
+
 /// Item 5: `excite` prints the `file` line a job in the output's folder (or in `--for-job`'s)
 /// needs; a job that names its own folder twice is told the line to write, not to write the file
 /// to the doubled path; `identify stiffness` on the default excitation names the flags of a
