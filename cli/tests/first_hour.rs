@@ -399,8 +399,90 @@ fn excite_prints_the_file_line_a_job_needs_and_the_traverse_flags_are_named() {
     );
 }
 
+/// The inertia example's move on a machine with load inertia `jl`, its feedforward's params
+/// `ff` (its own inertia from the machine's model unless `ff` pins one).
+fn inertia_record(d: &Path, tag: &str, jl: f64, ff: &str) -> PathBuf {
+    let model = std::fs::read_to_string(repo("examples/models/xy-x.toml"))
+        .unwrap()
+        .replace("jl_kgm2 = 3.0e-3", &format!("jl_kgm2 = {jl:e}"));
+    let m = d.join(format!("{tag}.toml"));
+    std::fs::write(&m, model).unwrap();
+    let job = std::fs::read_to_string(repo("examples/jobs/identify-inertia-move.toml"))
+        .unwrap()
+        .replace(
+            "model = \"../models/xy-x.toml\"",
+            &format!("model = {:?}", s(&m)),
+        )
+        .replace(
+            "params = { structure = \"split\" }",
+            &format!("params = {{ {ff} }}"),
+        );
+    let j = d.join(format!("{tag}-job.toml"));
+    std::fs::write(&j, job).unwrap();
+    let out = d.join(tag);
+    let o = run(&["sim", s(&j), "--out", s(&out), "--quiet"]);
+    assert!(o.status.success(), "{}", describe(&o));
+    out.join("trace.csv")
+}
+
 /// Item 6: a record whose feedforward followed the heavier load cannot show the load in the
 /// command-load deviation: the estimate (the model job's feedforward inertia) comes with a
+/// warning; a record whose feedforward kept the nominal inertia carries it and gets none.
+#[test]
+fn identify_inertia_warns_when_its_record_cannot_see_the_load() {
+    let d = scratch("inertia");
+    let job = repo("examples/jobs/identify-inertia-move.toml");
+    let est = |trace: &Path| -> serde_json::Value {
+        let o = run(&[
+            "identify",
+            "inertia",
+            "--trace",
+            s(trace),
+            "--model",
+            s(&job),
+            "--at",
+            "0.01",
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", describe(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let blind = est(&inertia_record(
+        &d,
+        "follows",
+        3.9e-3,
+        "structure = \"split\"",
+    ));
+    let w = blind["warnings"].to_string();
+    assert!(
+        w.contains("does not tell the load from the feedforward")
+            && w.contains("1 % change")
+            && w.contains("--deviation motor-load"),
+        "{blind}"
+    );
+    let seen = est(&inertia_record(
+        &d,
+        "nominal",
+        3.9e-3,
+        "structure = \"split\", jl_kgm2 = 3.0e-3",
+    ));
+    assert!((seen["jl_kgm2"].as_f64().unwrap() / 3.9e-3 - 1.0).abs() < 1e-3);
+    assert_eq!(seen["warnings"], serde_json::json!([]), "{seen}");
+    let o = run(&[
+        "identify",
+        "inertia",
+        "--trace",
+        s(&d.join("follows/trace.csv")),
+        "--model",
+        s(&job),
+        "--at",
+        "0.01",
+    ]);
+    assert!(text(&o)
+        .0
+        .contains("warning: the measured command-load deviation"));
+}
+
 /// Item 9: `merge` of a run that ended abnormally writes both files, exits 1 and says so; its
 /// `--help` says what each exit status means.
 #[test]
