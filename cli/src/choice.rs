@@ -98,3 +98,16 @@ choices! {
         Multisine = "multisine",
     }
 }
+
+/// `--plugin ID` of `feedloop swap` without `--lib`: one of the built-in plugins, refused here
+/// (naming the flag, the built-in ids and the closest one) before the loop is asked.
+pub fn builtin_plugin(id: &str) -> anyhow::Result<()> {
+    let known = feedloop_plugins::PLUGINS.iter().map(|e| e.id);
+    if known.clone().any(|k| k == id) {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "--plugin `{id}`: {}; a plugin of a shared library needs --lib FILE",
+        feedloop_model::params::unknown_name_reason("plugin", id, known)
+    )
+}

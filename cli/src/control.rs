@@ -43,6 +43,9 @@ pub struct SwapArgs {
 /// `feedloop swap`.
 pub fn swap(a: &SwapArgs) -> Result<ExitCode> {
     let (params, lib) = (a.params.as_deref(), a.lib.as_deref());
+    if lib.is_none() {
+        crate::choice::builtin_plugin(&a.plugin)?;
+    }
     let params_text = match params {
         Some(p) => {
             let text =

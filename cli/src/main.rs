@@ -52,6 +52,10 @@ enum Command {
         /// Print the summary as JSON only.
         #[arg(long)]
         json: bool,
+        /// Do not draw the live line (cycles, run time, plant overruns and deadline misses so
+        /// far; drawn on standard error only when it is a terminal).
+        #[arg(long)]
+        quiet: bool,
     },
     /// Simulate a job in one process (same plant and controller code, no IPC).
     Sim {
@@ -110,6 +114,12 @@ enum Command {
     #[command(flatten)]
     Workbench(workbench_cmd::WorkbenchCmd),
     /// Export trace.csv and summary.json from the logs the two processes left in a folder.
+    #[command(
+        after_help = "Exit status: 0 when the run completed or an operator stopped it; 1 when \
+                      trace.csv and summary.json were written (the export worked) but the run \
+                      ended abnormally (a fault stop or a lost process: `end` in summary.json \
+                      says which); 2 when the export failed (the error says why)."
+    )]
     Merge {
         /// Folder holding plant.log / plant.json (and scheduler.log / scheduler.json).
         dir: PathBuf,
@@ -140,7 +150,17 @@ fn main() -> ExitCode {
             instance,
             pin,
             json,
-        } => processes::run(&job, &out, mode, wait, instance, pin.as_deref(), json),
+            quiet,
+        } => processes::run(
+            &job,
+            &out,
+            mode,
+            wait,
+            instance,
+            pin.as_deref(),
+            json,
+            quiet,
+        ),
         Command::Sim {
             job,
             out,

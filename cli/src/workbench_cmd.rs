@@ -223,14 +223,15 @@ fn load(
         _ => None,
     };
     let tr = match &chosen {
-        Some(a) => {
+        // an axis with no column at all is read whole: its refusal lists the axes there are
+        Some(a) if header.iter().any(|h| h.starts_with(&format!("{a}."))) => {
             let prefix = format!("{a}.");
             let added = c.added_input.clone();
             Trace::read_columns(trace, &|name: &str| {
                 name.starts_with(&prefix) || added.as_deref() == Some(name)
             })?
         }
-        None => Trace::read(trace)?,
+        _ => Trace::read(trace)?,
     };
     check_window_and_cutoff(c, Some((trace, tr.period_s())))?;
     let axis = pick_axis(&tr, model, c.axis.as_deref())?;

@@ -8,6 +8,8 @@ use std::collections::BTreeSet;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use crate::units::exact;
+
 /// What kind of configuration error it is, for callers that react to some kinds (the message
 /// is the same whatever the kind).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -157,16 +159,19 @@ impl Range {
         if !v.is_finite() {
             return Err(RangeError(format!("must be a finite number, got {v}")));
         }
+        let (got, x) = (exact(v), exact);
         match self {
             Range::Finite => Ok(()),
             Range::Positive if v > 0.0 => Ok(()),
-            Range::Positive => Err(RangeError(format!("must be > 0, got {v}"))),
+            Range::Positive => Err(RangeError(format!("must be > 0, got {got}"))),
             Range::NonNegative if v >= 0.0 => Ok(()),
-            Range::NonNegative => Err(RangeError(format!("must be >= 0, got {v}"))),
+            Range::NonNegative => Err(RangeError(format!("must be >= 0, got {got}"))),
             Range::Within(lo, hi) if (lo..=hi).contains(&v) => Ok(()),
-            Range::Within(lo, hi) => {
-                Err(RangeError(format!("must be within [{lo}, {hi}], got {v}")))
-            }
+            Range::Within(lo, hi) => Err(RangeError(format!(
+                "must be within [{}, {}], got {got}",
+                x(lo),
+                x(hi)
+            ))),
         }
     }
 }

@@ -69,6 +69,25 @@ pub fn sig(v: f64) -> String {
     }
 }
 
+/// `v` with all its digits (the shortest text that reads back as `v`), fixed-point from 1e-4 up
+/// to 1e6 and exponent form outside, so a range bound reads `1e-12` or `1e9`, never a row of
+/// zeros.
+///
+/// ```
+/// use feedloop_model::units::exact;
+/// assert_eq!(exact(1e-12), "1e-12");
+/// assert_eq!(exact(1e9), "1e9");
+/// assert_eq!(exact(0.25), "0.25");
+/// assert_eq!(exact(1000000000.5), "1.0000000005e9");
+/// ```
+pub fn exact(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// The prefix for values up to `max_abs` in `unit`: (factor to multiply SI values by, prefixed
 /// unit). The largest prefix not above the magnitude, so numbers read between 1 and 1000; zero
 /// or non-finite magnitudes keep the bare unit.

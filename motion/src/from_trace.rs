@@ -231,6 +231,57 @@ impl Trajectory for TraceCommand {
     }
 }
 
+/// Why the command file `rel` (read from the job's folder `dir`) is not there, and what to do:
+/// a path written from the current folder instead of the job's (`examples/jobs/cmd.csv` in a job
+/// in `examples/jobs/`) is named as such with the line to write; otherwise the step that makes
+/// the file, writing it where the job reads it.
+fn missing_file(dir: &Path, rel: &str, made_by: Option<&str>) -> String {
+    let path = dir.join(rel);
+    let in_dir = Path::new(rel).strip_prefix(dir).ok().filter(|_| {
+        !dir.as_os_str().is_empty() && dir != Path::new(".") && Path::new(rel).is_relative()
+    });
+    let (target, fix) = match in_dir {
+        Some(inner) => (
+            Path::new(rel).to_path_buf(),
+            format!(
+                "; the path is read from the job's folder ({}/), so the folder is named twice: \
+                 write file = \"{}\"",
+                dir.display(),
+                inner.display()
+            ),
+        ),
+        None if Path::new(rel).is_relative() && Path::new(rel).exists() => {
+            let abs = std::fs::canonicalize(rel).unwrap_or_else(|_| rel.into());
+            return format!(
+                "{}: no such file (the path is read from the job's folder, {}/); `{rel}` is there \
+                 from the current folder: write its path from the job's folder, or file = \"{}\"",
+                path.display(),
+                dir.display(),
+                abs.display()
+            );
+        }
+        None => (
+            path.clone(),
+            format!(
+                " (the path is read from the job's folder, {}/)",
+                dir.display()
+            ),
+        ),
+    };
+    if in_dir.is_some() && target.exists() {
+        return format!("{}: no such file{fix}", path.display());
+    }
+    // a command file made by another step (an excitation): say which step
+    let how = match made_by {
+        Some(cmd) => format!("make it first: `{cmd} --out {}`", target.display()),
+        None => format!(
+            "if it is an excitation, make it first with `feedloop excite --kind random-segments|prbs|multisine --out {}` (docs/identification.md)",
+            target.display()
+        ),
+    };
+    format!("{}: no such file{fix}; {how}", path.display())
+}
+
 /// `kind = "trace"`.
 pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, ConfigError> {
     let rel = f.str("file")?;
@@ -260,18 +311,7 @@ pub(crate) fn build(mut f: Fields, ctx: &Ctx) -> Result<Box<dyn Trajectory>, Con
     f.finish()?;
     let err = |key: &str, reason: String| ConfigError::new(file, key, reason);
     if !path.exists() {
-        // a command file made by another step (an excitation): say which step
-        let how = match made_by {
-            Some(cmd) => format!("make it first: `{cmd} --out {}`", path.display()),
-            None => format!(
-                "if it is an excitation, make it first with `feedloop excite --kind random-segments|prbs|multisine --out {}` (docs/identification.md)",
-                path.display()
-            ),
-        };
-        return Err(err(
-            &k_file,
-            format!("{}: no such file; {how}", path.display()),
-        ));
+        return Err(err(&k_file, missing_file(dir, rel, made_by)));
     }
     let trace = Trace::read(&path).map_err(|e| err(&k_file, format!("{e}")))?;
     for c in &columns {

@@ -169,7 +169,8 @@ pub fn human_summary(v: &Value) -> String {
             si(f(&v["contour"]["rms_error"]), "m")
         ));
     }
-    if !v["latency_us"].is_null() {
+    // a lockstep run waits for itself: its wall-clock round trips say nothing about the loop
+    if !v["latency_us"].is_null() && v["mode"] != "lockstep" {
         let l = &v["latency_us"];
         out.push_str(&format!(
             "  latency: p50 {}  p99 {}  p99.9 {}  max {}\n",
@@ -201,6 +202,89 @@ pub fn human_summary(v: &Value) -> String {
     }
     if let Some(advice) = end_advice(v) {
         out.push_str(&advice);
+    }
+    out.push_str(&timing_warning_text(&v["timing_warning"]));
+    out
+}
+
+/// The share of a realtime run's cycles above which its plant overruns or its deadline misses
+/// are warned about (`timing_warning` in summary.json).
+pub const TIMING_WARN_SHARE: f64 = 0.01;
+
+/// summary.json's `timing_warning`: `null` unless the run is realtime and its plant overruns
+/// or its deadline misses exceed [`TIMING_WARN_SHARE`] of its cycles; then the shares, which of
+/// the two exceeded it, a message and what to change (from the summary `v`'s `wait`,
+/// `period_s`, counts).
+pub fn timing_warning(v: &Value) -> Value {
+    let cycles = v["cycles"].as_u64().unwrap_or(0);
+    if v["mode"] != "realtime" || cycles == 0 {
+        return Value::Null;
+    }
+    let count = |k: &str| v[k].as_u64().unwrap_or(0);
+    let (overruns, misses) = (count("plant_overruns"), count("deadline_misses"));
+    let share = |n: u64| n as f64 / cycles as f64;
+    let period = si(v["period_s"].as_f64().unwrap_or(f64::NAN), "s");
+    let mut said = vec![];
+    let mut exceeded = vec![];
+    for (key, n, what) in [
+        (
+            "plant_overruns",
+            overruns,
+            "plant overruns (the plant woke more than half a period late)",
+        ),
+        (
+            "deadline_misses",
+            misses,
+            "deadline misses (no command from the scheduler in time)",
+        ),
+    ] {
+        if share(n) > TIMING_WARN_SHARE {
+            exceeded.push(key);
+            said.push(format!(
+                "{what} in {:.1} % of the cycles ({n} of {cycles})",
+                100.0 * share(n)
+            ));
+        }
+    }
+    if exceeded.is_empty() {
+        return Value::Null;
+    }
+    let mut advice = vec![];
+    match v["wait"].as_str() {
+        Some("block") => advice.push(
+            "a blocking wait (--wait block) wakes too late for this period here: use --wait \
+             busy or --wait hybrid"
+                .to_string(),
+        ),
+        Some("hybrid") => advice.push("use --wait busy (it spins, without sleeping)".into()),
+        _ => {}
+    }
+    advice.push("pin the plant and the scheduler to a CPU each (--pin 0,1)".into());
+    advice.push(format!("lengthen the job's period_s (now {period})"));
+    advice.push("stop other work on the machine".into());
+    json!({
+        "share_limit": TIMING_WARN_SHARE,
+        "plant_overrun_share": share(overruns),
+        "deadline_miss_share": share(misses),
+        "exceeded": exceeded,
+        "message": format!(
+            "{}: more than {} % of the cycles, so the run did not keep its {period} period",
+            said.join("; "),
+            100.0 * TIMING_WARN_SHARE
+        ),
+        "advice": advice,
+    })
+}
+
+/// The summary's lines of a `timing_warning` (empty when it is `null`).
+fn timing_warning_text(w: &Value) -> String {
+    let Some(message) = w["message"].as_str() else {
+        return String::new();
+    };
+    let mut out = format!("  warning: {message}.\n");
+    if let Some(advice) = w["advice"].as_array() {
+        let a: Vec<&str> = advice.iter().filter_map(Value::as_str).collect();
+        out.push_str(&format!("  to keep the period: {}.\n", a.join("; or ")));
     }
     out
 }

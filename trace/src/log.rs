@@ -285,25 +285,13 @@ pub struct LogContents<T> {
     pub torn_bytes: usize,
 }
 
-/// Reads every intact block of a log file.
-pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents<T>> {
-    let mut bytes = Vec::new();
-    File::open(path)?.read_to_end(&mut bytes)?;
-    let mut records = Vec::new();
+/// Decodes the intact blocks at the start of `bytes` into `records`; returns the bytes they
+/// took (the rest is a torn or corrupt block, or one not yet written whole).
+fn parse_blocks<T: DeserializeOwned>(bytes: &[u8], records: &mut Vec<T>) -> usize {
     let mut pos = 0usize;
     while bytes.len() - pos >= 12 {
         let word = |o: usize| u32::from_le_bytes(bytes[pos + o..pos + o + 4].try_into().unwrap());
         if word(0) != MAGIC {
-            if let Some((_, what)) = OLDER_MAGICS.iter().find(|(m, _)| pos == 0 && word(0) == *m) {
-                return Err(std::io::Error::new(
-                    std::io::ErrorKind::InvalidData,
-                    format!(
-                        "{}: a log of an older feedloop ({what}); read it with the version \
-                         that wrote it",
-                        path.display()
-                    ),
-                ));
-            }
             break;
         }
         let len = word(4) as usize;
@@ -324,10 +312,78 @@ pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents
         records.append(&mut block);
         pos = start + len;
     }
+    pos
+}
+
+/// Reads every intact block of a log file.
+pub fn read_log<T: DeserializeOwned>(path: &Path) -> std::io::Result<LogContents<T>> {
+    let mut bytes = Vec::new();
+    File::open(path)?.read_to_end(&mut bytes)?;
+    if bytes.len() >= 4 {
+        let first = u32::from_le_bytes(bytes[0..4].try_into().unwrap());
+        if let Some((_, what)) = OLDER_MAGICS.iter().find(|(m, _)| first == *m) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "{}: a log of an older feedloop ({what}); read it with the version \
+                     that wrote it",
+                    path.display()
+                ),
+            ));
+        }
+    }
+    let mut records = Vec::new();
+    let pos = parse_blocks(&bytes, &mut records);
     Ok(LogContents {
         records,
         torn_bytes: bytes.len() - pos,
     })
+}
+
+/// Bytes a [`LogTail`] holds back waiting for a block to be completed: far more than any
+/// recorder block.
+const MAX_PENDING: usize = 1 << 24;
+
+/// Follows a log while its process writes it: each [`LogTail::read_new`] returns the records of
+/// the blocks written whole since the last call (a block still being written waits for the
+/// next). For a live figure next to a running loop: it reads the file the recorder thread
+/// writes anyway, and asks nothing of the loop.
+pub struct LogTail {
+    path: std::path::PathBuf,
+    file: Option<File>,
+    /// Bytes read that do not form a whole block yet.
+    pending: Vec<u8>,
+}
+
+impl LogTail {
+    /// A tail of `path` (which need not exist yet).
+    pub fn new(path: &Path) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            file: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// The records of the blocks completed since the last call (none while the file is not
+    /// there).
+    pub fn read_new<T: DeserializeOwned>(&mut self) -> Vec<T> {
+        if self.file.is_none() {
+            self.file = File::open(&self.path).ok();
+        }
+        let mut records = Vec::new();
+        if let Some(f) = self.file.as_mut() {
+            if f.read_to_end(&mut self.pending).is_ok() {
+                let used = parse_blocks(&self.pending, &mut records);
+                self.pending.drain(..used);
+                if self.pending.len() > MAX_PENDING {
+                    // a corrupt block, not one being written: skip it (a live figure only)
+                    self.pending.clear();
+                }
+            }
+        }
+        records
+    }
 }
 
 #[cfg(test)]
@@ -336,6 +392,42 @@ mod tests {
 
     fn tmp(name: &str) -> std::path::PathBuf {
         std::env::temp_dir().join(format!("feedloop-log-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn a_tail_returns_each_block_once_and_waits_for_a_half_written_one() {
+        let p = tmp("tail.log");
+        let recs = |from: u64, n: u64| -> Vec<PlantRecord> {
+            (from..from + n)
+                .map(|k| PlantRecord {
+                    seq: k,
+                    flags: (k % 3) as u8,
+                    ..Default::default()
+                })
+                .collect()
+        };
+        let mut tail = LogTail::new(&p);
+        assert!(tail.read_new::<PlantRecord>().is_empty(), "no file yet");
+        let mut w = LogWriter::create(&p).unwrap();
+        w.write_block(&recs(0, 10)).unwrap();
+        w.write_block(&recs(10, 5)).unwrap();
+        let got: Vec<PlantRecord> = tail.read_new();
+        assert_eq!(got, recs(0, 15));
+        assert!(tail.read_new::<PlantRecord>().is_empty());
+        // a third block, written in two parts: nothing until it is whole
+        let other = tmp("tail-block.log");
+        LogWriter::create(&other)
+            .unwrap()
+            .write_block(&recs(15, 7))
+            .unwrap();
+        let block = std::fs::read(&other).unwrap();
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(&block[..block.len() / 2]).unwrap();
+        assert!(tail.read_new::<PlantRecord>().is_empty());
+        f.write_all(&block[block.len() / 2..]).unwrap();
+        assert_eq!(tail.read_new::<PlantRecord>(), recs(15, 7));
+        let _ = std::fs::remove_file(&p);
+        let _ = std::fs::remove_file(&other);
     }
 
     #[test]

@@ -385,6 +385,49 @@ pub struct InertiaEstimate {
     /// estimating with the continuous-time model instead of the discrete controller the
     /// machine runs; `null` otherwise.
     pub literal_bias_percent: Option<f64>,
+    /// What the estimate cannot vouch for (see [`unseen_load`]); empty when nothing.
+    pub warnings: Vec<String>,
+}
+
+/// The share of the load inertia whose change the measured command-load deviation must at
+/// least show to carry the inertia ([`unseen_load`]).
+pub const VISIBLE_INERTIA_SHARE: f64 = 0.01;
+
+/// The warning of a command-load estimate that the record does not carry. At the
+/// feedforward's own inertia the command-load deviation is the feedforward's residual, whatever
+/// that inertia is: a recorded run whose feedforward matched its load shows that residual, and
+/// the search then returns the `--model` job's feedforward inertia `ff`, not the load's. So when
+/// the measured deviation differs from the model's residual at `ff` by less than a change of
+/// [`VISIBLE_INERTIA_SHARE`] of the estimate `jl` moves the deviation (`model_at_jl`: the
+/// model's deviation at `jl`), the estimate holds only if the recorded run's feedforward used
+/// `ff`. Two more simulated moves.
+pub fn unseen_load(
+    job: &Job,
+    i: usize,
+    jl: f64,
+    ff: f64,
+    measured: f64,
+    model_at_jl: f64,
+    probe: Probe,
+) -> Result<Option<String>, IdentifyError> {
+    let residual = simulated_deviation(job, i, ff, ff, probe)?;
+    let moved = simulated_deviation(job, i, jl * (1.0 + VISIBLE_INERTIA_SHARE), ff, probe)?;
+    let step = (moved - model_at_jl).abs();
+    let carried = (measured - residual).abs();
+    if carried >= step {
+        return Ok(None);
+    }
+    Ok(Some(format!(
+        "the measured command-load deviation ({measured:.3e}) differs from the feedforward's own \
+         residual ({residual:.3e}: the deviation with the load at the feedforward's inertia \
+         {ff:.4e} kg m^2) by {carried:.3e}, less than a {} % change of the load inertia moves it \
+         ({step:.3e}): the record does not tell the load from the feedforward, and the estimate \
+         is the feedforward's inertia, right only if the recorded run's feedforward used \
+         jl_kgm2 = {ff:.4e}. Record the move with the feedforward at another inertia (or \
+         without it), or read --deviation motor-load (the screw's twist, which the feedforward \
+         does not cancel)",
+        100.0 * VISIBLE_INERTIA_SHARE
+    )))
 }
 
 /// Whether axis `i`'s feedforward runs the literal patent structure.
@@ -489,7 +532,16 @@ pub fn sim_match(
         jl_cont = Some(mc.jl);
         bias = Some(100.0 * (mc.jl / m.jl - 1.0));
     }
+    let warnings = match probe.kind {
+        DeviationKind::CommandLoad => {
+            unseen_load(job, i, m.jl, ff, measured, m.model_deviation, probe)?
+                .into_iter()
+                .collect()
+        }
+        DeviationKind::MotorLoad => vec![],
+    };
     Ok(InertiaEstimate {
+        warnings,
         jl_kgm2: m.jl,
         method: "sim-match",
         iterations,
@@ -552,6 +604,7 @@ pub fn linear(
         deviation: kind.name(),
         jl_continuous_model_kgm2: None,
         literal_bias_percent: None,
+        warnings: vec![],
     })
 }
 

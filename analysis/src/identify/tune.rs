@@ -5,6 +5,7 @@
 //! gain margin.
 
 use feedloop_model::job::Job;
+use feedloop_model::units::sig;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -320,4 +321,63 @@ pub fn tune(
         rejected,
         all,
     })
+}
+/// A best set on the edge of its grid: the search did not see the error rise past it, so the
+/// best may lie beyond (a grid axis of one value has no edge; a lower bound of 0 is the
+/// parameter's own end).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct EdgeWarning {
+    /// The parameter (one of [`PARAMS`]).
+    pub parameter: String,
+    /// `upper` or `lower`.
+    pub edge: &'static str,
+    /// The grid's bound on that edge.
+    pub bound: f64,
+    /// The best set's value.
+    pub best: f64,
+    /// The same grid axis widened past that edge by its span (same number of points).
+    pub widened: String,
+}
+
+/// The parameters whose best value lies on (or, refined, beyond) an edge of their grid axis.
+pub fn edge_warnings(grid: &[GridAxis], best: Gains) -> Vec<EdgeWarning> {
+    let mut out = vec![];
+    for ax in grid.iter().filter(|a| a.values.len() >= 2) {
+        let (lo, hi, n) = (
+            ax.values[0],
+            ax.values[ax.values.len() - 1],
+            ax.values.len(),
+        );
+        let b = match ax.name.as_str() {
+            "kp_per_s" => best.kp_per_s,
+            "kv_nms_per_rad" => best.kv_nms_per_rad,
+            _ => best.tv_s,
+        };
+        let span = hi - lo;
+        let close = 1e-9 * span;
+        let (edge, bound, widened) = if b >= hi - close {
+            (
+                "upper",
+                hi,
+                format!("{}={}:{}:{n}", ax.name, sig(lo), sig(hi + span)),
+            )
+        } else if b <= lo + close && lo > 0.0 {
+            let wider = (lo - span).max(0.0);
+            (
+                "lower",
+                lo,
+                format!("{}={}:{}:{n}", ax.name, sig(wider), sig(hi)),
+            )
+        } else {
+            continue;
+        };
+        out.push(EdgeWarning {
+            parameter: ax.name.clone(),
+            edge,
+            bound,
+            best: b,
+            widened,
+        });
+    }
+    out
 }

@@ -345,6 +345,32 @@ fn filtered_derivatives(
     (q, v, a)
 }
 
+/// The axis prefixes of `trace`'s columns (`x` of `x.cmd`, `x.motor`, ...) in column order, each
+/// with the first of the two columns every axis needs (`A.cmd`, `A.load`) that it lacks.
+fn axis_prefixes(trace: &Trace) -> Vec<(String, Option<String>)> {
+    let mut out: Vec<(String, Option<String>)> = Vec::new();
+    for (a, _) in trace.columns.iter().filter_map(|c| c.split_once('.')) {
+        if !out.iter().any(|(p, _)| p == a) {
+            let lacks = ["cmd", "load"]
+                .iter()
+                .map(|s| format!("{a}.{s}"))
+                .find(|c| trace.column(c).is_none());
+            out.push((a.to_string(), lacks));
+        }
+    }
+    out
+}
+
+/// The refusal of axis `a` (asked for, or the only prefix of the trace) whose columns are
+/// partly there: the real column it lacks.
+fn partial_axis(trace: &Trace, a: &str, lacks: &str) -> WorkbenchError {
+    missing(
+        trace,
+        lacks,
+        &format!("axis `{a}` (every workbench command reads `{a}.cmd` and `{a}.load`)"),
+    )
+}
+
 /// Chooses the axis of `trace` the model applies to: `axis` when given (it must exist), else the
 /// only axis of the trace.
 pub fn pick_axis(
@@ -353,20 +379,58 @@ pub fn pick_axis(
     axis: Option<&str>,
 ) -> Result<String, WorkbenchError> {
     let axes = trace.axes();
+    let prefixes = axis_prefixes(trace);
+    let lacking = |a: &str| {
+        prefixes
+            .iter()
+            .find(|(p, _)| p == a)
+            .and_then(|(_, l)| l.clone())
+    };
     match axis {
         Some(a) if axes.iter().any(|x| x == a) => Ok(a.to_string()),
-        Some(a) => Err(WorkbenchError::Mismatch {
-            trace: trace.path.clone(),
-            model: model_path.to_path_buf(),
-            reason: format!("the trace has no axis `{a}` (axes: {})", axes.join(", ")),
-        }),
+        Some(a) => match lacking(a) {
+            Some(col) => Err(partial_axis(trace, a, &col)),
+            None => {
+                let names: Vec<String> = prefixes
+                    .iter()
+                    .map(|(p, l)| match l {
+                        Some(l) => format!("{p} (no `{l}`)"),
+                        None => p.clone(),
+                    })
+                    .collect();
+                Err(WorkbenchError::Mismatch {
+                    trace: trace.path.clone(),
+                    model: model_path.to_path_buf(),
+                    reason: format!(
+                        "the trace has no axis `{a}` (axes: {}; column prefixes: {}); an axis \
+                         needs the columns `A.cmd` and `A.load`",
+                        if axes.is_empty() {
+                            "none".to_string()
+                        } else {
+                            axes.join(", ")
+                        },
+                        if names.is_empty() {
+                            "none".to_string()
+                        } else {
+                            names.join(", ")
+                        },
+                    ),
+                })
+            }
+        },
         None => match axes.len() {
             1 => Ok(axes[0].clone()),
-            0 => Err(missing(
-                trace,
-                "A.cmd",
-                "every workbench command (no axis columns `A.cmd`/`A.load`)",
-            )),
+            0 => match prefixes
+                .iter()
+                .find_map(|(p, l)| l.as_ref().map(|l| (p, l)))
+            {
+                Some((p, col)) => Err(partial_axis(trace, p, col)),
+                None => Err(missing(
+                    trace,
+                    "A.cmd",
+                    "every workbench command (no axis columns `A.cmd`/`A.load`)",
+                )),
+            },
             _ => Err(WorkbenchError::Mismatch {
                 trace: trace.path.clone(),
                 model: model_path.to_path_buf(),

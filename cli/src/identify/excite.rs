@@ -28,9 +28,66 @@ pub struct ExciteArgs {
     /// Output trace (t, A.cmd, A.cmd_vel, A.cmd_acc), playable with `kind = "trace"`.
     #[arg(long)]
     pub out: PathBuf,
+    /// The job that will play the file (need not exist yet): the `file = ...` line printed is
+    /// the path from its folder (default: a job in the output's own folder).
+    #[arg(long)]
+    pub for_job: Option<PathBuf>,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `p` absolute, with `.` and `..` folded away (without touching the file system).
+fn lexical_absolute(p: &Path) -> PathBuf {
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut out = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other),
+        }
+    }
+    out
+}
+
+/// The path of `file` as a job in `job_dir` writes it: relative to that folder, which is where
+/// a job's `file` is read from.
+fn path_from_job_dir(file: &Path, job_dir: &Path) -> PathBuf {
+    let (f, d) = (lexical_absolute(file), lexical_absolute(job_dir));
+    let (fc, dc): (Vec<_>, Vec<_>) = (f.components().collect(), d.components().collect());
+    let common = fc.iter().zip(&dc).take_while(|(a, b)| a == b).count();
+    let mut rel = PathBuf::new();
+    for _ in common..dc.len() {
+        rel.push("..");
+    }
+    for c in &fc[common..] {
+        rel.push(c);
+    }
+    rel
+}
+
+/// The job folder the printed `file = ...` line is for (`--for-job`'s folder, else the output's),
+/// as the user gave it ("." for the current folder), and the line's path.
+fn job_file_line(a: &ExciteArgs) -> (PathBuf, PathBuf) {
+    let dir = match &a.for_job {
+        Some(j) => j.parent().unwrap_or(Path::new("")).to_path_buf(),
+        None => a.out.parent().unwrap_or(Path::new("")).to_path_buf(),
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        PathBuf::from(".")
+    } else {
+        dir
+    };
+    // an absolute output is found the same from any folder
+    let rel = if a.out.is_absolute() && a.for_job.is_some() {
+        a.out.clone()
+    } else {
+        path_from_job_dir(&a.out, &dir)
+    };
+    (dir, rel)
 }
 
 /// The quantity a per-axis excitation key names, without its unit (`amplitude` for
@@ -112,18 +169,29 @@ pub fn excite(a: ExciteArgs) -> anyhow::Result<ExitCode> {
     write_excitation_csv(traj.as_ref(), a.period_s, &meta, std::io::BufWriter::new(f))
         .with_context(|| format!("writing {}", a.out.display()))?;
     let rows = (traj.duration_s() / a.period_s).round() as u64 + 1;
+    let (job_dir, job_file) = job_file_line(&a);
     if a.json {
         println!(
             "{}",
-            serde_json::json!({"out": a.out.display().to_string(), "kind": a.kind.id(), "duration_s": traj.duration_s(), "rows": rows})
+            serde_json::json!({"out": a.out.display().to_string(), "kind": a.kind.id(),
+                "duration_s": traj.duration_s(), "rows": rows,
+                "job_file": job_file.display().to_string(),
+                "job_folder": job_dir.display().to_string()})
         );
     } else {
         println!(
-            "wrote {} ({} excitation, {}, {rows} rows); play it with [trajectory] kind = \"trace\", file = \"{}\"",
+            "wrote {} ({} excitation, {}, {rows} rows); play it with [trajectory] kind = \"trace\", \
+             file = \"{}\" in a job in {}/ (a job's `file` is read from the job's own folder{})",
             a.out.display(),
             a.kind.id(),
             si(traj.duration_s(), "s"),
-            a.out.display()
+            job_file.display(),
+            job_dir.display(),
+            if a.for_job.is_some() {
+                ""
+            } else {
+                "; --for-job JOB gives the path from another job's folder"
+            }
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -286,5 +286,8 @@ fn print_inertia(a: &InertiaArgs, est: &inertia::InertiaEstimate) -> anyhow::Res
             "literal feedforward: the load-inertia patent's continuous-time model would give {jc:.6e} kg m^2 ({b:+.2} %); the estimate above uses the job's own discrete controller"
         );
     }
+    for w in &est.warnings {
+        println!("warning: {w}");
+    }
     Ok(())
 }

@@ -49,6 +49,8 @@ struct TunedAxis {
     name: String,
     result: feedloop_analysis::identify::tune::TuneResult,
     seconds: f64,
+    /// The parameters whose best value is on an edge of the grid.
+    edges: Vec<feedloop_analysis::identify::tune::EdgeWarning>,
 }
 
 /// `path` for the only axis, `stem-axis.ext` when several are tuned.
@@ -189,6 +191,7 @@ fn tune_axes(
         cur = t::job_with_gains(&cur, i, r.best);
         tuned.push(TunedAxis {
             name,
+            edges: t::edge_warnings(grid, r.best),
             result: r,
             seconds: t0.elapsed().as_secs_f64(),
         });
@@ -248,7 +251,8 @@ fn tune_json(a: &TuneArgs, tuned: &[TunedAxis], skipped: &[(String, String)]) ->
         let r = &ta.result;
         return serde_json::json!({"best": r.best, "e_best": r.e_best, "e_default": r.e_default,
             "evaluated": r.evaluated, "rejected": r.rejected, "seconds": ta.seconds,
-            "axis": ta.name, "delay_cycles": a.delay_cycles, "skipped": skipped_json});
+            "axis": ta.name, "delay_cycles": a.delay_cycles, "skipped": skipped_json,
+            "edge_warnings": ta.edges});
     }
     let mut best = serde_json::Map::new();
     let mut e_best = serde_json::Map::new();
@@ -263,7 +267,26 @@ fn tune_json(a: &TuneArgs, tuned: &[TunedAxis], skipped: &[(String, String)]) ->
         "rejected": tuned.iter().map(|x| x.result.rejected).sum::<usize>(),
         "seconds": tuned.iter().map(|x| x.seconds).sum::<f64>(),
         "axes": tuned.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
-        "delay_cycles": a.delay_cycles, "skipped": skipped_json})
+        "delay_cycles": a.delay_cycles, "skipped": skipped_json,
+        "edge_warnings": tuned.iter().map(|x| (x.name.clone(), serde_json::json!(x.edges)))
+            .collect::<serde_json::Map<_, _>>()})
+}
+
+/// The text of a best set on the edge of its grid.
+fn edge_text(axis: &str, w: &feedloop_analysis::identify::tune::EdgeWarning) -> String {
+    let at = if sig(w.best) == sig(w.bound) {
+        format!("the {} bound of its grid", w.edge)
+    } else {
+        // refined past the grid
+        format!("beyond the {} bound {} of its grid", w.edge, sig(w.bound))
+    };
+    format!(
+        "axis {axis}: warning: the best {} is {}, {at}: the error may fall further beyond it; \
+         widen the range, e.g. --grid {}",
+        w.parameter,
+        sig(w.best),
+        w.widened
+    )
 }
 
 /// Runs `feedloop tune`.
@@ -311,6 +334,9 @@ pub fn tune(a: TuneArgs) -> anyhow::Result<ExitCode> {
             r.rejected,
             si(ta.seconds, "s")
         );
+        for w in &ta.edges {
+            println!("{}", edge_text(&ta.name, w));
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -16,6 +16,7 @@ use crate::signals;
 
 use super::common::{create_dir, load, mode_of, wait_of, write_summary, Loaded};
 use super::merge::merge;
+use super::progress::RunProgress;
 
 fn default_instance() -> String {
     format!("run{}", std::process::id())
@@ -102,12 +103,19 @@ fn spawn_both(
 /// Waits for both processes: the plant, forwarding an operator stop (SIGINT/SIGTERM to us) to
 /// it once; then the scheduler, killed if it outlives the peer timeout (+2 s). Reports a
 /// process that failed without writing its JSON file.
-fn wait_both(plant: &mut Child, sched: &mut Child, job: &Job, out: &Path) -> Result<()> {
+fn wait_both(
+    plant: &mut Child,
+    sched: &mut Child,
+    job: &Job,
+    out: &Path,
+    progress: &mut RunProgress,
+) -> Result<()> {
     let mut forwarded = false;
     let plant_status = loop {
         if let Some(st) = plant.try_wait().context("waiting for the plant process")? {
             break st;
         }
+        progress.tick();
         if !forwarded && signals::STOP.load(std::sync::atomic::Ordering::Relaxed) {
             // SAFETY: sending a signal to our own child by pid.
             unsafe { libc::kill(plant.id() as libc::pid_t, libc::SIGTERM) };
@@ -115,6 +123,7 @@ fn wait_both(plant: &mut Child, sched: &mut Child, job: &Job, out: &Path) -> Res
         }
         std::thread::sleep(Duration::from_millis(5));
     };
+    progress.finish();
     // The scheduler ends on the plant's last sample or notices silence; bound the wait.
     let deadline =
         std::time::Instant::now() + Duration::from_secs_f64(job.run.peer_timeout_s + 2.0);
@@ -140,7 +149,8 @@ fn wait_both(plant: &mut Child, sched: &mut Child, job: &Job, out: &Path) -> Res
     Ok(())
 }
 
-/// `feedloop run`.
+/// `feedloop run` (`quiet`: no live line on standard error).
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     job_path: &Path,
     out: &Path,
@@ -149,6 +159,7 @@ pub fn run(
     instance: Option<String>,
     pin: Option<&str>,
     json_only: bool,
+    quiet: bool,
 ) -> Result<ExitCode> {
     let (mode, wait) = (
         mode.map(|m| m.id().to_string()),
@@ -157,7 +168,7 @@ pub fn run(
     signals::install();
     // Validate everything before any process starts.
     let cpus = pin.map(parse_pin).transpose()?;
-    let Loaded { job, .. } = load(job_path)?;
+    let Loaded { job, cycle, .. } = load(job_path)?;
     let mode = mode_of(&job, mode)?;
     let wait = wait_of(&job, wait)?;
     let instance = instance.unwrap_or_else(default_instance);
@@ -176,7 +187,14 @@ pub fn run(
         let _ = std::fs::remove_file(out.join(f));
     }
     let (mut plant, mut sched) = spawn_both(&instance, job_path, out, mode, wait, cpus)?;
-    wait_both(&mut plant, &mut sched, &job, out)?;
+    let mut progress = RunProgress::new(
+        out,
+        cycle.cycles(),
+        job.period_s,
+        mode == Mode::Realtime,
+        !(quiet || json_only),
+    );
+    wait_both(&mut plant, &mut sched, &job, out, &mut progress)?;
     let (mut v, code) = merge(out, &job)?;
     v["processes"] = json!({"plant_pid": plant.id(), "scheduler_pid": sched.id()});
     write_summary(out, &v, json_only)?;

@@ -14,7 +14,7 @@ use feedloop_model::job::Job;
 use feedloop_plugins::Builtins;
 use feedloop_runtime::scheduler::cycle::ControlCycle;
 use feedloop_trace::export::{
-    human_summary, row_values, summary_json, trace_columns, EndInfo, SummaryInput,
+    human_summary, row_values, summary_json, timing_warning, trace_columns, EndInfo, SummaryInput,
 };
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 use feedloop_trace::summary::{timing, Tracking};
@@ -30,8 +30,28 @@ pub fn merge_cmd(dir: &Path, job_path: &Path, json_only: bool) -> Result<ExitCod
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         print!("{}", human_summary(&v));
+        println!(
+            "  wrote {} and {}",
+            dir.join("trace.csv").display(),
+            dir.join("summary.json").display()
+        );
+    }
+    if code != ExitCode::SUCCESS {
+        eprintln!("{}", abnormal_end_note(&v));
     }
     Ok(code)
+}
+
+/// Why `merge` exits 1 although it wrote both files (on standard error, beside the summary).
+fn abnormal_end_note(v: &Value) -> String {
+    format!(
+        "feedloop merge: exit status 1: the export worked (trace.csv and summary.json are \
+         complete for the {} cycles logged), but the run ended abnormally (end: {} at cycle {}); \
+         0 is a completed or operator-stopped run, 2 a failed export",
+        v["cycles"],
+        v["end"]["reason"].as_str().unwrap_or("unknown"),
+        v["end"]["cycle"]
+    )
 }
 
 /// Writes `trace.csv` in `dir` from the plant's records; returns the tracking figures and the
@@ -169,7 +189,7 @@ pub(super) fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
     if let Some(s) = &sched_info {
         scheduler_extra(s, &plant_recs.records, &mut extra);
     }
-    let v = summary_json(&SummaryInput {
+    let mut v = summary_json(&SummaryInput {
         job: &job.name,
         mode: &mode,
         period_s: job.period_s,
@@ -181,6 +201,7 @@ pub(super) fn merge(dir: &Path, job: &Job) -> Result<(Value, ExitCode)> {
         end: &end,
         extra,
     });
+    v["timing_warning"] = timing_warning(&v);
     write_json(&dir.join("summary.json"), &v)?;
     // A completed run and an operator stop are clean exits; every fault stop is not.
     let code = if end.reason == "completed" || end.reason == "operator_stop" {

@@ -8,6 +8,7 @@ mod launcher;
 mod merge;
 mod plant_entry;
 mod process_start;
+mod progress;
 mod scheduler_entry;
 mod sim;
 

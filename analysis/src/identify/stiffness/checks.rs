@@ -110,11 +110,11 @@ fn check_coherence(c: &mut StiffnessChecks) {
         }
     }
     if noisy {
-        c.advice.push(
+        c.advice.push(format!(
             "excite the band with more amplitude or for longer, without reversals (a traverse \
-             under the excitation)"
-                .into(),
-        );
+             under the excitation: {})",
+            super::direction::TRAVERSE_FLAGS
+        ));
     }
 }
 

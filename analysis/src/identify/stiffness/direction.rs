@@ -10,6 +10,13 @@ use super::options::{
 };
 use super::picks::{identify_stiffness_from, identify_stiffness_windows};
 
+/// The `feedloop excite` flags that put a traverse under the excitation (what the advice to
+/// excite on a traverse asks for; `feedloop excite`'s defaults have none).
+pub(super) const TRAVERSE_FLAGS: &str = "`feedloop excite ... --set traverse_m_per_s=0.02 --set \
+    max_travel_m=0.1` with the excitation below the traverse (`--set velocity_m_per_s=2e-4` \
+    for random-segments, `--set amplitude_m_per_s=2e-4` for prbs and multisine; the `_rad` \
+    keys on a rotary axis)";
+
 /// Sign changes of `v` with a hysteresis of 2 % of its largest magnitude (noise about zero
 /// does not count).
 pub fn count_reversals(v: &[f64]) -> usize {
@@ -113,7 +120,7 @@ pub fn identify_stiffness(
     if result.checks.reversals > 0 {
         result.checks.advice.push(format!(
             "the axis reversed {} times in the record: backlash and friction then mix into the \
-             response; excite on top of a constant traverse",
+             response; excite on top of a constant traverse: {TRAVERSE_FLAGS}",
             result.checks.reversals
         ));
     }
