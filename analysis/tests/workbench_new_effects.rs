@@ -218,3 +218,51 @@ fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
     assert!(dg.sparse_peer.terms.is_empty(), "{:?}", dg.sparse_peer);
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
+    // a right model whose recorded torque carries white noise of 5 % of the drive (a current
+    // ripple the motion does not follow): the dictionary's delay term is built from the motion,
+    // so neither the forward selection nor the sparse peer "explains" that noise with it
+    let dir = scratch("torque-noise");
+    let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
+    let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut uniform = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let mut out = String::new();
+    for line in text.lines() {
+        if line.starts_with('#') || line.starts_with("t,") {
+            out.push_str(line);
+        } else {
+            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+            let f: f64 = cells[3].parse().unwrap();
+            // uniform on +-60 N: an RMS of about 17 N beside the drive's 380 N
+            cells[3] = format!("{}", f + 120.0 * uniform());
+            out.push_str(&cells.join(","));
+        }
+        out.push('\n');
+    }
+    let path = dir.join("noisy.csv");
+    std::fs::write(&path, out).unwrap();
+    let (m, d) = setup(&path, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    assert!(
+        dg.residual_terms
+            .iter()
+            .all(|t| !(t.term == "delayed_torque" && t.significant)),
+        "{:?}",
+        dg.residual_terms
+    );
+    assert!(
+        !dg.sparse_peer.terms.contains(&"delayed_torque".to_string()),
+        "{:?}",
+        dg.sparse_peer
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -570,12 +570,13 @@ pub(super) fn scored_candidate(
         extra
     };
     let contribution = contribution_of(&add, model, d, ch);
-    // a friction law needs reversals to be told from an offset and a slope: say so where that
-    // is why it is not named
+    // a friction law needs reversals to be told from an offset and a slope, and the
+    // cross-validation needs them spread over its blocks (a block without one can only refit the
+    // level it already saw): say so where that is why it is not named
     let turns = reversals(d);
-    if !significant && class_of(id) == "friction" && turns < 2 {
+    if !significant && class_of(id) == "friction" && turns < FOLDS {
         ev = format!(
-            "{ev}; too few reversals to judge friction ({turns} in this record): record moves in both directions"
+            "{ev}; too few reversals to judge friction ({turns} in this record, fewer than the {FOLDS} blocks of the cross-validation): record more moves in both directions"
         );
     }
     Ok(Candidate {

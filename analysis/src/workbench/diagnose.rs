@@ -273,7 +273,8 @@ pub(super) fn dictionary_of(
 ) -> (Vec<TermCut>, SparsePeer) {
     let step = d.len().div_ceil(200_000).max(1);
     let run = |d: &AxisData, ch: &TorqueChannel<'_>, extra: &[(String, Vec<f64>)]| {
-        let terms = dictionary::terms(d, &ch.y_app, extra);
+        let needed: Vec<f64> = ch.y_app.iter().zip(&ch.res).map(|(a, r)| a - r).collect();
+        let terms = dictionary::terms(d, &needed, extra);
         let cuts = dictionary::explain(
             &terms,
             &ch.base_cols,

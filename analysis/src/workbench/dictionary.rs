@@ -47,9 +47,9 @@ pub struct TermCut {
 }
 
 /// The dictionary for the axis `d`: the default terms, then `extra` trace columns (name,
-/// values at the axis' samples), filtered as the torque is. `y_app` is the applied torque (for
-/// the delayed-torque term).
-pub fn terms(d: &AxisData, y_app: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<Term> {
+/// values at the axis' samples), filtered as the torque is. `needed` is the torque the model
+/// needs for the recorded motion (for the delayed-torque term).
+pub fn terms(d: &AxisData, needed: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<Term> {
     let n = d.len();
     let (a, b) = d.range;
     let v = &d.vm;
@@ -110,11 +110,19 @@ pub fn terms(d: &AxisData, y_app: &[f64], extra: &[(String, Vec<f64>)]) -> Vec<T
     });
     out.push(Term {
         id: "delayed_torque".into(),
-        words: "the change of the applied torque over one period (a delay the model lacks)".into(),
-        // what a delay of one period changes: the torque one period earlier minus the torque
-        // now (the torque itself would re-explain the residual it is part of)
+        words: "the change of the needed torque over one period (a delay the model lacks)".into(),
+        // a drive that applies the recorded torque one period late moves now as the torque of
+        // a period ago asks: the residual is the needed torque's change over one period. Built
+        // from the motion only: the recorded torque's own change would carry its noise, which
+        // the residual carries too, and a regression on it would "explain" that noise
         cols: vec![(0..n)
-            .map(|k| if k > 0 { y_app[k - 1] - y_app[k] } else { 0.0 })
+            .map(|k| {
+                if k + 1 < n {
+                    needed[k + 1] - needed[k]
+                } else {
+                    0.0
+                }
+            })
             .collect()],
     });
     for (name, c) in extra {

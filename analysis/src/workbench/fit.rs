@@ -20,7 +20,7 @@ use super::controller::ControllerChannel;
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::gap_sizing::size_gaps_on_window;
-use super::lsq::{blocks, normals};
+use super::lsq::{blocks, blocks_of_rows, normals};
 use super::refit::{
     best_effect, deflection, flat, held_words, inertias_now, moving_mask, spanned_base, Refit,
     Released, FOLDS,
@@ -249,6 +249,7 @@ impl<'a> Adder<'a> {
         base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
         let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
         names.extend(rel.names(model));
+        let moving = moving_mask(d);
         Adder {
             model,
             d,
@@ -256,8 +257,8 @@ impl<'a> Adder<'a> {
             rel,
             base_cols,
             names,
-            bl: blocks(d.range, FOLDS),
-            moving: moving_mask(d),
+            bl: blocks_of_rows(d.range, FOLDS, moving.as_deref()),
+            moving,
             held_all: Vec::new(),
             held_effects: Vec::new(),
         }

@@ -106,6 +106,35 @@ pub fn blocks(range: (usize, usize), k: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
+/// [`blocks`] of `range` holding equal numbers of the rows where `mask` is not 0 (every row
+/// when `mask` is `None`): a block of the record that is mostly standstill would otherwise
+/// carry a fold of its own with a handful of informative rows, and its vote on a candidate
+/// would be the noise of those few. Each boundary sits at an informative row.
+pub fn blocks_of_rows(
+    range: (usize, usize),
+    k: usize,
+    mask: Option<&[f64]>,
+) -> Vec<(usize, usize)> {
+    let Some(mask) = mask else {
+        return blocks(range, k);
+    };
+    let (a, b) = range;
+    let rows: Vec<usize> = (a..b.min(mask.len())).filter(|i| mask[*i] != 0.0).collect();
+    let n = rows.len();
+    if n < k.max(1) {
+        return blocks(range, k);
+    }
+    let k = k.max(1);
+    let mut out = Vec::with_capacity(k);
+    let mut start = a;
+    for i in 1..=k {
+        let end = if i == k { b } else { rows[n * i / k] };
+        out.push((start, end));
+        start = end;
+    }
+    out
+}
+
 /// Dot product, four partial sums (so the compiler can vectorise it).
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
@@ -253,6 +282,32 @@ pub fn cross_validate(ne: &[Normal]) -> Cv {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocks_of_rows_hold_equal_numbers_of_informative_rows() {
+        // standstill (0) over the first 60 % and the last 20 % of 1000 rows: equal-length
+        // blocks would give two folds no informative row at all
+        let mask: Vec<f64> = (0..1000)
+            .map(|i| if (600..800).contains(&i) { 1.0 } else { 0.0 })
+            .collect();
+        let bl = blocks_of_rows((0, 1000), 5, Some(&mask));
+        assert_eq!(bl.len(), 5);
+        assert_eq!((bl[0].0, bl[4].1), (0, 1000));
+        for w in bl.windows(2) {
+            assert_eq!(w[0].1, w[1].0, "{bl:?}");
+        }
+        for (a, b) in &bl {
+            let rows = mask[*a..*b].iter().filter(|m| **m != 0.0).count();
+            assert_eq!(rows, 40, "{bl:?}");
+        }
+        assert_eq!(blocks_of_rows((0, 1000), 5, None), blocks((0, 1000), 5));
+        // fewer informative rows than blocks: the plain split
+        let sparse: Vec<f64> = (0..1000).map(|i| if i == 3 { 1.0 } else { 0.0 }).collect();
+        assert_eq!(
+            blocks_of_rows((0, 1000), 5, Some(&sparse)),
+            blocks((0, 1000), 5)
+        );
+    }
 
     #[test]
     fn least_squares_recovers_a_line_and_cross_validation_scores_noise_level() {

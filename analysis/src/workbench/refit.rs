@@ -11,7 +11,7 @@ use feedloop_model::model::AxisKind;
 use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::lsq::{blocks, cross_validate, normals_masked, Cv};
+use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv};
 use super::pinned::held_at_controller_limit;
 use super::signal::{golden_section, quantile, span};
 use feedloop_model::units::sig;
@@ -385,7 +385,7 @@ fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<V
     let base_r: Vec<&[f64]> = base_d.iter().map(|c| c.as_slice()).collect();
     let y_d = dec(p.y);
     let mask_d = p.mask.map(dec);
-    let bl_d = blocks(dd.range, p.bl.len());
+    let bl_d = blocks_of_rows(dd.range, p.bl.len(), mask_d.as_deref());
     best_effect(
         id,
         p.model,

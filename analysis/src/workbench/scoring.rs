@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use super::base::BaseParam;
 use super::data::AxisData;
 use super::effects::{Effect, WbModel};
-use super::lsq::blocks;
+use super::lsq::blocks_of_rows;
 use super::lsq::Cv;
 use super::refit::{cv_cols_masked, moving_mask, Released, FOLDS};
 use super::signal::{mean, rms};
@@ -144,7 +144,8 @@ impl<'d> TorqueChannel<'d> {
         let y_app = model.applied(d).expect("checked above");
         let needed = model.torque_needed(d);
         let res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
-        let bl = blocks(d.range, FOLDS);
+        let mask = moving_mask(d);
+        let bl = blocks_of_rows(d.range, FOLDS, mask.as_deref());
         // with one position column, motor and load columns coincide: keep one of each pair
         let free_keys: Vec<BaseParam> = BaseParam::of_kind(d.kind)
             .iter()
@@ -155,7 +156,6 @@ impl<'d> TorqueChannel<'d> {
         base_cols.extend(rel.cols.iter().map(|c| c.as_slice()));
         let mut names: Vec<String> = free_keys.iter().map(|k| k.key().to_string()).collect();
         names.extend(rel.names(model));
-        let mask = moving_mask(d);
         let cv0 = cv_cols_masked(&[], &[], &res, &bl, mask.as_deref());
         let e0 = cv0.rms.max(1e-300);
         let cvb = cv_cols_masked(&base_cols, &[], &res, &bl, mask.as_deref());
