@@ -97,7 +97,8 @@ fn shipped_quadrant_example_relearns_its_table_and_cuts_the_spike_tenfold() {
     // file is a table learned this way (same pulse count).
     let ex = controllers_util::examples();
     let job = Job::load(&ex.join("jobs/xy-circle-quadrant.toml")).unwrap();
-    let out = temp_dir("quadrant-example").join("table.toml");
+    let scratch = temp_dir("quadrant-example");
+    let out = scratch.join("table.toml");
     let opts = LearnOptions {
         table: Some(out.clone()),
         ..LearnOptions::default()

@@ -593,6 +593,8 @@ mod tests {
         );
         let p = write(&dir, "j.toml", job);
         let r = Job::load(&p);
+        // the job is read whole: its folder is not needed after loading
+        std::fs::remove_dir_all(&dir).ok();
         (dir, r)
     }
 

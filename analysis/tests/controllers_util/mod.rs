@@ -18,15 +18,10 @@ pub fn examples() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples")
 }
 
-/// A fresh temporary folder.
-pub fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "feedloop-{tag}-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::SeqCst)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh temporary folder, removed when the returned guard is dropped (kept when the test
+/// fails, for a look).
+pub fn temp_dir(tag: &str) -> feedloop_test_support::Scratch {
+    feedloop_test_support::Scratch::new(tag, &NEXT.fetch_add(1, Ordering::SeqCst).to_string())
 }
 
 /// The brief's ball-screw X axis as a model file text: the plant and controller of
@@ -68,6 +63,7 @@ pub fn ff_chain(axis: &str, ff_params: Option<&str>) -> String {
 /// Writes `text` as a job file in a fresh temp folder (with `{examples}` replaced by the
 /// examples folder) and loads it.
 pub fn job_from_text(tag: &str, text: &str) -> Job {
+    // the job is read whole on loading: its folder goes with the guard
     let dir = temp_dir(tag);
     write_job(&dir, "job.toml", text)
 }

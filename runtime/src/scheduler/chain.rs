@@ -462,6 +462,7 @@ mod tests {
         )
         .unwrap();
         let job = Job::load(&dir.join("j.toml")).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
         Chain::build(&job, &Reg(torque)).unwrap()
     }
 

@@ -322,5 +322,6 @@ mod tests {
         assert_eq!(log.records.len() as u64, n);
         assert!(log.records.windows(2).all(|w| w[1].seq > w[0].seq));
         assert_eq!(log.torn_bytes, 0);
+        let _ = std::fs::remove_file(&p);
     }
 }
