@@ -407,7 +407,7 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     );
     let shown = cdp.eval(
         "JSON.stringify(['trigger-panel', 'swap-panel', 'latency-panel', 'counters-panel', \
-         'status-panel', 'pause', 'cap-save'].filter(id => { const e = document.getElementById(id); \
+         'status-panel', 'pause', 'cap-save', 'event-kinds'].filter(id => { const e = document.getElementById(id); \
          return !e || getComputedStyle(e).display !== 'none' && e.offsetParent !== null; }))",
     );
     assert_eq!(shown, "[]", "live-only controls shown for a trace");
@@ -439,6 +439,7 @@ fn page_counters_agree(cdp: &mut Cdp) -> Value {
            const windowed = [...document.querySelectorAll('#counters td[data-window]')]
              .map(td => td.dataset.window).filter(w => w !== 'since start');
            return { status, line, windowed, seconds: scope.state.window.seconds, counts: scope.state.window.counts,
+                    first: scope.state.window.first_cycle, lost: scope.state.lost,
                     lineText: document.getElementById('status-line').textContent,
                     head: document.querySelector('#counters tr').textContent };
          })()",
@@ -476,6 +477,23 @@ fn page_counters_agree(cdp: &mut Cdp) -> Value {
             seen["counts"][windowed].as_u64().unwrap() <= seen["status"][total].as_u64().unwrap(),
             "{seen}"
         );
+    }
+    // the scope watched from the loop's first cycle and lost none: it counts what the loop counts
+    let whole = seen["first"] == 0
+        && seen["lost"]["plant_cycles"] == 0
+        && seen["lost"]["scope_blocks"] == 0
+        && seen["lost"]["recorder_dropped"] == 0;
+    if whole {
+        assert_eq!(
+            seen["counts"]["deadline_miss"], seen["status"]["deadline_misses"],
+            "{seen}"
+        );
+        assert_eq!(
+            seen["counts"]["plant_overrun"], seen["status"]["plant_overruns"],
+            "{seen}"
+        );
+    } else {
+        eprintln!("the scope did not hold every cycle: its window is not compared: {seen}");
     }
     // the windowed column says its window
     let windowed = seen["windowed"].as_array().unwrap();

@@ -138,6 +138,8 @@ pub struct Store {
     sched_seq: Vec<u64>,
     /// Newest plant cycle seen.
     pub newest: Option<u64>,
+    /// First plant cycle seen.
+    first: Option<u64>,
     /// Newest scheduler cycle seen.
     pub newest_sched: Option<u64>,
     /// Events, oldest first.
@@ -218,6 +220,7 @@ impl Store {
             plant_seq: vec![u64::MAX; capacity],
             sched_seq: vec![u64::MAX; capacity],
             newest: None,
+            first: None,
             newest_sched: None,
             events: VecDeque::new(),
             marks: vec![0; capacity],
@@ -298,10 +301,27 @@ impl Store {
         Some((t(self.oldest()?), t(self.newest?)))
     }
 
-    /// The oldest cycle still held.
+    /// The oldest cycle still held (the ring's first one while it has not filled).
     pub fn oldest(&self) -> Option<u64> {
-        self.newest
-            .map(|n| n.saturating_sub(self.capacity as u64 - 1))
+        self.newest.map(|n| {
+            n.saturating_sub(self.capacity as u64 - 1)
+                .max(self.first.unwrap_or(0))
+        })
+    }
+
+    /// Gives the axes of a live ring their names (the loop's status tells them after the first
+    /// blocks came), keeping what it holds.
+    pub fn rename_axes(&mut self, names: &[String]) {
+        if !self.live || names.len() != self.axes.len() {
+            return;
+        }
+        let per = AXIS_SIGNALS.len();
+        for (i, a) in names.iter().enumerate() {
+            for (j, (s, _, _)) in AXIS_SIGNALS.iter().enumerate() {
+                self.columns[i * per + j] = format!("{a}.{s}");
+            }
+        }
+        self.axes = names.to_vec();
     }
 
     /// Counts a cycle with an event of `kind` in the window, once per cycle and kind; only while
@@ -455,6 +475,7 @@ impl Store {
             self.prev_flags = r.flags;
             self.last_published_ns = r.published_ns;
             self.newest = Some(r.seq);
+            self.first.get_or_insert(r.seq);
             self.finish_capture();
         }
     }
@@ -750,7 +771,11 @@ mod tests {
             .filter(|k| *k != 1200)
             .map(|k| plant(k, 0.0, flags(k)))
             .collect();
+        s.push_plant(&recs[..10]);
         s.push_plant(&recs[..500]);
+        assert_eq!(s.oldest(), Some(0));
+        s.rename_axes(&["q".to_string()]);
+        assert_eq!(s.value(s.column("q.load").unwrap(), 3), Some(0.0));
         let kind = |k: &str| EVENT_KINDS.iter().position(|e| *e == k).unwrap();
         assert_eq!(s.window[kind("plant_overrun")], 50);
         assert_eq!(s.window[kind("deadline_miss")], 1);
