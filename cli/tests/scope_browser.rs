@@ -275,6 +275,13 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         15.0,
         "the swap trigger captured",
     );
+    // the page's swap is counted since start and in the window, once its status has come
+    cdp.wait_for(
+        "scope.state.status.swaps === 1 && scope.state.window.counts.swap === 1 && \
+         document.querySelector('#status-line [data-counter=swaps]').dataset.value === '1'",
+        10.0,
+        "the swap is counted in both columns",
+    );
     let cap = cdp.eval("scope.state.capture");
     let period = cdp.eval("scope.state.period_s").as_f64().unwrap();
     let cycles = cap["cycles"].as_u64().unwrap();

@@ -146,6 +146,8 @@ pub struct Store {
     pub events: VecDeque<Event>,
     /// Per slot, the kinds of event of the cycle it holds (bit `i`: `EVENT_KINDS[i]`).
     marks: Vec<u8>,
+    /// Marks of cycles whose records have not come yet: (kind index, cycle).
+    pending: Vec<(usize, u64)>,
     /// Cycles held in the ring with an event of each kind, in [`EVENT_KINDS`] order: the counts
     /// over the window the ring holds (a deadline miss, an overrun, a stall cycle each counted
     /// per cycle, as `summary.json` counts them).
@@ -224,6 +226,7 @@ impl Store {
             newest_sched: None,
             events: VecDeque::new(),
             marks: vec![0; capacity],
+            pending: Vec::new(),
             window: [0; EVENT_KINDS.len()],
             lost_plant: 0,
             lost_sched: 0,
@@ -328,6 +331,16 @@ impl Store {
     /// the ring holds that cycle.
     fn mark(&mut self, kind: &'static str, cycle: u64) {
         let i = EVENT_KINDS.iter().position(|k| *k == kind).unwrap_or(0);
+        let held = self.plant_seq[self.slot(cycle)] == cycle;
+        if !held && self.newest.is_none_or(|n| cycle > n) {
+            // a swap answered before its cycle's record came: marked when it comes
+            self.pending.push((i, cycle));
+            return;
+        }
+        self.mark_index(i, cycle);
+    }
+
+    fn mark_index(&mut self, i: usize, cycle: u64) {
         let slot = self.slot(cycle);
         if self.plant_seq[slot] == cycle && self.marks[slot] & (1 << i) == 0 {
             self.marks[slot] |= 1 << i;
@@ -418,6 +431,18 @@ impl Store {
             let slot = self.slot(r.seq);
             self.unmark(slot);
             self.plant_seq[slot] = r.seq;
+            if !self.pending.is_empty() {
+                let mut due = Vec::new();
+                self.pending.retain(|&(i, c)| {
+                    if c == r.seq {
+                        due.push(i);
+                    }
+                    c > r.seq
+                });
+                for i in due {
+                    self.mark_index(i, r.seq);
+                }
+            }
             for (i, a) in r.axes.iter().take(n).enumerate() {
                 let base = i * per;
                 self.data[base][slot] = a.cmd;
@@ -772,7 +797,28 @@ mod tests {
             .map(|k| plant(k, 0.0, flags(k)))
             .collect();
         s.push_plant(&recs[..10]);
+        // a swap answered before its cycle's record came
+        s.push_swap(&feedloop_runtime::scheduler::control::protocol::SwapEvent {
+            t_s: 0.02,
+            cycle: 20,
+            axis: "x".into(),
+            stage: "velocity".into(),
+            from: "a".into(),
+            to: "b".into(),
+            torque_step: 0.0,
+            allowed_step: 1.0,
+            rolled_back: false,
+            reason: None,
+            phase_margin_deg: None,
+            gain_margin_db: None,
+            forced: false,
+            warnings: vec![],
+            changed: vec![],
+            origin: None,
+        });
+        assert_eq!(s.window[3], 0);
         s.push_plant(&recs[..500]);
+        assert_eq!(s.window[3], 1, "the swap, once its cycle came");
         assert_eq!(s.oldest(), Some(0));
         s.rename_axes(&["q".to_string()]);
         assert_eq!(s.value(s.column("q.load").unwrap(), 3), Some(0.0));

@@ -537,11 +537,12 @@ async function pollState() {
   try {
     const st = await api('/api/state');
     const names = (x) => x.columns.map((c) => c.name).join(',');
-    const first = !scope.state || names(scope.state) !== names(st);
+    const fresh = !scope.state;
+    const first = fresh || names(scope.state) !== names(st);
     scope.state = st;
     if (first) {
       // a recording is shown whole at first
-      if (!scope.state && st.mode !== 'live') $('span').value = 'all';
+      if (fresh && st.mode !== 'live') $('span').value = 'all';
       for (const p of scope.panes) p.div.remove();
       scope.panes = [];
       defaultPanes();
