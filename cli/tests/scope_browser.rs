@@ -216,6 +216,13 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         "the contour error is measured",
     );
     cdp.screenshot(&shots.join("1-live.png"));
+    let status_seen = page_counters_agree(&mut cdp);
+    for width in [1400, 1920] {
+        page_fits(&mut cdp, width);
+        cdp.screenshot(&shots.join(format!("1-live-{width}.png")));
+    }
+    legends_beside_plots_and_colours_apart(&mut cdp);
+    dense_events_are_one_translucent_band(&mut cdp);
 
     // A second browser is told who holds the scope.
     let r = scope.api("GET", "/api/state", "second-browser", "");
@@ -268,6 +275,13 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         15.0,
         "the swap trigger captured",
     );
+    // the page's swap is counted since start and in the window, once its status has come
+    cdp.wait_for(
+        "scope.state.status.swaps === 1 && scope.state.window.counts.swap === 1 && \
+         document.querySelector('#status-line [data-counter=swaps]').dataset.value === '1'",
+        10.0,
+        "the swap is counted in both columns",
+    );
     let cap = cdp.eval("scope.state.capture");
     let period = cdp.eval("scope.state.period_s").as_f64().unwrap();
     let cycles = cap["cycles"].as_u64().unwrap();
@@ -303,6 +317,7 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     );
     std::thread::sleep(Duration::from_millis(500));
     cdp.screenshot(&shots.join("3-capture.png"));
+    event_kinds_hide_and_show(&mut cdp, "swap");
     cdp.eval("document.getElementById('cap-save').click(); true");
     cdp.wait_for(
         "scope.savedPath !== null && document.getElementById('cap-saved').textContent.startsWith('saved to')",
@@ -333,6 +348,7 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
     // SAFETY: signalling our own child.
     unsafe { libc::kill(run.0.id() as i32, libc::SIGINT) };
     let _ = run.0.wait();
+    totals_match_the_run_record(&status_seen, &d.join("run").join("plant.log"));
     cdp.eval("document.getElementById('source').value = 'live'; true");
     cdp.wait_for(
         "document.getElementById('banner').textContent.includes('ended')",
@@ -385,7 +401,308 @@ fn the_scope_page_watches_a_running_loop_triggers_on_a_swap_it_sent_and_reloads_
         15.0,
         "a read-only scope's page hides the swap panel",
     );
+    // A recorded trace: none of the live loop's controls or figures.
+    let tr = start_scope(&["--trace", saved.to_str().unwrap()]);
+    cdp.call(
+        "Page.navigate",
+        json!({"url": format!("http://{}/?token={}", tr.addr, tr.token)}),
+    );
+    cdp.wait_for(
+        "!!(window.scope && scope.state && scope.state.mode === 'trace' && scope.frames > 2)",
+        15.0,
+        "the recorded trace is drawn",
+    );
+    let shown = cdp.eval(
+        "JSON.stringify(['trigger-panel', 'swap-panel', 'latency-panel', 'counters-panel', \
+         'status-panel', 'pause', 'cap-save', 'event-kinds'].filter(id => { const e = document.getElementById(id); \
+         return !e || getComputedStyle(e).display !== 'none' && e.offsetParent !== null; }))",
+    );
+    assert_eq!(shown, "[]", "live-only controls shown for a trace");
+    let text = cdp.eval("document.body.innerText");
+    let text = text.as_str().unwrap();
+    for word in ["n/a", "Arm", "Swap or retune", "not armed", "p99"] {
+        assert!(!text.contains(word), "`{word}` on a trace's page:\n{text}");
+    }
+    cdp.screenshot(&shots.join("7-trace.png"));
     let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The counters on the page's status line are the table's "since start" figures, which are the
+/// loop's status; both say their window. Returns the status they came from.
+fn page_counters_agree(cdp: &mut Cdp) -> Value {
+    cdp.wait_for(
+        "!!(scope.state.status && scope.state.window && \
+         document.querySelectorAll('#status-line [data-counter]').length >= 4)",
+        10.0,
+        "the counters and the status line are shown",
+    );
+    let seen = cdp.eval(
+        "(() => {
+           const status = scope.state.status;
+           const line = [...document.querySelectorAll('#status-line [data-counter]')].map(sp => ({
+             key: sp.dataset.counter, window: sp.dataset.window, value: Number(sp.dataset.value),
+             table: (document.querySelector('#counters tr[data-counter=\"' + sp.dataset.counter +
+                     '\"] td[data-window=\"since start\"]') || {dataset: {}}).dataset.value }));
+           const windowed = [...document.querySelectorAll('#counters td[data-window]')]
+             .map(td => td.dataset.window).filter(w => w !== 'since start');
+           return { status, line, windowed, seconds: scope.state.window.seconds, counts: scope.state.window.counts,
+                    first: scope.state.window.first_cycle, lost: scope.state.lost,
+                    lineText: document.getElementById('status-line').textContent,
+                    head: document.querySelector('#counters tr').textContent };
+         })()",
+    );
+    let line = seen["line"].as_array().unwrap();
+    for key in [
+        "deadline_misses",
+        "plant_overruns",
+        "swaps",
+        "rejected_requests",
+    ] {
+        let c = line
+            .iter()
+            .find(|c| c["key"] == key)
+            .unwrap_or_else(|| panic!("no {key} on the status line: {seen}"));
+        assert_eq!(c["window"], "since start", "{seen}");
+        assert_eq!(c["value"], seen["status"][key], "{seen}");
+        assert_eq!(
+            c["table"].as_str().and_then(|v| v.parse::<u64>().ok()),
+            seen["status"][key].as_u64(),
+            "the table's {key} differs from the status line: {seen}"
+        );
+    }
+    assert!(
+        seen["lineText"].as_str().unwrap().contains("since start"),
+        "{seen}"
+    );
+    // the window ends where the status' figures end: it holds no more than they count
+    for (total, windowed) in [
+        ("deadline_misses", "deadline_miss"),
+        ("plant_overruns", "plant_overrun"),
+        ("swaps", "swap"),
+    ] {
+        assert!(
+            seen["counts"][windowed].as_u64().unwrap() <= seen["status"][total].as_u64().unwrap(),
+            "{seen}"
+        );
+    }
+    // the scope watched from the loop's first cycle and lost none: it counts what the loop counts
+    let whole = seen["first"] == 0
+        && seen["lost"]["plant_cycles"] == 0
+        && seen["lost"]["scope_blocks"] == 0
+        && seen["lost"]["recorder_dropped"] == 0;
+    if whole {
+        assert_eq!(
+            seen["counts"]["deadline_miss"], seen["status"]["deadline_misses"],
+            "{seen}"
+        );
+        assert_eq!(
+            seen["counts"]["plant_overrun"], seen["status"]["plant_overruns"],
+            "{seen}"
+        );
+    } else {
+        eprintln!("the scope did not hold every cycle: its window is not compared: {seen}");
+    }
+    // the windowed column says its window
+    let windowed = seen["windowed"].as_array().unwrap();
+    assert!(windowed.len() >= 5, "{seen}");
+    for w in windowed {
+        assert!(
+            w.as_str().unwrap().starts_with("in the last ")
+                && seen["head"].as_str().unwrap().contains(w.as_str().unwrap()),
+            "{seen}"
+        );
+    }
+    assert!(
+        seen["head"].as_str().unwrap().contains("since start"),
+        "{seen}"
+    );
+    seen["status"].clone()
+}
+
+/// The loop's "since start" figures at a cycle are what its plant log (the summary's source)
+/// counts over the cycles before it.
+fn totals_match_the_run_record(status: &Value, plant_log: &Path) {
+    let cycle = status["cycle"].as_u64().unwrap();
+    let log = feedloop_trace::log::read_log::<feedloop_trace::log::PlantRecord>(plant_log).unwrap();
+    let before: Vec<_> = log.records.into_iter().filter(|r| r.seq < cycle).collect();
+    assert_eq!(
+        before.len() as u64,
+        cycle,
+        "the plant log holds every cycle"
+    );
+    let t = feedloop_trace::summary::timing(&before);
+    assert_eq!(
+        (t.deadline_misses, t.plant_overruns),
+        (
+            status["deadline_misses"].as_u64().unwrap(),
+            status["plant_overruns"].as_u64().unwrap()
+        ),
+        "status at cycle {cycle}: {status}"
+    );
+}
+
+/// At `width` px the page has no horizontal scroll: the sidebar's tables wrap instead.
+fn page_fits(cdp: &mut Cdp, width: u32) {
+    cdp.call(
+        "Emulation.setDeviceMetricsOverride",
+        json!({"width": width, "height": 1300, "deviceScaleFactor": 1, "mobile": false}),
+    );
+    let frames = cdp.eval("scope.frames").as_u64().unwrap();
+    cdp.wait_for(
+        &format!(
+            "scope.frames > {frames} + 3 && document.querySelectorAll('#status tr').length >= 5"
+        ),
+        10.0,
+        "the page drawn at the new width",
+    );
+    let seen = cdp.eval(
+        "(() => {
+           const t = document.getElementById('status');
+           const wide = [...document.querySelectorAll('aside section, aside table')]
+             .filter(e => e.offsetParent !== null && e.scrollWidth > e.clientWidth)
+             .map(e => (e.id || e.tagName) + ' ' + e.scrollWidth + ' > ' + e.clientWidth);
+           return { table: [t.scrollWidth, t.clientWidth], section: [t.parentElement.scrollWidth,
+                    t.parentElement.clientWidth], page: [document.documentElement.scrollWidth,
+                    document.documentElement.clientWidth], wide };
+         })()",
+    );
+    let pair = |k: &str| (seen[k][0].as_u64().unwrap(), seen[k][1].as_u64().unwrap());
+    for k in ["table", "section", "page"] {
+        let (scroll, client) = pair(k);
+        assert!(scroll <= client, "{width} px: {k} scrolls sideways: {seen}");
+    }
+    assert_eq!(seen["page"][1].as_u64(), Some(u64::from(width)), "{seen}");
+    assert_eq!(seen["wide"], json!([]), "{width} px: {seen}");
+}
+
+/// Each pane's legend is outside its plot area, and its signals' colours are far apart.
+fn legends_beside_plots_and_colours_apart(cdp: &mut Cdp) {
+    let seen = cdp.eval(
+        "scope.panes.map(p => {
+           const c = p.canvas.getBoundingClientRect(), l = p.legend.getBoundingClientRect();
+           const a = { left: c.left + p.plot.x, top: c.top + p.plot.y };
+           a.right = a.left + p.plot.w; a.bottom = a.top + p.plot.h;
+           const apart = l.bottom <= a.top || l.top >= a.bottom || l.right <= a.left || l.left >= a.right;
+           const swatches = [...p.legend.querySelectorAll('.swatch')].map(s => getComputedStyle(s).backgroundColor);
+           return { signals: p.signals, colors: p.signals.map(n => p.colors[n].color), swatches,
+                    legend: [l.left, l.top, l.right, l.bottom], plot: [a.left, a.top, a.right, a.bottom],
+                    apart, legendHeight: l.height };
+         })",
+    );
+    let panes = seen.as_array().unwrap();
+    assert!(panes.len() >= 3, "{seen}");
+    for p in panes {
+        assert_eq!(p["apart"], true, "a legend covers its plot: {p}");
+        assert!(p["legendHeight"].as_f64().unwrap() > 0.0, "{p}");
+        let colors: Vec<[f64; 3]> = p["colors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| cie_lab(c.as_str().unwrap()))
+            .collect();
+        assert_eq!(p["swatches"].as_array().unwrap().len(), colors.len(), "{p}");
+        for (i, a) in colors.iter().enumerate() {
+            for b in &colors[..i] {
+                // CIE76 colour difference: above 25 another colour at a glance
+                let d =
+                    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                assert!(
+                    d > 25.0,
+                    "two signals of a pane look alike (delta E {d:.0}): {p}"
+                );
+            }
+        }
+    }
+}
+
+/// CIE L*a*b* of a `#rrggbb` colour (sRGB, D65).
+fn cie_lab(hex: &str) -> [f64; 3] {
+    let h = hex.trim_start_matches('#');
+    let [r, g, b] = [0, 2, 4].map(|i| {
+        let c = u8::from_str_radix(&h[i..i + 2], 16).unwrap() as f64 / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    });
+    let x = (0.4124 * r + 0.3576 * g + 0.1805 * b) / 0.95047;
+    let y = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    let z = (0.0193 * r + 0.1192 * g + 0.9505 * b) / 1.08883;
+    let f = |v: f64| {
+        if v > 0.008856 {
+            v.cbrt()
+        } else {
+            7.787 * v + 16.0 / 116.0
+        }
+    };
+    [
+        116.0 * f(y) - 16.0,
+        500.0 * (f(x) - f(y)),
+        200.0 * (f(y) - f(z)),
+    ]
+}
+
+/// A dense run of events is drawn as one translucent band, not a solid line per event.
+fn dense_events_are_one_translucent_band(cdp: &mut Cdp) {
+    let seen = cdp.eval(
+        "(() => {
+           const keep = [scope.eventMarks, scope.eventsInView];
+           scope.eventMarks = {}; scope.eventsInView = {};
+           const c = document.createElement('canvas'); c.width = 1000; c.height = 200;
+           const g = c.getContext('2d');
+           const ev = [];
+           for (let i = 0; i < 500; i++) ev.push({ kind: 'plant_overrun', t_s: 1 + i * 0.0005 });
+           ev.push({ kind: 'swap', t_s: 1.9 });
+           drawEvents(g, ev, t => 70 + (t - 1) * 900, 1, 2, 70, 6, 900, 160);
+           const px = g.getImageData(0, 100, 1000, 1).data;
+           let covered = 0, darkest = 0;
+           for (let x = 0; x < 1000; x++) { const a = px[4 * x + 3]; if (a > 0) covered++; darkest = Math.max(darkest, a); }
+           const out = { marks: scope.eventMarks, inView: scope.eventsInView, covered, darkest };
+           [scope.eventMarks, scope.eventsInView] = keep;
+           return out;
+         })()",
+    );
+    assert_eq!(seen["inView"]["plant_overrun"], 500, "{seen}");
+    assert_eq!(seen["marks"]["plant_overrun"], 1, "one band: {seen}");
+    assert_eq!(seen["marks"]["swap"], 1, "{seen}");
+    // the band covers the run's 225 px, translucent (the curves show through)
+    let covered = seen["covered"].as_u64().unwrap();
+    assert!((220..=240).contains(&covered), "{seen}");
+    assert!(seen["darkest"].as_u64().unwrap() < 128, "{seen}");
+}
+
+/// The event legend has a tick box per kind; unticking `kind` takes its marks off the plots.
+fn event_kinds_hide_and_show(cdp: &mut Cdp, kind: &str) {
+    let boxes = cdp.eval(
+        "[...document.querySelectorAll('#event-kinds input[type=checkbox]')].map(b => b.value).join(',') \
+         === scope.state.event_kinds.join(',')",
+    );
+    assert_eq!(boxes, true, "a tick box per event kind");
+    cdp.wait_for(
+        &format!("(scope.eventMarks['{kind}'] || 0) > 0"),
+        10.0,
+        "the event is marked",
+    );
+    let toggle = format!(
+        "document.querySelector('#event-kinds input[value=\"{kind}\"]').click(); \
+         document.querySelector('#event-kinds input[value=\"{kind}\"]').checked"
+    );
+    assert_eq!(cdp.eval(&toggle), false);
+    let frames = cdp.eval("scope.frames").as_u64().unwrap();
+    cdp.wait_for(
+        &format!(
+            "scope.frames > {frames} + 2 && !scope.eventMarks['{kind}'] && scope.eventsInView['{kind}'] > 0"
+        ),
+        10.0,
+        "the unticked kind is hidden",
+    );
+    assert_eq!(cdp.eval(&toggle), true);
+    cdp.wait_for(
+        &format!("(scope.eventMarks['{kind}'] || 0) > 0"),
+        10.0,
+        "the ticked kind shows again",
+    );
 }
 
 #[test]

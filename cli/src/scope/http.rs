@@ -372,11 +372,21 @@ fn state(ctx: &Ctx) -> Value {
             ])
         })
         .collect();
-    let counters: serde_json::Map<String, Value> = EVENT_KINDS
+    // the counts over the cycles the ring holds, as of the cycle of the loop's status when there
+    // is one (so that they end where its figures since the start end): the page's "in the last N s"
+    let end = sh.status.as_ref().map_or(u64::MAX, |st| st.cycle);
+    let (counts, cycles) = s.window_before(end);
+    let window_counts: serde_json::Map<String, Value> = EVENT_KINDS
         .iter()
-        .zip(s.counters)
+        .zip(counts)
         .map(|(k, n)| (k.to_string(), json!(n)))
         .collect();
+    let window = match s.oldest() {
+        Some(first) if s.live && cycles > 0 => json!({
+            "first_cycle": first, "end_cycle": first + cycles, "cycles": cycles,
+            "seconds": cycles as f64 * s.period_s, "counts": window_counts}),
+        _ => Value::Null,
+    };
     let trig = s
         .trigger
         .as_ref()
@@ -386,7 +396,7 @@ fn state(ctx: &Ctx) -> Value {
                "cycles": c.data.first().map_or(0, Vec::len), "held_cells": c.held_cells,
                "events": c.events})
     });
-    let events: Vec<&store::Event> = s.events.iter().rev().take(300).collect();
+    let events: Vec<&store::Event> = s.events.iter().rev().take(1000).collect();
     json!({
         "mode": if ctx.instance.is_some() { "live" } else { "trace" },
         "read_only": ctx.guard.read_only,
@@ -400,7 +410,7 @@ fn state(ctx: &Ctx) -> Value {
         "span_s": span_json(s),
         "events": events,
         "event_kinds": EVENT_KINDS,
-        "counters": counters,
+        "window": window,
         "lost": {"plant_cycles": s.lost_plant, "scheduler_cycles": s.lost_sched,
                  "scope_blocks": s.lost_blocks[0] + s.lost_blocks[1],
                  "recorder_dropped": s.ring_dropped, "bad_blocks": sh.bad_blocks},

@@ -514,9 +514,8 @@ fn poll_status(ctx: &Ctx, instance: &str) {
             {
                 let mut sh = ctx.lock();
                 let names: Vec<String> = st.axes.iter().map(|a| a.axis.clone()).collect();
-                if sh.store.axes != names && sh.store.axes.len() == names.len() {
-                    let (capacity, period_s) = (sh.store.capacity(), sh.store.period_s);
-                    sh.renew_store(&names, capacity, period_s);
+                if sh.store.axes != names {
+                    sh.store.rename_axes(&names);
                 }
                 for ev in &st.recent_swaps {
                     sh.mark_swap(ev);

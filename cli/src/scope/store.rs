@@ -63,7 +63,7 @@ pub struct Event {
     pub detail: String,
 }
 
-/// Most events kept (oldest dropped; counted per kind in `counters`).
+/// Most events kept (oldest dropped; the cycles they mark are counted per kind in `window`).
 const MAX_EVENTS: usize = 2000;
 
 /// A trigger condition.
@@ -138,12 +138,20 @@ pub struct Store {
     sched_seq: Vec<u64>,
     /// Newest plant cycle seen.
     pub newest: Option<u64>,
+    /// First plant cycle seen.
+    first: Option<u64>,
     /// Newest scheduler cycle seen.
     pub newest_sched: Option<u64>,
     /// Events, oldest first.
     pub events: VecDeque<Event>,
-    /// Event counts by kind, in [`EVENT_KINDS`] order.
-    pub counters: [u64; EVENT_KINDS.len()],
+    /// Per slot, the kinds of event of the cycle it holds (bit `i`: `EVENT_KINDS[i]`).
+    marks: Vec<u8>,
+    /// Marks of cycles whose records have not come yet: (kind index, cycle).
+    pending: Vec<(usize, u64)>,
+    /// Cycles held in the ring with an event of each kind, in [`EVENT_KINDS`] order: the counts
+    /// over the window the ring holds (a deadline miss, an overrun, a stall cycle each counted
+    /// per cycle, as `summary.json` counts them).
+    pub window: [u64; EVENT_KINDS.len()],
     /// Plant cycles missing from the records (gaps in the cycle numbers).
     pub lost_plant: u64,
     /// Scheduler cycles missing (cycles it never answered, or records lost), beyond the samples
@@ -214,9 +222,12 @@ impl Store {
             plant_seq: vec![u64::MAX; capacity],
             sched_seq: vec![u64::MAX; capacity],
             newest: None,
+            first: None,
             newest_sched: None,
             events: VecDeque::new(),
-            counters: [0; EVENT_KINDS.len()],
+            marks: vec![0; capacity],
+            pending: Vec::new(),
+            window: [0; EVENT_KINDS.len()],
             lost_plant: 0,
             lost_sched: 0,
             lost_blocks: [0; 2],
@@ -293,15 +304,83 @@ impl Store {
         Some((t(self.oldest()?), t(self.newest?)))
     }
 
-    /// The oldest cycle still held.
+    /// The oldest cycle still held (the ring's first one while it has not filled).
     pub fn oldest(&self) -> Option<u64> {
-        self.newest
-            .map(|n| n.saturating_sub(self.capacity as u64 - 1))
+        self.newest.map(|n| {
+            n.saturating_sub(self.capacity as u64 - 1)
+                .max(self.first.unwrap_or(0))
+        })
+    }
+
+    /// Gives the axes of a live ring their names (the loop's status tells them after the first
+    /// blocks came), keeping what it holds.
+    pub fn rename_axes(&mut self, names: &[String]) {
+        if !self.live || names.len() != self.axes.len() {
+            return;
+        }
+        let per = AXIS_SIGNALS.len();
+        for (i, a) in names.iter().enumerate() {
+            for (j, (s, _, _)) in AXIS_SIGNALS.iter().enumerate() {
+                self.columns[i * per + j] = format!("{a}.{s}");
+            }
+        }
+        self.axes = names.to_vec();
+    }
+
+    /// Counts a cycle with an event of `kind` in the window, once per cycle and kind; only while
+    /// the ring holds that cycle.
+    fn mark(&mut self, kind: &'static str, cycle: u64) {
+        let i = EVENT_KINDS.iter().position(|k| *k == kind).unwrap_or(0);
+        let held = self.plant_seq[self.slot(cycle)] == cycle;
+        if !held && self.newest.is_none_or(|n| cycle > n) {
+            // a swap answered before its cycle's record came: marked when it comes
+            self.pending.push((i, cycle));
+            return;
+        }
+        self.mark_index(i, cycle);
+    }
+
+    fn mark_index(&mut self, i: usize, cycle: u64) {
+        let slot = self.slot(cycle);
+        if self.plant_seq[slot] == cycle && self.marks[slot] & (1 << i) == 0 {
+            self.marks[slot] |= 1 << i;
+            self.window[i] += 1;
+        }
+    }
+
+    /// The window's counts over the cycles held before `end` (all held when `end` is past the
+    /// newest), and how many cycles that is: the counts as of the cycle a status was made in.
+    pub fn window_before(&self, end: u64) -> ([u64; EVENT_KINDS.len()], u64) {
+        let (Some(oldest), Some(newest)) = (self.oldest(), self.newest) else {
+            return ([0; EVENT_KINDS.len()], 0);
+        };
+        let end = end.clamp(oldest, newest + 1);
+        let mut counts = self.window;
+        for k in end..=newest {
+            let slot = self.slot(k);
+            if self.plant_seq[slot] == k {
+                for (i, n) in counts.iter_mut().enumerate() {
+                    if self.marks[slot] & (1 << i) != 0 {
+                        *n -= 1;
+                    }
+                }
+            }
+        }
+        (counts, end - oldest)
+    }
+
+    /// Takes the marks of the cycle `slot` held out of the window (the slot is reused).
+    fn unmark(&mut self, slot: usize) {
+        let m = std::mem::take(&mut self.marks[slot]);
+        for (i, n) in self.window.iter_mut().enumerate() {
+            if m & (1 << i) != 0 {
+                *n -= 1;
+            }
+        }
     }
 
     fn event(&mut self, kind: &'static str, cycle: u64, detail: String) {
-        let i = EVENT_KINDS.iter().position(|k| *k == kind).unwrap_or(0);
-        self.counters[i] += 1;
+        self.mark(kind, cycle);
         if self.events.len() >= MAX_EVENTS {
             self.events.pop_front();
         }
@@ -342,9 +421,28 @@ impl Store {
                     continue;
                 }
                 self.lost_plant += r.seq - prev - 1;
+                // the slots of lost cycles leave the window too
+                for k in (prev + 1..r.seq).take(self.capacity) {
+                    let slot = self.slot(k);
+                    self.unmark(slot);
+                    self.plant_seq[slot] = u64::MAX;
+                }
             }
             let slot = self.slot(r.seq);
+            self.unmark(slot);
             self.plant_seq[slot] = r.seq;
+            if !self.pending.is_empty() {
+                let mut due = Vec::new();
+                self.pending.retain(|&(i, c)| {
+                    if c == r.seq {
+                        due.push(i);
+                    }
+                    c > r.seq
+                });
+                for i in due {
+                    self.mark_index(i, r.seq);
+                }
+            }
             for (i, a) in r.axes.iter().take(n).enumerate() {
                 let base = i * per;
                 self.data[base][slot] = a.cmd;
@@ -371,6 +469,10 @@ impl Store {
             if is_deadline_miss(r.flags) {
                 self.event("deadline_miss", r.seq, String::new());
             }
+            // every overrun and stall cycle counts; a run of them is marked once on the plot
+            if r.flags & REC_OVERRUN != 0 {
+                self.mark("plant_overrun", r.seq);
+            }
             if rising & REC_OVERRUN != 0 {
                 self.event(
                     "plant_overrun",
@@ -379,6 +481,9 @@ impl Store {
                 );
             }
             if r.flags & REC_STALL != 0 {
+                self.mark("stall", r.seq);
+            }
+            if rising & REC_STALL != 0 {
                 self.event(
                     "stall",
                     r.seq,
@@ -395,6 +500,7 @@ impl Store {
             self.prev_flags = r.flags;
             self.last_published_ns = r.published_ns;
             self.newest = Some(r.seq);
+            self.first.get_or_insert(r.seq);
             self.finish_capture();
         }
     }
@@ -676,6 +782,71 @@ mod tests {
     }
 
     #[test]
+    fn the_window_counts_every_marked_cycle_the_ring_holds_and_forgets_older_ones() {
+        let mut s = store();
+        // cycles 100..150 overrun (one run: one mark on the plot, 50 cycles counted); 120 also
+        // goes without a command, which is the overrun's, not a deadline miss, as in the run's
+        // summary; 300 misses its deadline
+        let flags = |k: u64| match k {
+            100..150 => REC_OVERRUN | if k == 120 { REC_MISSED } else { 0 },
+            300 => REC_MISSED,
+            _ => 0,
+        };
+        let recs: Vec<PlantRecord> = (0..2600)
+            .filter(|k| *k != 1200)
+            .map(|k| plant(k, 0.0, flags(k)))
+            .collect();
+        s.push_plant(&recs[..10]);
+        // a swap answered before its cycle's record came
+        s.push_swap(&feedloop_runtime::scheduler::control::protocol::SwapEvent {
+            t_s: 0.02,
+            cycle: 20,
+            axis: "x".into(),
+            stage: "velocity".into(),
+            from: "a".into(),
+            to: "b".into(),
+            torque_step: 0.0,
+            allowed_step: 1.0,
+            rolled_back: false,
+            reason: None,
+            phase_margin_deg: None,
+            gain_margin_db: None,
+            forced: false,
+            warnings: vec![],
+            changed: vec![],
+            origin: None,
+        });
+        assert_eq!(s.window[3], 0);
+        s.push_plant(&recs[..500]);
+        assert_eq!(s.window[3], 1, "the swap, once its cycle came");
+        assert_eq!(s.oldest(), Some(0));
+        s.rename_axes(&["q".to_string()]);
+        assert_eq!(s.value(s.column("q.load").unwrap(), 3), Some(0.0));
+        let kind = |k: &str| EVENT_KINDS.iter().position(|e| *e == k).unwrap();
+        assert_eq!(s.window[kind("plant_overrun")], 50);
+        assert_eq!(s.window[kind("deadline_miss")], 1);
+        let overrun_marks = s
+            .events
+            .iter()
+            .filter(|e| e.kind == "plant_overrun")
+            .count();
+        assert_eq!(overrun_marks, 1, "a run of overruns is one event");
+        // the ring (1000 cycles) moves past them: they leave the window
+        s.push_plant(&recs[500..1100]);
+        assert_eq!(s.oldest(), Some(100));
+        assert_eq!(s.window[kind("plant_overrun")], 50);
+        // as of an earlier cycle: the cycles from it on are not counted
+        let (w, cycles) = s.window_before(140);
+        assert_eq!((w[kind("plant_overrun")], cycles), (40, 40));
+        assert_eq!(s.window_before(u64::MAX).0, s.window);
+        s.push_plant(&recs[1100..1200]);
+        assert_eq!(s.window[kind("plant_overrun")], 0);
+        assert_eq!(s.window[kind("deadline_miss")], 1);
+        s.push_plant(&recs[1200..]);
+        assert_eq!(s.window, [0; EVENT_KINDS.len()]);
+    }
+
+    #[test]
     fn an_event_trigger_captures_its_pre_and_post_cycles() {
         let mut s = store();
         s.trigger = Some(Trigger {
@@ -704,7 +875,7 @@ mod tests {
         assert_eq!(load.len(), 31);
         assert_eq!((load[0], load[30]), (90.0, 120.0));
         assert_eq!(cap.events.len(), 1);
-        assert_eq!(s.counters[0], 1);
+        assert_eq!(s.window[0], 1);
         assert!(s.trigger.is_none(), "a trigger fires once");
     }
 

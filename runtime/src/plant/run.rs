@@ -322,6 +322,8 @@ struct PlantLoop<'a, P: PlantDevice> {
     silent_cycles: u64,
     seqs: CommandSequence,
     deadline_misses: u32,
+    /// Cycles that woke more than half a period late so far (saturating).
+    plant_overruns: u32,
     /// Which of the last 64 cycles took a command (bit i: cycle k - i), to tell a duplicate from
     /// a late answer.
     answered: u64,
@@ -362,6 +364,7 @@ impl<'a, P: PlantDevice> PlantLoop<'a, P> {
             silent_cycles: 0,
             seqs: CommandSequence::default(),
             deadline_misses: 0,
+            plant_overruns: 0,
             answered: 0,
             prev_missed: false,
             saturated_cycles: [0; crate::shared::wire::MAX_AXES],
@@ -400,6 +403,11 @@ impl<'a, P: PlantDevice> PlantLoop<'a, P> {
             };
             self.plant.sense(&mut self.sample.axes);
             self.sample.deadline_misses = self.deadline_misses;
+            // both counts cover the cycles before this one (this one's miss is not known yet)
+            self.sample.plant_overruns = self.plant_overruns;
+            if flags & REC_OVERRUN != 0 {
+                self.plant_overruns = self.plant_overruns.saturating_add(1);
+            }
             let sense_ns = now_ns() - c0;
             let published = now_ns();
             let mut latency_ns = u64::MAX;

@@ -253,6 +253,7 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             let (s, cycle) = (&self.s, &mut *self.with.cycle);
             if let Some(c) = self.with.control.as_deref_mut() {
                 c.plant_deadline_misses = s.deadline_misses;
+                c.plant_overruns = s.plant_overruns;
                 c.before_cycle(cycle, s.seq);
             }
             if self.with.cfg.mode == Mode::Realtime && s.seq.is_multiple_of(1024) {

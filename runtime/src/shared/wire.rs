@@ -42,6 +42,11 @@ pub struct SensorSample {
     /// Deadline misses the plant has counted so far in this run (saturating); lets the scheduler's
     /// status service report them. Zero in the handshake. (Was `reserved`, always zero: same layout.)
     pub deadline_misses: u32,
+    /// Cycles the plant woke more than half a period late (overruns) so far in this run, counted
+    /// like `deadline_misses` over the cycles before this one (saturating). Zero in the handshake.
+    pub plant_overruns: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
     /// Per-axis measurements, in job axis order.
     pub axes: [AxisSensor; MAX_AXES],
 }
@@ -73,7 +78,7 @@ pub struct ActuatorCommand {
 // layout version.
 unsafe impl ZeroCopySend for SensorSample {
     unsafe fn type_name() -> &'static str {
-        "FeedloopSensorSampleV1"
+        "FeedloopSensorSampleV2"
     }
 }
 
@@ -95,6 +100,8 @@ impl SensorSample {
             instance_tag,
             axis_count,
             deadline_misses: 0,
+            plant_overruns: 0,
+            reserved: 0,
             axes: [AxisSensor {
                 motor_pos: 0.0,
                 motor_vel: 0.0,
@@ -161,6 +168,8 @@ impl WireMessage for SensorSample {
         dst.instance_tag = self.instance_tag;
         dst.axis_count = self.axis_count;
         dst.deadline_misses = self.deadline_misses;
+        dst.plant_overruns = self.plant_overruns;
+        dst.reserved = self.reserved;
         dst.axes[..n].copy_from_slice(&self.axes[..n]);
     }
 }
@@ -200,7 +209,7 @@ mod tests {
     #[test]
     fn wire_types_have_fixed_layout_without_padding_surprises() {
         assert_eq!(core::mem::size_of::<AxisSensor>(), 32);
-        assert_eq!(core::mem::size_of::<SensorSample>(), 40 + 32 * MAX_AXES);
+        assert_eq!(core::mem::size_of::<SensorSample>(), 48 + 32 * MAX_AXES);
         assert_eq!(core::mem::size_of::<ActuatorCommand>(), 32 + 16 * MAX_AXES);
     }
 
@@ -211,6 +220,7 @@ mod tests {
         s.plant_time_s = 0.5;
         s.flags = FLAG_END;
         s.deadline_misses = 4;
+        s.plant_overruns = 6;
         for (i, a) in s.axes.iter_mut().enumerate() {
             a.motor_pos = i as f64 + 1.0;
             a.applied_torque = -(i as f64) - 1.0;
@@ -218,8 +228,13 @@ mod tests {
         let c = s.copy_used();
         assert_eq!((c.seq, c.plant_time_s, c.flags), (9, 0.5, FLAG_END));
         assert_eq!(
-            (c.instance_tag, c.axis_count, c.deadline_misses),
-            (77, 3, 4)
+            (
+                c.instance_tag,
+                c.axis_count,
+                c.deadline_misses,
+                c.plant_overruns
+            ),
+            (77, 3, 4, 6)
         );
         assert_eq!(c.axes[..3], s.axes[..3]);
         assert!(c.axes[3..].iter().all(|a| *a == AxisSensor::default()));

@@ -7,14 +7,23 @@ const session = Math.random().toString(36).slice(2) + Date.now().toString(36);
 const token = new URLSearchParams(location.search).get('token') || sessionStorage.getItem('feedloop-scope-token') || '';
 if (token) sessionStorage.setItem('feedloop-scope-token', token);
 const sent = () => ({ 'x-scope-session': session, 'x-scope-token': token });
-const COLORS = ['#1f5fbf', '#d9480f', '#2b8a3e', '#862e9c', '#c92a2a', '#0b7285', '#5f3dc4', '#e67700'];
-const EVENT_COLORS = { deadline_miss: '#c92a2a', plant_overrun: '#e67700', stall: '#862e9c',
-  swap: '#1b7f3a', rollback: '#b3261e', safety_stop: '#000000' };
+// The Okabe-Ito palette (told apart with the common colour-vision deficiencies), in the order a
+// pane's signals take it: a pane's first eight signals never share a colour; beyond that the
+// colours repeat dashed.
+const PALETTE = ['#0072B2', '#D55E00', '#009E73', '#CC79A7', '#E69F00', '#56B4E9', '#000000', '#F0E442'];
+const EVENT_COLORS = { deadline_miss: '#D55E00', plant_overrun: '#E69F00', stall: '#CC79A7',
+  swap: '#009E73', rollback: '#B3261E', safety_stop: '#000000' };
+// Events closer than this (CSS px) on a plot are drawn as one band with their count.
+const EVENT_JOIN_PX = 6;
 
 // What tests and people can inspect from the console.
 const scope = window.scope = {
   state: null, frames: 0, views: 0, points: 0, busy: null, panes: [],
   paused: false, lastError: null, lastAnswer: null, savedPath: null,
+  // event kinds the page does not draw (unticked in the event legend)
+  hiddenKinds: new Set(),
+  // per kind, the events in the shown span and the marks (lines, bands) drawn for them
+  eventsInView: {}, eventMarks: {},
 };
 
 const $ = (id) => document.getElementById(id);
@@ -65,6 +74,9 @@ function fmtTick(v, step) {
 function addPane(signals) {
   const div = document.createElement('div');
   div.className = 'pane';
+  // the legend sits above the plot, never over its curves
+  const legend = document.createElement('div');
+  legend.className = 'legend';
   const canvas = document.createElement('canvas');
   const det = document.createElement('details');
   det.className = 'signals';
@@ -72,10 +84,12 @@ function addPane(signals) {
   const box = document.createElement('div');
   box.className = 'signals';
   det.appendChild(box);
+  div.appendChild(legend);
   div.appendChild(canvas);
   div.appendChild(det);
   $('panes').appendChild(div);
-  const pane = { div, canvas, box, signals: signals.slice(), index: scope.panes.length };
+  const pane = { div, legend, canvas, box, signals: signals.slice(), index: scope.panes.length,
+    colors: {}, legendKey: null, plot: null };
   scope.panes.push(pane);
   fillPicker(pane);
   return pane;
@@ -140,6 +154,79 @@ function windowOf(span) {
 }
 
 // ---- drawing -----------------------------------------------------------------------------
+// The colour of each of a pane's signals: its place in the pane, so two never share one.
+function paneColors(pane) {
+  const out = {};
+  pane.signals.forEach((n, i) => { out[n] = { color: PALETTE[i % PALETTE.length], dashed: i >= PALETTE.length }; });
+  pane.colors = out;
+  return out;
+}
+
+function drawLegend(pane, series, label) {
+  const key = series.map((s) => s.name).join(',') + '|' + label;
+  if (key === pane.legendKey) return;
+  pane.legendKey = key;
+  pane.legend.innerHTML = '';
+  if (!series.length) {
+    pane.legend.textContent = '(no signal: pick some below)';
+    return;
+  }
+  for (const s of series) {
+    const c = pane.colors[s.name];
+    const item = document.createElement('span');
+    item.className = 'item';
+    item.dataset.signal = s.name;
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = c.dashed ? 'repeating-linear-gradient(90deg,' + c.color + ' 0 4px,transparent 4px 7px)' : c.color;
+    item.appendChild(sw);
+    item.appendChild(document.createTextNode(s.name + ' (' + label + ')'));
+    pane.legend.appendChild(item);
+  }
+}
+
+// Loop events of the shown kinds, where they happened: one thin translucent line for a lone
+// event, one shaded band with a count for a run of events closer than EVENT_JOIN_PX; each kind
+// has its own strip along the plot's top edge.
+function drawEvents(g, events, X, t0, t1, L, T, pw, ph) {
+  const byKind = {};
+  for (const e of events || []) {
+    if (e.t_s < t0 || e.t_s > t1) continue;
+    (byKind[e.kind] = byKind[e.kind] || []).push(X(e.t_s));
+  }
+  const kinds = (scope.state.event_kinds || Object.keys(EVENT_COLORS));
+  for (const kind of Object.keys(byKind)) {
+    scope.eventsInView[kind] = Math.max(scope.eventsInView[kind] || 0, byKind[kind].length);
+    if (scope.hiddenKinds.has(kind)) continue;
+    const xs = byKind[kind].sort((a, b) => a - b);
+    const col = EVENT_COLORS[kind] || '#000000';
+    const strip = T + 1 + Math.max(0, kinds.indexOf(kind)) * 5;
+    let i = 0;
+    while (i < xs.length) {
+      let j = i;
+      while (j + 1 < xs.length && xs[j + 1] - xs[j] < EVENT_JOIN_PX) j++;
+      const x0 = xs[i], x1 = xs[j], n = j - i + 1;
+      g.fillStyle = col; g.strokeStyle = col;
+      if (n === 1) {
+        g.globalAlpha = 0.45; g.lineWidth = 1;
+        g.beginPath(); g.moveTo(Math.round(x0) + 0.5, T); g.lineTo(Math.round(x0) + 0.5, T + ph); g.stroke();
+        g.globalAlpha = 0.8; g.fillRect(x0 - 2, strip, 5, 4);
+      } else {
+        const w = Math.max(2, x1 - x0 + 1);
+        g.globalAlpha = 0.12; g.fillRect(x0, T, w, ph);
+        g.globalAlpha = 0.8; g.fillRect(x0, strip, w, 4);
+        if (w > 26) {
+          g.globalAlpha = 1; g.font = '10px system-ui';
+          g.fillText(String(n), x0 + 2, strip + 14);
+        }
+      }
+      g.globalAlpha = 1;
+      scope.eventMarks[kind] = (scope.eventMarks[kind] || 0) + 1;
+      i = j + 1;
+    }
+  }
+}
+
 function drawPane(pane, view, t0, t1) {
   const c = pane.canvas;
   const dpr = window.devicePixelRatio || 1;
@@ -150,9 +237,12 @@ function drawPane(pane, view, t0, t1) {
   g.setLineDash([]);
   g.textAlign = 'left';
   g.clearRect(0, 0, W, H);
-  const L = 70, R = 10, T = 22, B = 30;
+  const L = 70, R = 10, T = 6, B = 30;
   const pw = W - L - R, ph = H - T - B;
+  // the plot area, in the canvas' CSS pixels
+  pane.plot = { x: L, y: T, w: pw, h: ph };
   const series = view.series.filter((s) => pane.signals.includes(s.name));
+  const colors = paneColors(pane);
   let lo = Infinity, hi = -Infinity;
   for (const s of series) for (let i = 0; i < s.lo.length; i++) {
     if (s.lo[i] !== null) { lo = Math.min(lo, s.lo[i]); hi = Math.max(hi, s.hi[i]); }
@@ -164,9 +254,7 @@ function drawPane(pane, view, t0, t1) {
   const sc = scaleFor(unit, Math.max(Math.abs(lo), Math.abs(hi)));
   const X = (t) => L + (t - t0) / (t1 - t0) * pw;
   const Y = (v) => T + (hi - v) / (hi - lo) * ph;
-  // title
-  g.fillStyle = '#1d2430'; g.font = 'bold 12px system-ui';
-  g.fillText(series.map((s) => s.name).join(', ') || '(no signal: pick some below)', L, 14);
+  drawLegend(pane, series, sc.label);
   // grid and ticks
   g.font = '11px system-ui'; g.strokeStyle = '#e6e8ec'; g.fillStyle = '#4a5566'; g.lineWidth = 1;
   const yt = niceTicks(lo * sc.f, hi * sc.f, 5);
@@ -185,14 +273,19 @@ function drawPane(pane, view, t0, t1) {
   g.save(); g.translate(11, T + ph / 2); g.rotate(-Math.PI / 2);
   g.textAlign = 'center'; g.fillText(sc.label, 0, 0); g.restore();
   g.strokeStyle = '#8a94a6'; g.strokeRect(L, T, pw, ph);
+  // loop events under the curves, clipped to the plot
+  const st = scope.state;
+  const events = $('source').value === 'capture' ? (st.capture ? st.capture.events : []) : st.events;
+  g.save(); g.beginPath(); g.rect(L, T, pw, ph); g.clip();
+  drawEvents(g, events, X, t0, t1, L, T, pw, ph);
   // envelopes: one vertical min-max bar per pixel column, joined to the next
-  series.forEach((s, k) => {
-    const col = COLORS[(scope.state.columns.findIndex((c) => c.name === s.name) + 8) % COLORS.length];
-    g.strokeStyle = col; g.lineWidth = 1.2; g.setLineDash([]); g.beginPath();
+  for (const s of series) {
+    const col = colors[s.name];
+    g.strokeStyle = col.color; g.lineWidth = 1.2; g.setLineDash(col.dashed ? [6, 3] : []); g.beginPath();
     const n = s.lo.length;
     // Zoomed in beyond one cycle per column, columns without a cycle are normal: the line goes
     // through them. A longer run of empty columns is a gap in the data and stays open.
-    const period = scope.state.period_s || 0;
+    const period = st.period_s || 0;
     const perCol = period > 0 ? (t1 - t0) / period / n : 1;
     const normalGap = perCol < 1 ? Math.ceil(1 / perCol) + 1 : 1;
     let started = false, empty = 0;
@@ -206,35 +299,52 @@ function drawPane(pane, view, t0, t1) {
       scope.points += 1;
     }
     g.stroke();
-    // legend
-    const lx = L + 8 + k * 150, ly = T + 12;
-    g.fillStyle = col; g.fillRect(lx, ly - 8, 14, 3);
-    g.fillStyle = '#1d2430'; g.fillText(s.name + ' (' + sc.label + ')', lx + 18, ly - 4);
-  });
-  // loop events and the answers to the page's requests, where they happened
-  const st = scope.state;
-  const events = $('source').value === 'capture' ? (st.capture ? st.capture.events : []) : st.events;
-  g.save(); g.beginPath(); g.rect(L, T, pw, ph); g.clip();
-  // events oldest first; a label only where it does not overlap the previous one
-  const shown = (events || []).filter((e) => e.t_s >= t0 && e.t_s <= t1).sort((a, b) => a.t_s - b.t_s);
-  let lastLabel = -1e9;
-  for (const e of shown) {
-    const x = X(e.t_s);
-    g.strokeStyle = EVENT_COLORS[e.kind] || '#000'; g.setLineDash([4, 3]);
-    g.beginPath(); g.moveTo(x, T); g.lineTo(x, T + ph); g.stroke(); g.setLineDash([]);
-    if (x - lastLabel > 90) {
-      g.fillStyle = g.strokeStyle; g.fillText(e.kind.replace('_', ' '), x + 3, T + ph - 4);
-      lastLabel = x;
-    }
   }
+  g.setLineDash([]);
+  // the answers to the page's requests, where they happened
   for (const a of st.answers || []) {
     if (a.t_s < t0 || a.t_s > t1) continue;
     const x = X(a.t_s);
     g.fillStyle = a.outcome === 'accepted' ? '#1b7f3a' : '#b3261e';
-    g.beginPath(); g.moveTo(x, T + 2); g.lineTo(x - 5, T + 10); g.lineTo(x + 5, T + 10); g.fill();
-    g.fillText(a.outcome.replace('_', ' ') + ': ' + a.summary.slice(0, 70), Math.min(x + 6, L + pw - 260), T + 24);
+    g.beginPath(); g.moveTo(x, T + ph - 2); g.lineTo(x - 5, T + ph - 10); g.lineTo(x + 5, T + ph - 10); g.fill();
+    g.font = '11px system-ui';
+    g.fillText(a.outcome.replace('_', ' ') + ': ' + a.summary.slice(0, 70), Math.min(x + 6, L + pw - 260), T + ph - 4);
   }
   g.restore();
+}
+
+// The event legend above the plots: a tick box per kind (untick to hide it), its colour, and
+// how many of its events the shown span holds.
+function eventLegend(kinds) {
+  const box = $('event-kinds');
+  if (box.dataset.kinds === kinds.join(',')) return;
+  box.dataset.kinds = kinds.join(',');
+  box.innerHTML = '<span class="info">events:</span>';
+  for (const k of kinds) {
+    const l = document.createElement('label');
+    l.dataset.kind = k;
+    const cb = document.createElement('input');
+    cb.type = 'checkbox';
+    cb.value = k;
+    cb.checked = !scope.hiddenKinds.has(k);
+    cb.onchange = () => { if (cb.checked) scope.hiddenKinds.delete(k); else scope.hiddenKinds.add(k); };
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = EVENT_COLORS[k] || '#000000';
+    const n = document.createElement('span');
+    n.className = 'count';
+    l.appendChild(cb); l.appendChild(sw);
+    l.appendChild(document.createTextNode(k.replace('_', ' ') + ' '));
+    l.appendChild(n);
+    box.appendChild(l);
+  }
+}
+
+function eventCounts() {
+  for (const l of $('event-kinds').querySelectorAll('label')) {
+    const n = scope.eventsInView[l.dataset.kind] || 0;
+    l.querySelector('.count').textContent = n ? '(' + n + ' in view)' : '';
+  }
 }
 
 // The binary view (see the server's `view_bin`): a JSON head, then f32 minima and maxima per
@@ -276,7 +386,9 @@ async function frame() {
     const v = await viewBin('/api/view?fmt=bin&src=' + src + '&t0=' + w[0] + '&t1=' + w[1] + '&cols=' + cols +
       '&sig=' + encodeURIComponent(sigs.join(',')));
     scope.views += 1;
+    scope.eventsInView = {}; scope.eventMarks = {};
     for (const p of scope.panes) drawPane(p, v, w[0], w[1]);
+    eventCounts();
     scope.frames += 1;
     $('time-info').textContent = w[0].toFixed(4) + ' .. ' + w[1].toFixed(4) + ' s';
   } catch (e) {
@@ -315,34 +427,94 @@ function drawHistogram(lat) {
   g.fillText('cycles: ' + lat.count, L, H - 2);
 }
 
+function fmtCount(v) { return v === null || v === undefined ? '-' : Number(v).toLocaleString('en-US'); }
+function fmtSecs(v) { return (v < 10 ? v.toFixed(1) : v.toFixed(0)) + ' s'; }
+function esc(t) { return String(t).replace(/&/g, '&amp;').replace(/</g, '&lt;'); }
+
+// The counters, each from one source: since start, the loop's own status (the figures its
+// summary reports); in the last N s, the cycles the scope holds.
+function counterTable(st) {
+  const s = st.status, w = st.window;
+  const since = s ? 'since start' : null;
+  const win = w ? 'in the last ' + fmtSecs(w.seconds) : null;
+  const rows = [
+    ['deadline_misses', 'deadline misses (cycles)', s && s.deadline_misses, 'deadline_miss'],
+    ['plant_overruns', 'plant overruns (cycles)', s && s.plant_overruns, 'plant_overrun'],
+    ['stall', 'stall cycles', null, 'stall'],
+    ['swaps', 'swaps', s && s.swaps, 'swap'],
+    ['rollback', 'swaps rolled back', null, 'rollback'],
+    ['safety_stop', 'safe stops begun', null, 'safety_stop'],
+    ['rejected_requests', 'refused requests', s && s.rejected_requests, null],
+    ['nonfinite_faults', 'non-finite torques caught', s && s.nonfinite_faults, null],
+  ];
+  const cell = (label, v) => label === null || v === null || v === undefined
+    ? '<td class="num">-</td>'
+    : '<td class="num" data-window="' + label + '" data-value="' + v + '">' + fmtCount(v) + '</td>';
+  let h = '<tr><th></th><th class="num">' + (since || 'since start') + '</th><th class="num">' +
+    (win || 'recent') + '</th></tr>';
+  for (const [key, name, total, kind] of rows) {
+    h += '<tr data-counter="' + key + '"><td>' + name + '</td>' + cell(since, total) +
+      cell(win, kind && w ? w.counts[kind] : null) + '</tr>';
+  }
+  $('counters').innerHTML = h;
+  $('counters-note').textContent = (s ? 'since start: the loop\'s own count over its cycles before cycle ' +
+    fmtCount(s.cycle) + ' (t = ' + s.t_s.toFixed(1) + ' s), as the run\'s summary counts them'
+    : 'since start: no status from the loop yet') +
+    (w ? '; in the last ' + fmtSecs(w.seconds) + ': the ' + fmtCount(w.cycles) + ' cycles before it that the scope holds' : '') + '.';
+}
+
+// The status line under the stages: the same figures as the counters' "since start" column.
+function statusLine(s) {
+  const item = (key, name) => name + ' <span data-counter="' + key + '" data-window="since start" data-value="' +
+    s[key] + '">' + fmtCount(s[key]) + '</span>';
+  return 'since start, as of cycle ' + fmtCount(s.cycle) + ': ' + [
+    item('deadline_misses', 'deadline misses'), item('plant_overruns', 'plant overruns'),
+    item('swaps', 'swaps'), item('rejected_requests', 'refused requests'),
+  ].join(', ');
+}
+
 function updateSidebar(st) {
-  $('title').textContent = 'feedloop scope - ' + (st.mode === 'live' ? 'loop ' + st.instance : 'recording') +
+  const live = st.mode === 'live';
+  $('title').textContent = 'feedloop scope - ' + (live ? 'loop ' + st.instance : 'recording') +
     (st.read_only ? ' (read-only)' : '');
-  $('swap-panel').hidden = !!st.read_only;
+  // a recording has no trigger, swaps, latency or counters: those controls go
+  for (const e of document.querySelectorAll('.live-only')) e.hidden = !live;
+  $('swap-panel').hidden = !live || !!st.read_only;
+  $('source').options[0].textContent = live ? 'loop (live)' : 'recording';
+  eventLegend(st.event_kinds || []);
   $('banner').textContent = st.connection + (st.period_s ? ' | period ' + (st.period_s * 1e6).toFixed(0) + ' us' : '') +
     (st.runs > 1 ? ' | run ' + st.runs + ' (the loop restarted)' : '');
+  if (!live) return updateCapture(st);
   const lat = st.latency;
-  $('latency').textContent = 'p50 ' + fmtUs(lat.p50_us) + ', p99 ' + fmtUs(lat.p99_us) + ', p99.9 ' +
-    fmtUs(lat.p999_us) + ', max ' + fmtUs(lat.max_us) + '; cycles without command ' + lat.missed_cycles;
+  $('latency').textContent = 'since the scope began watching this run, ' + fmtCount(lat.count) + ' round trips: p50 ' +
+    fmtUs(lat.p50_us) + ', p99 ' + fmtUs(lat.p99_us) + ', p99.9 ' + fmtUs(lat.p999_us) + ', max ' + fmtUs(lat.max_us) +
+    '; cycles without a command ' + fmtCount(lat.missed_cycles);
   drawHistogram(lat);
-  const rows = Object.entries(st.counters).map(([k, v]) => '<tr><td>' + k.replace('_', ' ') + '</td><td>' + v + '</td></tr>');
-  rows.push('<tr><td>cycles missing from plant / scheduler records</td><td>' + st.lost.plant_cycles + ' / ' + st.lost.scheduler_cycles + '</td></tr>');
-  rows.push('<tr><td>blocks the scope fell behind on (dropped, oldest first)</td><td>' + st.lost.scope_blocks + '</td></tr>');
-  rows.push('<tr><td>dropped by the loop recorders</td><td>' + st.lost.recorder_dropped + '</td></tr>');
-  $('counters').innerHTML = rows.join('');
+  counterTable(st);
+  $('feed').innerHTML = [
+    ['cycles missing from plant / scheduler records', fmtCount(st.lost.plant_cycles) + ' / ' + fmtCount(st.lost.scheduler_cycles)],
+    ['blocks the scope fell behind on (dropped, oldest first)', fmtCount(st.lost.scope_blocks)],
+    ['dropped by the loop recorders', fmtCount(st.lost.recorder_dropped)],
+  ].map(([k, v]) => '<tr><td>' + k + ', since the scope began watching</td><td class="num">' + v + '</td></tr>').join('');
   if (st.status) {
+    // one row per stage, one column per axis: as many columns as axes, so it fits the sidebar
     const stages = ['position', 'feedforward', 'compensator', 'velocity'];
-    let h = '<tr><th>axis</th>' + stages.map((s) => '<th>' + s + '</th>').join('') + '<th>torque</th></tr>';
-    for (const a of st.status.axes) {
-      h += '<tr><td>' + a.axis + '</td>' + stages.map((s) => '<td>' + (a.stages[s] || '-') + '</td>').join('') +
-        '<td>' + (a.torque === null ? 'n/a' : a.torque.toFixed(3) + ' N m') + '</td></tr>';
+    const axes = st.status.axes;
+    let h = '<tr><th>stage</th>' + axes.map((a) => '<th>' + esc(a.axis) + '</th>').join('') + '</tr>';
+    for (const s of stages) {
+      h += '<tr><td>' + s + '</td>' + axes.map((a) => '<td>' + esc(a.stages[s] || '-') + '</td>').join('') + '</tr>';
     }
-    h += '<tr><td colspan="6">cycle ' + st.status.cycle + ', swaps ' + st.status.swaps + ', refused requests ' +
-      st.status.rejected_requests + ', deadline misses ' + st.status.deadline_misses + '</td></tr>';
+    h += '<tr><td>torque</td>' + axes.map((a) => '<td>' + (a.torque === null ? '-' : a.torque.toFixed(3) + ' N m') + '</td>').join('') + '</tr>';
     $('status').innerHTML = h;
+    $('status-line').innerHTML = statusLine(st.status);
   } else {
-    $('status').innerHTML = '<tr><td>' + (st.mode === 'live' ? 'no status from the loop yet' : 'a recording has no running stages') + '</td></tr>';
+    $('status').innerHTML = '<tr><td>no status from the loop yet</td></tr>';
+    $('status-line').textContent = '';
   }
+  updateCapture(st);
+}
+
+function updateCapture(st) {
   $('trig-status').textContent = st.trigger ? 'armed: ' + st.trigger.describe : 'not armed';
   $('cap-status').textContent = st.capture ? 'captured: ' + st.capture.describe + ', ' + st.capture.cycles +
     ' cycles from ' + st.capture.first_t_s.toFixed(4) + ' s' : (st.capture_view ? 'a trace is open as the capture view' : 'no capture yet');
@@ -364,9 +536,13 @@ function updateSidebar(st) {
 async function pollState() {
   try {
     const st = await api('/api/state');
-    const first = !scope.state || scope.state.columns.length !== st.columns.length;
+    const names = (x) => x.columns.map((c) => c.name).join(',');
+    const fresh = !scope.state;
+    const first = fresh || names(scope.state) !== names(st);
     scope.state = st;
     if (first) {
+      // a recording is shown whole at first
+      if (fresh && st.mode !== 'live') $('span').value = 'all';
       for (const p of scope.panes) p.div.remove();
       scope.panes = [];
       defaultPanes();

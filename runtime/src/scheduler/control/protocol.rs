@@ -179,8 +179,13 @@ pub struct Status {
     pub swaps: u64,
     /// Non-finite torques the chain caught.
     pub nonfinite_faults: u64,
-    /// The plant's deadline misses as of its latest sample.
+    /// The plant's deadline misses as of its latest sample: over the cycles before `cycle`, counted
+    /// as `summary.json`'s `deadline_misses` counts them.
     pub deadline_misses: u32,
+    /// The plant's overruns (cycles it woke more than half a period late) over the cycles before
+    /// `cycle`, counted as `summary.json`'s `plant_overruns` counts them.
+    #[serde(default)]
+    pub plant_overruns: u32,
     /// Refused requests so far.
     pub rejected_requests: u64,
     /// The last swaps (at most [`RECENT_SWAPS`], oldest first; rolled-back ones included), so a
@@ -429,6 +434,7 @@ mod tests {
             swaps: 1,
             nonfinite_faults: 0,
             deadline_misses: 2,
+            plant_overruns: 5,
             rejected_requests: 3,
             recent_swaps: vec![],
             job: None,
@@ -441,7 +447,7 @@ mod tests {
                              "stages": {"position": "position_p", "velocity": "pi_velocity"},
                              "torque": 0.5, "reference": 0.0}],
                    "swaps": 1, "nonfinite_faults": 0, "deadline_misses": 2,
-                   "rejected_requests": 3, "recent_swaps": []})
+                   "plant_overruns": 5, "rejected_requests": 3, "recent_swaps": []})
             .to_string()
         );
         for a in [

@@ -81,6 +81,8 @@ pub struct ControlPlane {
     pub rejected_count: u64,
     /// The plant's deadline-miss count as of the latest sample (set by the scheduler loop).
     pub plant_deadline_misses: u32,
+    /// The plant's overrun count as of the latest sample (set by the scheduler loop).
+    pub plant_overruns: u32,
     /// The job file, absolute (for the status).
     job_path: Option<String>,
     history: Vec<[f64; HISTORY]>,
@@ -142,6 +144,7 @@ impl ControlPlane {
             rejected: Vec::with_capacity(MAX_REJECTIONS),
             rejected_count: 0,
             plant_deadline_misses: 0,
+            plant_overruns: 0,
             history: vec![[0.0; HISTORY]; n],
             hist_pos: 0,
             hist_len: 0,
@@ -426,6 +429,7 @@ impl ControlPlane {
             swaps: self.swaps.len() as u64,
             nonfinite_faults: cycle.chain().nonfinite_faults,
             deadline_misses: self.plant_deadline_misses,
+            plant_overruns: self.plant_overruns,
             rejected_requests: self.rejected_count,
             recent_swaps: self.swaps[self.swaps.len().saturating_sub(protocol::RECENT_SWAPS)..]
                 .to_vec(),
