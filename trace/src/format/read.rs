@@ -516,6 +516,13 @@ mod tests {
         }};
     }
 
+    /// Parses `text`, which must be refused with exactly `message`; gives the error.
+    fn refused_saying(text: &str, message: &str) -> TraceError {
+        let e = parse(text).unwrap_err();
+        assert_eq!(e.to_string(), message);
+        e
+    }
+
     #[test]
     fn reading_selected_columns_keeps_time_and_those_and_still_checks_every_cell() {
         let dir = std::env::temp_dir().join(format!("feedloop-trace-sel-{}", std::process::id()));
@@ -610,10 +617,9 @@ mod tests {
 
     #[test]
     fn a_non_numeric_cell_is_quoted_with_its_line_and_column() {
-        let e = parse("t,x.cmd\n0,0\n0.1,abc\n").unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "rig.csv: line 3: column `x.cmd`: \"abc\" is not a number"
+        let e = refused_saying(
+            "t,x.cmd\n0,0\n0.1,abc\n",
+            "rig.csv: line 3: column `x.cmd`: \"abc\" is not a number",
         );
         assert_eq!(e.line(), Some(3));
     }
@@ -636,10 +642,9 @@ mod tests {
 
     #[test]
     fn a_row_with_the_wrong_number_of_cells_is_refused() {
-        let e = parse("t,x.cmd,x.load\n0,0,0\n0.1,0\n").unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "rig.csv: line 3: 2 cells, but the header has 3 columns"
+        refused_saying(
+            "t,x.cmd,x.load\n0,0,0\n0.1,0\n",
+            "rig.csv: line 3: 2 cells, but the header has 3 columns",
         );
         refused!("t,x.cmd\n0,0\n0.1,0,7\n", CellCount { found: 3, .. });
     }
