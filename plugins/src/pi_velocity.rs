@@ -384,8 +384,13 @@ mod tests {
     use super::*;
 
     fn ctx() -> CycleContext {
+        ctx_of(1e-3)
+    }
+
+    /// Cycle 0 at period `period_s`.
+    fn ctx_of(period_s: f64) -> CycleContext {
         CycleContext {
-            period_s: 1e-3,
+            period_s,
             cycle: 0,
             t_s: 0.0,
         }
@@ -549,11 +554,7 @@ mod tests {
 
     #[test]
     fn snapshot_and_restore_carry_the_filter_states() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut a = filtered();
         let mut io = AxisSignals::default();
         for k in 0..50 {
@@ -578,11 +579,7 @@ mod tests {
 
     #[test]
     fn infinite_velocity_command_through_the_filters_gives_finite_torque_and_recovers() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut c = filtered();
         let mut io = AxisSignals {
             vel_cmd: f64::INFINITY,
@@ -605,11 +602,7 @@ mod tests {
 
     #[test]
     fn switching_to_a_filtered_loop_continues_the_last_torque() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut c = filtered();
         let torque = first_torque_after_handover(&mut c, 1.0, &c1);
         // same inputs: only one integration step Kv T e / Tv = 5 * 1e-4 * 0.5 / 0.005 = 0.05,
