@@ -385,15 +385,7 @@ fn read_chain(
         let (key, t) = item?;
         let mut cf = Fields::new(t, path, &key);
         let axis = cf.str("axis")?;
-        let axis = axis_index(axes, axis).ok_or_else(|| {
-            cf.error(
-                "axis",
-                format!(
-                    "axis `{axis}` does not exist (axes of this job: {})",
-                    names(axes)
-                ),
-            )
-        })?;
+        let axis = existing_axis(&cf, "axis", axes, axis)?;
         let stage_s = cf.str("stage")?;
         let stage = Stage::parse(stage_s).ok_or_else(|| {
             cf.error(
@@ -440,15 +432,7 @@ fn read_couplers(
         let names_v = cf.opt_str_array("axes")?.unwrap_or_default();
         let mut idx = Vec::new();
         for n in &names_v {
-            idx.push(axis_index(axes, n).ok_or_else(|| {
-                cf.error(
-                    "axes",
-                    format!(
-                        "axis `{n}` does not exist (axes of this job: {})",
-                        names(axes)
-                    ),
-                )
-            })?);
+            idx.push(existing_axis(&cf, "axes", axes, n)?);
         }
         let params = cf.opt_table("params")?.cloned().unwrap_or_default();
         cf.finish()?;
@@ -460,6 +444,24 @@ fn read_couplers(
         });
     }
     Ok(couplers)
+}
+
+/// The index of axis `name` among `axes`, else the refusal of key `key` of `cf` naming them.
+fn existing_axis(
+    cf: &Fields<'_>,
+    key: &str,
+    axes: &[JobAxis],
+    name: &str,
+) -> Result<usize, ConfigError> {
+    axis_index(axes, name).ok_or_else(|| {
+        cf.error(
+            key,
+            format!(
+                "axis `{name}` does not exist (axes of this job: {})",
+                names(axes)
+            ),
+        )
+    })
 }
 
 fn names(axes: &[JobAxis]) -> String {

@@ -596,26 +596,27 @@ mod tests {
             .starts_with("m.toml: key `plant.bogus`: unknown key"));
     }
 
+    /// The refusal of number `key` of the top-level table `text` within `range`.
+    fn f64_refused(text: &str, key: &str, range: Range) -> ConfigError {
+        let t = table(text);
+        let mut f = Fields::new(&t, Path::new("m.toml"), "");
+        f.f64(key, range).unwrap_err()
+    }
+
     #[test]
     fn negative_value_is_refused_with_the_value() {
-        let t = table("jl_kgm2 = -1.0");
-        let mut f = Fields::new(&t, Path::new("m.toml"), "");
-        let e = f.f64("jl_kgm2", Range::NonNegative).unwrap_err();
+        let e = f64_refused("jl_kgm2 = -1.0", "jl_kgm2", Range::NonNegative);
         assert!(e.reason.contains("-1"), "{e}");
     }
 
     #[test]
     fn nan_is_refused() {
-        let t = table("x = nan");
-        let mut f = Fields::new(&t, Path::new("m.toml"), "");
-        assert!(f.f64("x", Range::Finite).is_err());
+        f64_refused("x = nan", "x", Range::Finite);
     }
 
     #[test]
     fn wrong_type_is_named() {
-        let t = table("x = \"fast\"");
-        let mut f = Fields::new(&t, Path::new("m.toml"), "");
-        let e = f.f64("x", Range::Finite).unwrap_err();
+        let e = f64_refused("x = \"fast\"", "x", Range::Finite);
         assert!(e.reason.contains("string"), "{e}");
     }
 

@@ -412,13 +412,7 @@ impl XcCam {
 }
 
 impl Trajectory for XcCam {
-    fn axes(&self) -> &[String] {
-        &self.axes
-    }
-
-    fn duration_s(&self) -> f64 {
-        self.duration_s
-    }
+    axes_and_duration!(self => self.duration_s);
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         for o in out.iter_mut() {

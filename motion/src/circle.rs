@@ -37,13 +37,7 @@ pub struct Circle {
 }
 
 impl Trajectory for Circle {
-    fn axes(&self) -> &[String] {
-        &self.axes
-    }
-
-    fn duration_s(&self) -> f64 {
-        self.arc.end_s()
-    }
+    axes_and_duration!(self => self.arc.end_s());
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         for &(t0, t1, sigma0, feed) in &self.cruise {

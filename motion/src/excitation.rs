@@ -389,13 +389,7 @@ impl Multisine {
 }
 
 impl Trajectory for Multisine {
-    fn axes(&self) -> &[String] {
-        &self.axes
-    }
-
-    fn duration_s(&self) -> f64 {
-        2.0 * self.fade_s + self.steady_s + self.dwell_s
-    }
+    axes_and_duration!(self => 2.0 * self.fade_s + self.steady_s + self.dwell_s);
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         const BINOM: [[f64; REF_DERIVS]; REF_DERIVS] = [

@@ -189,13 +189,7 @@ impl TraceCommand {
 }
 
 impl Trajectory for TraceCommand {
-    fn axes(&self) -> &[String] {
-        &self.axes
-    }
-
-    fn duration_s(&self) -> f64 {
-        self.duration_s
-    }
+    axes_and_duration!(self => self.duration_s);
 
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         for (o, st) in out.iter_mut().zip(&self.states) {

@@ -32,6 +32,20 @@ use feedloop_control::controller::REF_DERIVS;
 use feedloop_model::params::{ConfigError, Fields, Range};
 use feedloop_model::MAX_AXES;
 
+/// The [`Trajectory::axes`] (the field `axes`) and [`Trajectory::duration_s`] of a
+/// trajectory: `axes_and_duration!(self => <duration>)`.
+macro_rules! axes_and_duration {
+    ($self:ident => $duration:expr) => {
+        fn axes(&self) -> &[String] {
+            &self.axes
+        }
+
+        fn duration_s(&$self) -> f64 {
+            $duration
+        }
+    };
+}
+
 pub mod cam;
 mod circle;
 pub mod excitation;
@@ -382,12 +396,7 @@ pub(crate) struct PolyTrajectory {
 }
 
 impl Trajectory for PolyTrajectory {
-    fn axes(&self) -> &[String] {
-        &self.axes
-    }
-    fn duration_s(&self) -> f64 {
-        self.poly.end_s()
-    }
+    axes_and_duration!(self => self.poly.end_s());
     fn eval(&self, t_s: f64, out: &mut [RefState]) {
         self.poly.eval(t_s, out)
     }
@@ -537,23 +546,16 @@ mod tests {
     }
 
     #[test]
-    fn a_per_axis_table_naming_an_unknown_axis_is_refused_at_that_axis() {
-        let e = refused_at(
-            "kind = \"dwell\"\nposition_m = { z = 0.01 }",
-            &["x", "y"],
-            "trajectory.position_m.z",
-        );
-        assert!(e.reason.contains("axes: x, y"), "{e}");
-    }
-
-    #[test]
-    fn a_plain_number_for_a_multi_axis_job_is_refused() {
-        let e = refused_at(
-            "kind = \"dwell\"\nposition_m = 0.01",
-            &["x", "y"],
-            "trajectory.position_m",
-        );
-        assert!(e.reason.contains("table keyed by axis name"), "{e}");
+    fn a_multi_axis_position_is_refused_unless_a_table_of_its_axes() {
+        // (position_m, the key refused, what the reason says)
+        for (position, key, reason) in [
+            ("{ z = 0.01 }", "trajectory.position_m.z", "axes: x, y"),
+            ("0.01", "trajectory.position_m", "table keyed by axis name"),
+        ] {
+            let text = format!("kind = \"dwell\"\nposition_m = {position}");
+            let e = refused_at(&text, &["x", "y"], key);
+            assert!(e.reason.contains(reason), "{e}");
+        }
     }
 }
 

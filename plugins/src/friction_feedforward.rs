@@ -17,7 +17,7 @@ use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::keys::key_for;
-use crate::plugin::AxisPlugin;
+use crate::plugin::{reference_only_plugin, AxisPlugin};
 
 /// The friction feedforward.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -46,14 +46,7 @@ impl AxisPlugin for FrictionFeedforward {
 }
 
 impl Controller for FrictionFeedforward {
-    fn id(&self) -> &str {
-        Self::ID
-    }
-
-    fn reference_only(&self) -> bool {
-        // reads the references only and adds to vel_cmd / torque_ff
-        true
-    }
+    reference_only_plugin!();
 
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let v = io.reference[1];

@@ -57,7 +57,7 @@ use feedloop_model::model::PlantParams;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::keys::{read_pi_gains, PiGains};
-use crate::plugin::AxisPlugin;
+use crate::plugin::{axis_plugin, reference_only_plugin, PluginParams};
 
 /// The 2-mass model the feedforward inverts (motor units; a rigid axis has `jl = 0`, `kl = inf`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -242,14 +242,9 @@ pub struct InverseFeedforwardParams {
     pub lag: LagDiscretisation,
 }
 
-impl InverseFeedforwardParams {
+impl PluginParams for InverseFeedforwardParams {
     /// Reads the plugin keys, defaulting to the axis model and its `[controller]`.
-    pub fn from_table(
-        params: &toml::Table,
-        axis: &AxisContext,
-        file: &Path,
-    ) -> Result<Self, ConfigError> {
-        let mut f = Fields::new(params, file, "");
+    fn read(mut f: Fields<'_>, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
         let structure = f.choice(
             "structure",
             "structure",
@@ -377,16 +372,12 @@ pub struct InverseFeedforward {
     lag_spring: Lag,
 }
 
-impl AxisPlugin for InverseFeedforward {
-    const ID: &'static str = "inverse_feedforward";
-    const STAGE: Stage = Stage::Feedforward;
-
-    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
-        Ok(Self::new(InverseFeedforwardParams::from_table(
-            params, axis, file,
-        )?))
-    }
-}
+axis_plugin!(
+    InverseFeedforward,
+    InverseFeedforwardParams,
+    "inverse_feedforward",
+    Stage::Feedforward
+);
 
 impl InverseFeedforward {
     /// Builds the feedforward at rest.
@@ -475,14 +466,7 @@ impl InverseFeedforward {
 }
 
 impl Controller for InverseFeedforward {
-    fn id(&self) -> &str {
-        Self::ID
-    }
-
-    fn reference_only(&self) -> bool {
-        // reads the references only and adds to vel_cmd / torque_ff
-        true
-    }
+    reference_only_plugin!();
 
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let (v, tau) = self.compute(&io.reference);

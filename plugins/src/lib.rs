@@ -27,7 +27,7 @@ pub use friction_feedforward::FrictionFeedforward;
 pub use inverse_feedforward::{InverseFeedforward, InverseFeedforwardParams};
 pub use nl_pid_coupler::{NlPidCoupler, NlPidCouplerParams};
 pub use pi_velocity::{PiVelocity, PiVelocityParams};
-pub use plugin::AxisPlugin;
+pub use plugin::{AxisPlugin, PluginParams};
 pub use position_p::{PositionP, PositionPParams};
 pub use quadrant::{QuadrantCompensator, QuadrantParams, QuadrantTable};
 
@@ -96,14 +96,6 @@ pub struct Builtins;
 impl PluginRegistry for Builtins {
     fn ids(&self) -> Vec<(&'static str, Stage)> {
         PLUGINS.iter().map(|e| (e.id, e.stage)).collect()
-    }
-
-    fn stages(&self, id: &str) -> Vec<Stage> {
-        PLUGINS
-            .iter()
-            .filter(|e| e.id == id)
-            .map(|e| e.stage)
-            .collect()
     }
 
     fn create(

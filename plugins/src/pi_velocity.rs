@@ -384,8 +384,13 @@ mod tests {
     use super::*;
 
     fn ctx() -> CycleContext {
+        ctx_of(1e-3)
+    }
+
+    /// Cycle 0 at period `period_s`.
+    fn ctx_of(period_s: f64) -> CycleContext {
         CycleContext {
-            period_s: 1e-3,
+            period_s,
             cycle: 0,
             t_s: 0.0,
         }
@@ -448,17 +453,25 @@ mod tests {
     #[test]
     fn initialising_from_previous_output_is_bumpless() {
         let mut c = pi(3.0, 0.005, 50.0);
+        let torque = first_torque_after_handover(&mut c, 0.0, &ctx());
+        // same error: output moves only by one integration step Kv T e / Tv = 3*1e-3*0.5/0.005
+        assert!((torque - 7.0 - 0.3).abs() < 1e-9, "{torque}");
+    }
+
+    /// Takes over from a loop that output 7 with vel_cmd 2, motor_vel 1.5 and `torque_ff`;
+    /// gives the first torque.
+    fn first_torque_after_handover(c: &mut PiVelocity, torque_ff: f64, ctx: &CycleContext) -> f64 {
         let last = AxisSignals {
             vel_cmd: 2.0,
             motor_vel: 1.5,
+            torque_ff,
             torque: 7.0,
             ..Default::default()
         };
         c.initialize_from(&last);
         let mut io = last;
-        c.step(&ctx(), &mut io);
-        // same error: output moves only by one integration step Kv T e / Tv = 3*1e-3*0.5/0.005
-        assert!((io.torque - 7.0 - 0.3).abs() < 1e-9, "{}", io.torque);
+        c.step(ctx, &mut io);
+        io.torque
     }
 
     fn params(text: &str) -> Result<PiVelocityParams, ConfigError> {
@@ -541,11 +554,7 @@ mod tests {
 
     #[test]
     fn snapshot_and_restore_carry_the_filter_states() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut a = filtered();
         let mut io = AxisSignals::default();
         for k in 0..50 {
@@ -570,11 +579,7 @@ mod tests {
 
     #[test]
     fn infinite_velocity_command_through_the_filters_gives_finite_torque_and_recovers() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut c = filtered();
         let mut io = AxisSignals {
             vel_cmd: f64::INFINITY,
@@ -597,24 +602,11 @@ mod tests {
 
     #[test]
     fn switching_to_a_filtered_loop_continues_the_last_torque() {
-        let c1 = CycleContext {
-            period_s: 1e-4,
-            cycle: 0,
-            t_s: 0.0,
-        };
+        let c1 = ctx_of(1e-4);
         let mut c = filtered();
-        let last = AxisSignals {
-            vel_cmd: 2.0,
-            motor_vel: 1.5,
-            torque_ff: 1.0,
-            torque: 7.0,
-            ..Default::default()
-        };
-        c.initialize_from(&last);
-        let mut io = last;
-        c.step(&c1, &mut io);
+        let torque = first_torque_after_handover(&mut c, 1.0, &c1);
         // same inputs: only one integration step Kv T e / Tv = 5 * 1e-4 * 0.5 / 0.005 = 0.05,
         // seen through the torque filters (gain below 1 at the step's first sample)
-        assert!((io.torque - 7.0).abs() < 0.05, "{}", io.torque);
+        assert!((torque - 7.0).abs() < 0.05, "{torque}");
     }
 }

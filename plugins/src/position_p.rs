@@ -27,7 +27,7 @@ use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::filters::LowPass1;
 use crate::keys::{key_for, read_hz, read_kp};
-use crate::plugin::AxisPlugin;
+use crate::plugin::{axis_plugin, AxisPlugin, PluginParams};
 
 /// Parameters of [`PositionP`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,14 +45,9 @@ pub struct PositionPParams {
     pub torque_ff: f64,
 }
 
-impl PositionPParams {
-    /// Reads `kp_per_s` from `params`, defaulting to the model's `[controller]`.
-    pub fn from_table(
-        params: &toml::Table,
-        axis: &AxisContext,
-        file: &Path,
-    ) -> Result<Self, ConfigError> {
-        let mut f = Fields::new(params, file, "");
+impl PluginParams for PositionPParams {
+    /// Reads `kp_per_s` from `f`, defaulting to the model's `[controller]`.
+    fn read(mut f: Fields<'_>, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
         let kp = read_kp(&mut f)?;
         let vel_filter_hz = read_hz(&mut f, "vel_filter_hz", axis.period_s)?.flatten();
         let ff_key = key_for(axis.plant.kind(), "force_ff_kg", "torque_ff_kgm2");
@@ -83,14 +78,7 @@ pub struct PositionP {
     filter: Option<LowPass1>,
 }
 
-impl AxisPlugin for PositionP {
-    const ID: &'static str = "position_p";
-    const STAGE: Stage = Stage::Position;
-
-    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
-        Ok(Self::new(PositionPParams::from_table(params, axis, file)?))
-    }
-}
+axis_plugin!(PositionP, PositionPParams, "position_p", Stage::Position);
 
 impl PositionP {
     /// Builds the controller.

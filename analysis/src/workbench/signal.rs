@@ -306,12 +306,18 @@ pub fn golden_section(lo: f64, hi: f64, steps: usize, mut f: impl FnMut(f64) -> 
 mod tests {
     use super::*;
 
+    /// Five seconds of a unit sine of `f_hz` sampled at 1 kHz, and the rate.
+    fn sine_1khz(f_hz: f64) -> (Vec<f64>, f64) {
+        let fs = 1000.0;
+        let x = (0..5000)
+            .map(|k| (2.0 * PI * f_hz * k as f64 / fs).sin())
+            .collect();
+        (x, fs)
+    }
+
     #[test]
     fn zero_phase_filter_passes_a_slow_sine_without_lag() {
-        let fs = 1000.0;
-        let x: Vec<f64> = (0..5000)
-            .map(|k| (2.0 * PI * 2.0 * k as f64 / fs).sin())
-            .collect();
+        let (x, fs) = sine_1khz(2.0);
         let y = filtfilt_butter4(&x, 100.0, fs);
         let err = x
             .iter()
@@ -323,10 +329,7 @@ mod tests {
 
     #[test]
     fn zero_phase_filter_removes_a_tone_far_above_the_cutoff() {
-        let fs = 1000.0;
-        let x: Vec<f64> = (0..5000)
-            .map(|k| (2.0 * PI * 300.0 * k as f64 / fs).sin())
-            .collect();
+        let (x, fs) = sine_1khz(300.0);
         let y = filtfilt_butter4(&x, 50.0, fs);
         assert!(rms(&y[500..4500]) < 1e-3, "{}", rms(&y));
     }

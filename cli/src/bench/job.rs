@@ -9,12 +9,49 @@ use anyhow::{bail, Context, Result};
 use feedloop_model::job::{Mode, WaitKind};
 use toml::{Table, Value};
 
+use crate::choice::{Choice, WaitArg};
 use crate::processes::spawn;
 
 const JOB: &str = include_str!("../../../examples/jobs/xc-full-chain.toml");
 const MODEL_X: &str = include_str!("../../../examples/models/xc-x.toml");
 const MODEL_C: &str = include_str!("../../../examples/models/xc-c.toml");
 const QUADRANT_TABLE: &str = include_str!("../../../examples/tables/xy-circle-quadrant.toml");
+
+/// The loop settings both benches take: the period, the wait and the CPUs.
+#[derive(clap::Args, Debug)]
+pub struct ChainArgs {
+    /// Control period, s.
+    #[arg(long, default_value_t = 1.0e-4)]
+    pub period_s: f64,
+    /// How each process waits for the next message.
+    #[arg(long, value_enum, default_value = "busy")]
+    pub wait: WaitArg,
+    /// CPUs for the plant and the scheduler, e.g. `0,1`.
+    #[arg(long)]
+    pub pin: Option<String>,
+}
+
+impl ChainArgs {
+    /// The wait asked for, with the period checked.
+    pub(super) fn checked(&self) -> Result<WaitKind> {
+        let wait = self.wait.id();
+        let wait_kind = WaitKind::parse(wait)
+            .with_context(|| format!("--wait `{wait}`: expected busy, block or hybrid"))?;
+        let period_s = self.period_s;
+        if !(period_s > 1e-6 && period_s <= 0.1) {
+            bail!("--period-s {period_s}: must be within (1e-6, 0.1] s");
+        }
+        Ok(wait_kind)
+    }
+
+    /// The CPUs asked for (none: unpinned).
+    pub(super) fn cpus(&self) -> Result<Vec<usize>> {
+        Ok(match self.pin.as_deref() {
+            None => vec![],
+            Some(p) => crate::processes::parse_pin(p)?.to_vec(),
+        })
+    }
+}
 
 /// The benchmark's job: `examples/jobs/xc-full-chain.toml` (the four controllers of the patents on two
 /// axes) with its files beside it, at `period_s`, grinding long enough to keep moving for

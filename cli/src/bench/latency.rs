@@ -17,24 +17,61 @@ use feedloop_model::job::WaitKind;
 use feedloop_runtime::shared::pingpong::PingPong;
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
-use super::job::{bench_job, run_processes};
+use super::job::{bench_job, run_processes, ChainArgs};
 use super::pingpong::{pingpong, pingpong_parts, TimedPings};
 use super::report::print_report;
-use crate::choice::{Choice, WaitArg};
+use crate::choice::Choice;
 use crate::processes::{read_json, write_json};
 
 /// What `bench latency` was asked for.
-pub(super) struct LatencyOpts {
+#[derive(clap::Args, Debug)]
+pub struct LatencyOpts {
+    /// Cycles to run.
+    #[arg(long, default_value_t = 100_000)]
     pub(super) cycles: u64,
-    pub(super) period_s: f64,
-    pub(super) wait: WaitArg,
-    pub(super) pin: Option<String>,
+    #[command(flatten)]
+    pub(super) chain: ChainArgs,
+    /// SCHED_FIFO priority for both processes (refused with busy waits).
+    #[arg(long)]
     pub(super) fifo: Option<i32>,
+    /// Output folder (latency.json, latency.svg, the run's logs).
+    #[arg(long)]
     pub(super) out: PathBuf,
+    /// Seconds of each reference measurement taken on the same CPUs just before the run: a
+    /// cyclictest-style sleeping loop at the same period (SCHED_FIFO 80 when permitted) and
+    /// a bare spinning loop that counts how often the machine takes a core away. 0 skips them.
+    #[arg(long, default_value_t = 10.0)]
     pub(super) reference_s: f64,
-    pub(super) pingpong_cycles: u64,
-    pub(super) segments: u64,
+    /// Round trips of the bare iceoryx2 ping-pong of the loop's own messages, measured on
+    /// the same CPUs just before the run (before each of its parts), back to back and again
+    /// one per period (default: --cycles, so that the floor is measured as long as the loop;
+    /// 0 skips it).
+    #[arg(long)]
+    pub(super) pingpong_cycles: Option<u64>,
+    /// Slices the run into this many parts, each preceded by its share of the ping-pong, so
+    /// that the loop and its floor see the same states of the host (which can move the floor
+    /// 2.5x within minutes); the figures pool all parts. Default: one part per 30,000
+    /// cycles, at most 10. The parts' logs go to `segment-K/` in --out.
+    #[arg(long)]
+    pub(super) segments: Option<u64>,
+    /// How long the plant (and the ping-pong's pinger) watch their core before starting,
+    /// to start the cycles at the phase of the period the host's periodic interruptions
+    /// leave alone (the job's `[run] phase_probe_s`); 0 starts them at whatever phase.
+    #[arg(long, default_value_t = feedloop_model::job::DEFAULT_PHASE_PROBE_S)]
     pub(super) phase_probe_s: f64,
+}
+
+impl LatencyOpts {
+    /// Round trips of the bare ping-pong (default: `cycles`).
+    fn pingpong_cycles(&self) -> u64 {
+        self.pingpong_cycles.unwrap_or(self.cycles)
+    }
+
+    /// Parts of the run (default: one per 30,000 cycles, at most 10).
+    fn segments(&self) -> u64 {
+        self.segments
+            .unwrap_or(self.cycles.div_ceil(30_000).clamp(1, 10))
+    }
 }
 
 /// A checked `bench latency` and what its parts share.
@@ -77,8 +114,8 @@ pub(super) fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     let (wait_kind, cpus) = checked(o)?;
     let out = o.out.as_path();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let job = bench_job(out, o.period_s, wait_kind, o.cycles, o.phase_probe_s)?;
-    let period_ns = (o.period_s * 1e9).round() as u64;
+    let job = bench_job(out, o.chain.period_s, wait_kind, o.cycles, o.phase_probe_s)?;
+    let period_ns = (o.chain.period_s * 1e9).round() as u64;
     let probe_cpus: Vec<usize> = if cpus.is_empty() {
         (0..std::thread::available_parallelism()
             .map_or(1, |n| n.get())
@@ -94,7 +131,7 @@ pub(super) fn latency(o: &LatencyOpts) -> Result<ExitCode> {
     } else {
         (Value::Null, None)
     };
-    let segments = o.segments.clamp(1, o.cycles);
+    let segments = o.segments().clamp(1, o.cycles);
     if segments > 1 {
         eprintln!(
             "bench latency: {segments} parts, each its share of the ping-pong, then of the run"
@@ -161,12 +198,8 @@ pub(super) fn latency(o: &LatencyOpts) -> Result<ExitCode> {
 
 /// The options checked: the wait and the CPUs asked for.
 fn checked(o: &LatencyOpts) -> Result<(WaitKind, Vec<usize>)> {
-    let (cycles, period_s, wait, reference_s) = (o.cycles, o.period_s, o.wait.id(), o.reference_s);
-    let wait_kind = WaitKind::parse(wait)
-        .with_context(|| format!("--wait `{wait}`: expected busy, block or hybrid"))?;
-    if !(period_s > 1e-6 && period_s <= 0.1) {
-        bail!("--period-s {period_s}: must be within (1e-6, 0.1] s");
-    }
+    let (cycles, reference_s) = (o.cycles, o.reference_s);
+    let wait_kind = o.chain.checked()?;
     if cycles == 0 {
         bail!("--cycles must be > 0");
     }
@@ -180,10 +213,7 @@ fn checked(o: &LatencyOpts) -> Result<(WaitKind, Vec<usize>)> {
             o.phase_probe_s
         );
     }
-    let cpus: Vec<usize> = match o.pin.as_deref() {
-        None => vec![],
-        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
-    };
+    let cpus = o.chain.cpus()?;
     Ok((wait_kind, cpus))
 }
 
@@ -198,8 +228,8 @@ impl Bench<'_> {
     fn run_part(&self, k: u64, j: &mut Joined) -> Result<()> {
         let (o, segments) = (self.o, self.segments);
         let out = o.out.as_path();
-        if o.pingpong_cycles > 0 {
-            let n = self.share(k, o.pingpong_cycles);
+        if o.pingpong_cycles() > 0 {
+            let n = self.share(k, o.pingpong_cycles());
             eprintln!(
                 "bench latency: bare iceoryx2 ping-pong of the loop's messages, {n} round trips \
                  back to back and {n} one per period",
@@ -215,9 +245,9 @@ impl Bench<'_> {
         let n = self.share(k, o.cycles);
         eprintln!(
             "bench latency: {n} cycles at {:.1} kHz, wait {}, about {:.1} s{}",
-            1e-3 / o.period_s,
-            o.wait.id(),
-            n as f64 * o.period_s,
+            1e-3 / o.chain.period_s,
+            o.chain.wait.id(),
+            n as f64 * o.chain.period_s,
             if segments > 1 {
                 format!(" (part {} of {segments})", k + 1)
             } else {
@@ -257,7 +287,7 @@ impl Bench<'_> {
     /// The same ping-pong again just after: how far the host's state moved during the run.
     fn pingpong_after(&self) -> Result<Option<PingPong>> {
         let o = self.o;
-        if o.pingpong_cycles == 0 {
+        if o.pingpong_cycles() == 0 {
             return Ok(None);
         }
         eprintln!("bench latency: the ping-pong again, after the run");
@@ -265,7 +295,7 @@ impl Bench<'_> {
             pingpong(
                 &self.probe_cpus,
                 self.period_ns,
-                o.pingpong_cycles.div_ceil(self.segments),
+                o.pingpong_cycles().div_ceil(self.segments),
                 o.phase_probe_s,
                 &o.out,
             )?
@@ -281,7 +311,7 @@ impl Bench<'_> {
         json!({
             "cycles": j.recs.len(),
             "segments": self.segments,
-            "period_s": o.period_s,
+            "period_s": o.chain.period_s,
             "wait": self.wait_kind.id(),
             "latency_us": hist_json(&figures.latency),
             "jitter_us": hist_json(&figures.jitter),

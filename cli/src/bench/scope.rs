@@ -22,8 +22,7 @@ use feedloop_model::job::WaitKind;
 
 use feedloop_trace::log::{read_log, PlantRecord, SchedRecord};
 
-use super::job::{bench_job, run_processes};
-use crate::choice::{Choice, WaitArg};
+use super::job::{bench_job, run_processes, ChainArgs};
 
 /// Options of `feedloop bench scope`.
 #[derive(clap::Args, Debug)]
@@ -31,15 +30,8 @@ pub struct ScopeBenchArgs {
     /// Cycles of each run.
     #[arg(long, default_value_t = 300_000)]
     pub cycles: u64,
-    /// Control period, s.
-    #[arg(long, default_value_t = 1.0e-4)]
-    pub period_s: f64,
-    /// How each process waits for the next message.
-    #[arg(long, value_enum, default_value = "busy")]
-    pub wait: WaitArg,
-    /// CPUs for the plant and the scheduler, e.g. `0,1`.
-    #[arg(long)]
-    pub pin: Option<String>,
+    #[command(flatten)]
+    pub chain: ChainArgs,
     /// Pairs of runs (without, with), alternating.
     #[arg(long, default_value_t = 1)]
     pub pairs: u32,
@@ -161,14 +153,11 @@ fn figures(dir: &Path, period_ns: u64) -> Result<Value> {
 pub(super) fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     let wait = checked(a)?;
     let browser = find_browser(a.browser.as_deref())?;
-    let cpus: Vec<usize> = match a.pin.as_deref() {
-        None => vec![],
-        Some(p) => crate::processes::parse_pin(p)?.to_vec(),
-    };
+    let cpus = a.chain.cpus()?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let job = bench_job(
         &a.out,
-        a.period_s,
+        a.chain.period_s,
         wait,
         a.cycles,
         feedloop_model::job::DEFAULT_PHASE_PROBE_S,
@@ -179,7 +168,7 @@ pub(super) fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
         browser,
         cpus,
         job,
-        period_ns: (a.period_s * 1e9).round() as u64,
+        period_ns: (a.chain.period_s * 1e9).round() as u64,
         exe: std::env::current_exe().context("locating the feedloop binary")?,
     };
     let mut pairs = Vec::new();
@@ -198,7 +187,7 @@ pub(super) fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
     let v = json!({
         "what": "the benchmark chain of `bench latency` run alone and with `feedloop scope` \
                  attached and a headless browser drawing its page, in alternating pairs",
-        "cycles": a.cycles, "period_s": a.period_s, "wait": wait.id(), "pin": a.pin,
+        "cycles": a.cycles, "period_s": a.chain.period_s, "wait": wait.id(), "pin": a.chain.pin,
         "viewer_nice": a.viewer_nice, "viewer_idle": a.viewer_idle,
         "browser": b.browser.display().to_string(),
         "pairs": pairs,
@@ -212,11 +201,7 @@ pub(super) fn run(a: &ScopeBenchArgs) -> Result<ExitCode> {
 
 /// The options checked: the wait asked for.
 fn checked(a: &ScopeBenchArgs) -> Result<WaitKind> {
-    let wait = WaitKind::parse(a.wait.id())
-        .with_context(|| format!("--wait `{}`: expected busy, block or hybrid", a.wait.id()))?;
-    if !(a.period_s > 1e-6 && a.period_s <= 0.1) {
-        bail!("--period-s {}: must be within (1e-6, 0.1] s", a.period_s);
-    }
+    let wait = a.chain.checked()?;
     if a.cycles == 0 || a.pairs == 0 {
         bail!("--cycles and --pairs must be > 0");
     }
@@ -254,8 +239,8 @@ impl ScopeBench<'_> {
             pair + 1,
             a.pairs,
             a.cycles,
-            1e-3 / a.period_s,
-            a.cycles as f64 * a.period_s
+            1e-3 / a.chain.period_s,
+            a.cycles as f64 * a.chain.period_s
         );
         if kind == 0 {
             run_processes(
@@ -296,7 +281,7 @@ impl ScopeBench<'_> {
             _ => 0,
         };
         let mut f = figures(dir, self.period_ns)?;
-        let span = a.cycles as f64 * a.period_s;
+        let span = a.cycles as f64 * a.chain.period_s;
         let mb = |b: u64| b as f64 / 1048576.0;
         f["scope"] = json!({
             "views_served": drawn,

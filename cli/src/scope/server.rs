@@ -506,20 +506,26 @@ impl Conn {
         fail(431, format!("a request head of more than {kib} KiB"))
     }
 
+    /// Reads more of the body into the buffer; `ended` is the refusal when the peer closes
+    /// first.
+    fn fill_body(&mut self, ended: &str) -> Result<(), Fail> {
+        match self.fill(IDLE) {
+            Ok(0) => fail(400, ended),
+            Ok(_) => Ok(()),
+            Err(e) if timed_out(&e) => {
+                let s = IDLE.as_secs();
+                fail(408, format!("no byte of the body for {s} s"))
+            }
+            Err(_) => Err(Fail::Close),
+        }
+    }
+
     /// Appends `n` bytes of the body to `out`.
     fn read_into(&mut self, out: &mut Vec<u8>, n: usize) -> Result<(), Fail> {
         let mut left = n;
         while left > 0 {
             if self.buf.is_empty() {
-                match self.fill(IDLE) {
-                    Ok(0) => return fail(400, "the body ended before its announced length"),
-                    Ok(_) => {}
-                    Err(e) if timed_out(&e) => {
-                        let s = IDLE.as_secs();
-                        return fail(408, format!("no byte of the body for {s} s"));
-                    }
-                    Err(_) => return Err(Fail::Close),
-                }
+                self.fill_body("the body ended before its announced length")?;
             }
             let k = left.min(self.buf.len());
             out.extend(self.buf.drain(..k));
@@ -542,15 +548,7 @@ impl Conn {
             if self.buf.len() > limit {
                 break;
             }
-            match self.fill(IDLE) {
-                Ok(0) => return fail(400, "the body ended inside its chunks"),
-                Ok(_) => {}
-                Err(e) if timed_out(&e) => {
-                    let s = IDLE.as_secs();
-                    return fail(408, format!("no byte of the body for {s} s"));
-                }
-                Err(_) => return Err(Fail::Close),
-            }
+            self.fill_body("the body ended inside its chunks")?;
         }
         fail(400, "a line of the chunked body is too long")
     }

@@ -730,6 +730,16 @@ mod tests {
     use super::*;
     use feedloop_trace::log::{AxisRecord, REC_MISSED};
 
+    /// Scheduler records of cycles 0..n (all else default).
+    fn sched(n: u64) -> Vec<SchedRecord> {
+        (0..n)
+            .map(|seq| SchedRecord {
+                seq,
+                ..Default::default()
+            })
+            .collect()
+    }
+
     fn plant(seq: u64, load: f64, flags: u8) -> PlantRecord {
         let mut r = PlantRecord {
             seq,
@@ -860,14 +870,7 @@ mod tests {
             .collect();
         s.push_plant(&recs[..110]);
         assert!(s.capture.is_none(), "waits for the post-trigger part");
-        s.push_sched(
-            &(0..200)
-                .map(|k| SchedRecord {
-                    seq: k,
-                    ..Default::default()
-                })
-                .collect::<Vec<_>>(),
-        );
+        s.push_sched(&sched(200));
         s.push_plant(&recs[110..]);
         let cap = s.capture.as_ref().expect("captured");
         assert_eq!((cap.first_cycle, cap.trigger_cycle), (90, 100));
@@ -893,14 +896,7 @@ mod tests {
                 post_s: 0.0,
                 describe: "level".into(),
             });
-            s.push_sched(
-                &(0..300)
-                    .map(|k| SchedRecord {
-                        seq: k,
-                        ..Default::default()
-                    })
-                    .collect::<Vec<_>>(),
-            );
+            s.push_sched(&sched(300));
             let recs: Vec<PlantRecord> = (0..300)
                 .map(|k| plant(k, if (50..150).contains(&k) { 1.0 } else { 0.0 }, 0))
                 .collect();

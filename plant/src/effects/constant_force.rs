@@ -39,18 +39,7 @@ fn key(kind: AxisKind) -> &'static str {
     }
 }
 
-impl EffectTable for ConstantForceParams {
-    /// Reads `[effects.constant_force]`.
-    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
-        let value = read_one(f, key(ctx.kind), Range::Finite)?;
-        Ok(Self { value })
-    }
-
-    /// The model-file table.
-    fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        one_table(key(ctx.kind), self.value)
-    }
-}
+one_number_table!(ConstantForceParams, value, ctx => key(ctx.kind), Range::Finite);
 
 impl ConstantForceParams {
     /// The load torque in motor units.

@@ -46,15 +46,4 @@ pub struct CurrentLagParams {
     pub tau_s: f64,
 }
 
-impl EffectTable for CurrentLagParams {
-    /// Reads `[effects.current_lag]`.
-    fn read(f: &mut Fields<'_>, _ctx: &Ctx) -> Result<Self, ConfigError> {
-        let tau_s = read_one(f, "tau_s", Range::Within(1e-9, 10.0))?;
-        Ok(Self { tau_s })
-    }
-
-    /// The model-file table.
-    fn to_table(&self, _ctx: &Ctx) -> toml::Table {
-        one_table("tau_s", self.tau_s)
-    }
-}
+one_number_table!(CurrentLagParams, tau_s, _ctx => "tau_s", Range::Within(1e-9, 10.0));

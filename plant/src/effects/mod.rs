@@ -11,6 +11,23 @@
 //! (`[[effects.coulomb_friction]]`), e.g. once on the motor side and once on the load side;
 //! every other effect at most once.
 
+/// The [`EffectTable`] of an effect whose table holds one number, the field `$field`:
+/// `one_number_table!(Params, field, ctx => key, range)`, `key` naming it on the axis `ctx`.
+macro_rules! one_number_table {
+    ($params:ty, $field:ident, $ctx:ident => $key:expr, $range:expr) => {
+        impl EffectTable for $params {
+            fn read(f: &mut Fields<'_>, $ctx: &Ctx) -> Result<Self, ConfigError> {
+                let $field = read_one(f, $key, $range)?;
+                Ok(Self { $field })
+            }
+
+            fn to_table(&self, $ctx: &Ctx) -> toml::Table {
+                one_table($key, self.$field)
+            }
+        }
+    };
+}
+
 pub mod backlash;
 pub mod cogging;
 pub mod constant_force;

@@ -40,15 +40,4 @@ fn key(kind: AxisKind) -> &'static str {
     }
 }
 
-impl EffectTable for TorqueSaturationParams {
-    /// Reads `[effects.torque_saturation]`.
-    fn read(f: &mut Fields<'_>, ctx: &Ctx) -> Result<Self, ConfigError> {
-        let limit = read_one(f, key(ctx.kind), Range::Positive)?;
-        Ok(Self { limit })
-    }
-
-    /// The model-file table.
-    fn to_table(&self, ctx: &Ctx) -> toml::Table {
-        one_table(key(ctx.kind), self.limit)
-    }
-}
+one_number_table!(TorqueSaturationParams, limit, ctx => key(ctx.kind), Range::Positive);

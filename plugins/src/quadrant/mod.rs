@@ -62,7 +62,7 @@ use feedloop_control::controller::{
 use feedloop_model::params::{ConfigError, Fields, Range};
 
 use crate::keys::{key_for, read_kp, read_pi_gains, PiGains};
-use crate::plugin::AxisPlugin;
+use crate::plugin::{axis_plugin, reference_only_plugin, AxisPlugin, PluginParams};
 
 /// Commanded velocities at or below this magnitude count as rest, load units/s (1 nm/s).
 pub const REST_VELOCITY: f64 = 1e-9;
@@ -401,14 +401,9 @@ pub struct QuadrantParams {
     pub load_inertia: f64,
 }
 
-impl QuadrantParams {
+impl PluginParams for QuadrantParams {
     /// Reads the plugin keys and loads the table (`file` is the job file).
-    pub fn from_table(
-        params: &toml::Table,
-        axis: &AxisContext,
-        file: &Path,
-    ) -> Result<Self, ConfigError> {
-        let mut f = Fields::new(params, file, "");
+    fn read(mut f: Fields<'_>, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
         let table_rel = f.str("table")?;
         let gain = f.f64_or("gain", Range::Within(0.0, 10.0), 1.0)?;
         let kp = read_kp(&mut f)?;
@@ -485,7 +480,9 @@ impl QuadrantParams {
             load_inertia: jl,
         })
     }
+}
 
+impl QuadrantParams {
     /// The motor-side inertia JM = J - JL (kg m^2; the mass on a rigid axis).
     pub fn motor_inertia(&self) -> f64 {
         if self.twist_s2 > 0.0 {
@@ -515,14 +512,12 @@ pub struct QuadrantCompensator {
     integral: f64,
 }
 
-impl AxisPlugin for QuadrantCompensator {
-    const ID: &'static str = "quadrant_compensator";
-    const STAGE: Stage = Stage::Compensator;
-
-    fn build(params: &toml::Table, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
-        Ok(Self::new(QuadrantParams::from_table(params, axis, file)?))
-    }
-}
+axis_plugin!(
+    QuadrantCompensator,
+    QuadrantParams,
+    "quadrant_compensator",
+    Stage::Compensator
+);
 
 impl QuadrantCompensator {
     /// Plugin id ([`AxisPlugin::ID`], for callers without the trait in scope).
@@ -571,14 +566,7 @@ impl QuadrantCompensator {
 }
 
 impl Controller for QuadrantCompensator {
-    fn id(&self) -> &str {
-        Self::ID
-    }
-
-    fn reference_only(&self) -> bool {
-        // reads the references only and adds to vel_cmd / torque_ff
-        true
-    }
+    reference_only_plugin!();
 
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
         let mpl = self.params.motor_per_load;

@@ -196,69 +196,12 @@ pub enum TraceError {
     },
 }
 
-impl TraceError {
-    /// The file the error is about.
-    pub fn path(&self) -> &Path {
-        match self {
-            TraceError::Io { path, .. }
-            | TraceError::NotUtf8 { path, .. }
-            | TraceError::MissingHeader { path, .. }
-            | TraceError::MissingTime { path, .. }
-            | TraceError::DuplicateColumn { path, .. }
-            | TraceError::BadColumnName { path, .. }
-            | TraceError::BadMeta { path, .. }
-            | TraceError::MisplacedComment { path, .. }
-            | TraceError::BlankLine { path, .. }
-            | TraceError::NotANumber { path, .. }
-            | TraceError::NotFinite { path, .. }
-            | TraceError::CellCount { path, .. }
-            | TraceError::TimeNotIncreasing { path, .. }
-            | TraceError::UnevenSampling { path, .. }
-            | TraceError::Empty { path }
-            | TraceError::TooFewRows { path, .. }
-            | TraceError::ColumnLength { path, .. }
-            | TraceError::MissingColumn { path, .. } => path,
-        }
-    }
-
-    /// The 1-based line the error is about, when it is about one line.
-    pub fn line(&self) -> Option<usize> {
-        match self {
-            TraceError::NotUtf8 { line, .. }
-            | TraceError::MissingHeader { line, .. }
-            | TraceError::MissingTime { line, .. }
-            | TraceError::DuplicateColumn { line, .. }
-            | TraceError::BadColumnName { line, .. }
-            | TraceError::BadMeta { line, .. }
-            | TraceError::MisplacedComment { line, .. }
-            | TraceError::BlankLine { line, .. }
-            | TraceError::NotANumber { line, .. }
-            | TraceError::NotFinite { line, .. }
-            | TraceError::CellCount { line, .. }
-            | TraceError::TimeNotIncreasing { line, .. }
-            | TraceError::UnevenSampling { line, .. }
-            | TraceError::TooFewRows { line, .. } => Some(*line),
-            TraceError::Io { .. }
-            | TraceError::Empty { .. }
-            | TraceError::ColumnLength { .. }
-            | TraceError::MissingColumn { .. } => None,
-        }
-    }
-
-    /// The same error about another file: `path`, with each line number `l` replaced by
-    /// `line(l)`. For a trace built from another file's rows (e.g. an import), so the error
-    /// names the file and line the user can open.
-    pub fn relocated(mut self, path: &Path, line: impl Fn(usize) -> usize) -> TraceError {
-        let (p, l) = self.place_mut();
-        *p = path.to_path_buf();
-        if let Some(l) = l {
-            *l = line(*l);
-        }
-        self
-    }
-
-    fn place_mut(&mut self) -> (&mut PathBuf, Option<&mut usize>) {
-        match self {
+/// The file and the line (when it is about one) of a `TraceError` behind a shared or a mutable
+/// reference: one list of the variants for [`TraceError::path`], [`TraceError::line`] and
+/// [`TraceError::relocated`].
+macro_rules! place {
+    ($error:expr) => {
+        match $error {
             TraceError::NotUtf8 { path, line }
             | TraceError::MissingHeader { path, line, .. }
             | TraceError::MissingTime { path, line, .. }
@@ -278,5 +221,38 @@ impl TraceError {
             | TraceError::ColumnLength { path, .. }
             | TraceError::MissingColumn { path, .. } => (path, None),
         }
+    };
+}
+
+impl TraceError {
+    /// The file the error is about.
+    pub fn path(&self) -> &Path {
+        self.place().0
+    }
+
+    /// The 1-based line the error is about, when it is about one line.
+    pub fn line(&self) -> Option<usize> {
+        self.place().1.copied()
+    }
+
+    /// The same error about another file: `path`, with each line number `l` replaced by
+    /// `line(l)`. For a trace built from another file's rows (e.g. an import), so the error
+    /// names the file and line the user can open.
+    pub fn relocated(mut self, path: &Path, line: impl Fn(usize) -> usize) -> TraceError {
+        let (p, l) = self.place_mut();
+        *p = path.to_path_buf();
+        if let Some(l) = l {
+            *l = line(*l);
+        }
+        self
+    }
+
+    /// The file and the line (when it is about one) of the error.
+    fn place(&self) -> (&PathBuf, Option<&usize>) {
+        place!(self)
+    }
+
+    fn place_mut(&mut self) -> (&mut PathBuf, Option<&mut usize>) {
+        place!(self)
     }
 }
