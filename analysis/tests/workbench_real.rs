@@ -271,17 +271,16 @@ fn a_friction_beside_an_offset_the_model_already_has_is_judged_against_the_model
         "{}",
         dg.verdict
     );
-    // three reversals in ten seconds: where friction is not named, the verdict says that the
+    // three reversals in ten seconds: friction is not named, and its evidence says that the
     // record's reversals are the reason (before: only a confidence interval or a block count)
-    if !coulomb.significant {
-        assert!(
-            coulomb
+    assert!(
+        !coulomb.significant
+            && coulomb
                 .evidence
                 .contains("too few reversals to judge friction (3 in this record"),
-            "{}",
-            coulomb.evidence
-        );
-    }
+        "{}",
+        coulomb.evidence
+    );
     let r = fit(&with_offset, &d, &[EffectId::CoulombFriction], None, 0.05).unwrap();
     let fc = r.params["fc_nm"];
     assert!((fc / 2.0 - 1.0).abs() < 0.15, "fc {fc} N m");
