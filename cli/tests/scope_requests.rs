@@ -8,7 +8,7 @@
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use feedloop_cli::scope_sandbox::{judge, judge_all, known_defect, Reply, Sandbox};
@@ -262,24 +262,15 @@ proptest! {
 }
 
 /// The files of `fuzz/<kind>/scope_request`.
-fn fuzz_inputs(kind: &str) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../fuzz")
-        .join(kind)
-        .join("scope_request");
-    let mut out: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default();
-    out.sort();
-    out
-}
-
 #[test]
 fn the_fuzz_seeds_and_regressions_are_answered_well() {
     let sb = Sandbox::start().unwrap();
-    let seeds = fuzz_inputs("seeds");
+    let seeds = feedloop_test_support::fuzz_inputs("seeds", "scope_request");
     assert!(seeds.len() >= 10, "seeds: {seeds:?}");
-    for f in seeds.iter().chain(&fuzz_inputs("regressions")) {
+    for f in seeds.iter().chain(&feedloop_test_support::fuzz_inputs(
+        "regressions",
+        "scope_request",
+    )) {
         let raw = std::fs::read(f).unwrap();
         let reply = ask(&sb, &raw);
         assert!(reply.is_some(), "{}: no answer", f.display());
@@ -325,7 +316,7 @@ fn the_page_session_views_and_triggers_work_in_the_sandbox() {
 
 /// The regression inputs whose name starts with `prefix`.
 fn regressions(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
-    let found: Vec<_> = fuzz_inputs("regressions")
+    let found: Vec<_> = feedloop_test_support::fuzz_inputs("regressions", "scope_request")
         .into_iter()
         .filter(|f| f.file_name().unwrap().to_string_lossy().starts_with(prefix))
         .map(|f| {
@@ -339,9 +330,12 @@ fn regressions(prefix: &str) -> Vec<(PathBuf, Vec<u8>)> {
 
 #[test]
 fn the_fuzz_target_passes_over_no_seed_or_regression() {
-    for f in fuzz_inputs("seeds")
+    for f in feedloop_test_support::fuzz_inputs("seeds", "scope_request")
         .iter()
-        .chain(&fuzz_inputs("regressions"))
+        .chain(&feedloop_test_support::fuzz_inputs(
+            "regressions",
+            "scope_request",
+        ))
     {
         assert_eq!(
             known_defect(&std::fs::read(f).unwrap()),

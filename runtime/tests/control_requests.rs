@@ -4,7 +4,7 @@
 //! the inputs it ever crashed on (`fuzz/seeds/control_request`, `fuzz/regressions/control_request`)
 //! are checked so too.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use feedloop_control::controller::PluginRegistry;
@@ -222,22 +222,15 @@ fn retunes_swaps_and_refusals_are_told_apart() {
     assert!(refusal.contains("larger than 64 MiB"), "{refusal}");
 }
 
-/// The files of `fuzz/<kind>/control_request`.
-fn fuzz_inputs(kind: &str) -> Vec<PathBuf> {
-    let dir = root().join("fuzz").join(kind).join("control_request");
-    let mut out: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default();
-    out.sort();
-    out
-}
-
 #[test]
 fn the_fuzz_seeds_and_regressions_are_checked_without_a_panic() {
     let dry = dry_run();
-    let seeds = fuzz_inputs("seeds");
+    let seeds = feedloop_test_support::fuzz_inputs("seeds", "control_request");
     assert!(seeds.len() >= 5, "seeds: {seeds:?}");
-    for f in seeds.iter().chain(&fuzz_inputs("regressions")) {
+    for f in seeds.iter().chain(&feedloop_test_support::fuzz_inputs(
+        "regressions",
+        "control_request",
+    )) {
         let msg = request_from_bytes(&std::fs::read(f).unwrap());
         if let Err(a) = dry.answer(&msg) {
             assert!(a.is_refused(), "{}: {a:?}", f.display());

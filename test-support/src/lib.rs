@@ -53,3 +53,18 @@ pub fn found_or_skip<T>(found: Option<T>, missing: impl Display) -> Option<T> {
     }
     found
 }
+
+/// The files of `fuzz/<kind>/<target>` in the repository (`kind`: `seeds` or `regressions`),
+/// sorted. Panics when the folder cannot be read: a test fed from it must not pass on nothing.
+pub fn fuzz_inputs(kind: &str, target: &str) -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz")
+        .join(kind)
+        .join(target);
+    let mut out: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    out.sort();
+    out
+}
