@@ -126,10 +126,8 @@ pub enum SafeStop {
     BrakeRamp,
 }
 
-crate::key_choice!(SafeStop, "safe stop", default BrakeRamp, [
-    "torque_off" => TorqueOff,
-    "brake_ramp" => BrakeRamp,
-]);
+crate::key_choice!(SafeStop, "safe stop", default BrakeRamp,
+    ["torque_off" => TorqueOff, "brake_ramp" => BrakeRamp]);
 
 impl SafeStop {
     /// Name in files and summaries.
