@@ -153,44 +153,45 @@ pub trait WireMessage: Copy {
     fn write_used(&self, dst: &mut Self);
 }
 
-impl WireMessage for SensorSample {
-    fn zeroed() -> Self {
-        SensorSample::empty(0, 0)
-    }
+/// Implements [`WireMessage`] for `$t`, whose header is the fields listed and whose axes follow
+/// in `axes`, the first `axis_count` of them used.
+macro_rules! wire_message {
+    ($t:ident { $($field:ident),+ $(,)? }) => {
+        impl WireMessage for $t {
+            fn zeroed() -> Self {
+                $t::empty(0, 0)
+            }
 
-    #[inline]
-    fn write_used(&self, dst: &mut Self) {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        dst.seq = self.seq;
-        dst.plant_time_s = self.plant_time_s;
-        dst.protocol = self.protocol;
-        dst.flags = self.flags;
-        dst.instance_tag = self.instance_tag;
-        dst.axis_count = self.axis_count;
-        dst.deadline_misses = self.deadline_misses;
-        dst.plant_overruns = self.plant_overruns;
-        dst.reserved = self.reserved;
-        dst.axes[..n].copy_from_slice(&self.axes[..n]);
-    }
+            #[inline]
+            fn write_used(&self, dst: &mut Self) {
+                let n = (self.axis_count as usize).min(MAX_AXES);
+                $(dst.$field = self.$field;)+
+                dst.axes[..n].copy_from_slice(&self.axes[..n]);
+            }
+        }
+    };
 }
 
-impl WireMessage for ActuatorCommand {
-    fn zeroed() -> Self {
-        ActuatorCommand::empty(0, 0)
-    }
+wire_message!(SensorSample {
+    seq,
+    plant_time_s,
+    protocol,
+    flags,
+    instance_tag,
+    axis_count,
+    deadline_misses,
+    plant_overruns,
+    reserved,
+});
 
-    #[inline]
-    fn write_used(&self, dst: &mut Self) {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        dst.seq = self.seq;
-        dst.protocol = self.protocol;
-        dst.flags = self.flags;
-        dst.instance_tag = self.instance_tag;
-        dst.axis_count = self.axis_count;
-        dst.reserved = self.reserved;
-        dst.axes[..n].copy_from_slice(&self.axes[..n]);
-    }
-}
+wire_message!(ActuatorCommand {
+    seq,
+    protocol,
+    flags,
+    instance_tag,
+    axis_count,
+    reserved
+});
 
 /// A stable 64-bit tag of an instance name (FNV-1a), used to refuse cross-instance messages.
 pub fn instance_tag(instance: &str) -> u64 {
