@@ -203,7 +203,6 @@ pub enum Structure {
     /// Motor velocity reference on the velocity command, model torque on `torque_ff`.
     Split,
 }
-key_choice!(Structure, "structure", default Split, ["split" => Split, "literal" => Literal]);
 
 /// How the literal structure's lags 1/(1 + tau s) are discretised (`lag_discretisation`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -213,8 +212,6 @@ pub enum LagDiscretisation {
     /// Backward Euler, s = (z - 1) / (T z): the brief's literal implementation.
     BackwardEuler,
 }
-key_choice!(LagDiscretisation, "lag discretisation", default Tustin,
-    ["tustin" => Tustin, "backward_euler" => BackwardEuler]);
 
 /// How the plant's motor velocity is measured (what the velocity reference must match).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -224,6 +221,10 @@ pub enum MotorVelMeasure {
     /// Position difference over the last period / period.
     Difference,
 }
+
+key_choice!(Structure, "structure", default Split, ["split" => Split, "literal" => Literal]);
+key_choice!(LagDiscretisation, "lag discretisation", default Tustin,
+    ["tustin" => Tustin, "backward_euler" => BackwardEuler]);
 key_choice!(MotorVelMeasure, "velocity estimate", default Sampled,
     ["exact" => Sampled, "difference" => Difference]);
 

@@ -197,7 +197,6 @@ pub enum AxisLoops {
     /// two loops then pull against each other whenever the axes lag differently).
     Full,
 }
-key_choice!(AxisLoops, "axis_loops", default Tangential, ["tangential" => Tangential, "full" => Full]);
 
 /// Where the coupler linearises the profile error (key `contact`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -209,8 +208,9 @@ pub enum Contact {
     /// seed's formula; first order in both errors, off by hundreds of um when C lags by 0.25 rad).
     Commanded,
 }
-key_choice!(Contact, "contact", default Measured,
-    ["measured" => Measured, "commanded" => Commanded]);
+
+key_choice!(AxisLoops, "axis_loops", default Tangential, ["tangential" => Tangential, "full" => Full]);
+key_choice!(Contact, "contact", default Measured, ["measured" => Measured, "commanded" => Commanded]);
 
 impl NlPidCouplerParams {
     /// Reads the coupler keys (`file` for messages).
