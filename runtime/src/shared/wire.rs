@@ -214,13 +214,25 @@ mod tests {
         assert_eq!(core::mem::size_of::<ActuatorCommand>(), 32 + 16 * MAX_AXES);
     }
 
+    /// A sample of `axis_count` axes of instance tag 77 with the header figures given.
+    fn sample(
+        axis_count: u32,
+        seq: u64,
+        plant_time_s: f64,
+        flags: u32,
+        deadline_misses: u32,
+    ) -> SensorSample {
+        let mut s = SensorSample::empty(axis_count, 77);
+        s.seq = seq;
+        s.plant_time_s = plant_time_s;
+        s.flags = flags;
+        s.deadline_misses = deadline_misses;
+        s
+    }
+
     #[test]
     fn copy_used_keeps_the_header_and_the_used_axes_and_zeroes_the_rest() {
-        let mut s = SensorSample::empty(3, 77);
-        s.seq = 9;
-        s.plant_time_s = 0.5;
-        s.flags = FLAG_END;
-        s.deadline_misses = 4;
+        let mut s = sample(3, 9, 0.5, FLAG_END, 4);
         s.plant_overruns = 6;
         for (i, a) in s.axes.iter_mut().enumerate() {
             a.motor_pos = i as f64 + 1.0;
@@ -261,11 +273,7 @@ mod tests {
 
     #[test]
     fn write_used_overwrites_the_header_and_the_used_axes_and_leaves_the_rest() {
-        let mut s = SensorSample::empty(2, 77);
-        s.seq = 12;
-        s.plant_time_s = 1.25;
-        s.flags = FLAG_HELLO;
-        s.deadline_misses = 3;
+        let mut s = sample(2, 12, 1.25, FLAG_HELLO, 3);
         s.axes[0].motor_pos = 1.0;
         s.axes[1].load_pos = -2.0;
         s.axes[2].motor_vel = 9.0; // beyond axis_count: not sent
