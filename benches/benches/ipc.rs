@@ -91,6 +91,21 @@ fn iox_peer(instance: &str, wait: WaitKind) {
     }
 }
 
+/// Benchmarks `round_trip`, given the sequence number of each trip (1, 2, ...), as `name`.
+fn bench_round_trips(c: &mut Criterion, name: &str, mut round_trip: impl FnMut(u64)) {
+    let mut k = 0u64;
+    c.bench_function(name, |b| {
+        b.iter_custom(|iters| {
+            let t = Instant::now();
+            for _ in 0..iters {
+                k += 1;
+                round_trip(k);
+            }
+            t.elapsed()
+        })
+    });
+}
+
 fn bench_iox(c: &mut Criterion, name: &str, wait: WaitKind) {
     let instance = format!("bench-{}-{}", wait.id(), std::process::id());
     let ep = plant_endpoint(&instance, wait, Duration::ZERO).expect("endpoint");
@@ -117,23 +132,15 @@ fn bench_iox(c: &mut Criterion, name: &str, wait: WaitKind) {
     }
     std::thread::sleep(Duration::from_millis(20));
     ep.drain().expect("drain");
-    let mut k = 0u64;
-    c.bench_function(name, |b| {
-        b.iter_custom(|iters| {
-            let t = Instant::now();
-            for _ in 0..iters {
-                k += 1;
-                ep.send(sample(k)).expect("send");
-                loop {
-                    match ep.receive_until(now_ns() + 1_000_000_000).expect("receive") {
-                        WaitOutcome::Got(r) if r.seq == k => break,
-                        WaitOutcome::Got(_) => continue,
-                        WaitOutcome::TimedOut => panic!("echo peer went silent"),
-                    }
-                }
+    bench_round_trips(c, name, |k| {
+        ep.send(sample(k)).expect("send");
+        loop {
+            match ep.receive_until(now_ns() + 1_000_000_000).expect("receive") {
+                WaitOutcome::Got(r) if r.seq == k => break,
+                WaitOutcome::Got(_) => continue,
+                WaitOutcome::TimedOut => panic!("echo peer went silent"),
             }
-            t.elapsed()
-        })
+        }
     });
     let mut end = sample(u64::MAX);
     end.flags = FLAG_END;
@@ -183,18 +190,10 @@ fn bench_uds(c: &mut Criterion) {
     let mut child = spawn_peer(&format!("uds:{}", path.display()));
     let (mut s, _) = listener.accept().expect("accept");
     let (mut rb, mut wb) = (Vec::new(), Vec::new());
-    let mut k = 0u64;
-    c.bench_function("unix socket + bincode", |b| {
-        b.iter_custom(|iters| {
-            let t = Instant::now();
-            for _ in 0..iters {
-                k += 1;
-                write_frame(&mut s, &mut wb, &sample(k));
-                let r: ActuatorCommand = read_frame(&mut s, &mut rb).expect("reply");
-                assert_eq!(r.seq, k);
-            }
-            t.elapsed()
-        })
+    bench_round_trips(c, "unix socket + bincode", |k| {
+        write_frame(&mut s, &mut wb, &sample(k));
+        let r: ActuatorCommand = read_frame(&mut s, &mut rb).expect("reply");
+        assert_eq!(r.seq, k);
     });
     let mut end = sample(0);
     end.flags = FLAG_END;
@@ -281,22 +280,14 @@ fn bench_shm(c: &mut Criterion) {
     shm.seq(PING).store(0, Ordering::Release);
     shm.seq(PONG).store(0, Ordering::Release);
     let mut child = spawn_peer(&format!("shm:{path}"));
-    let mut k = 0u64;
-    c.bench_function("raw shared memory + atomics (floor)", |b| {
-        b.iter_custom(|iters| {
-            let t = Instant::now();
-            for _ in 0..iters {
-                k += 1;
-                shm.write(SAMPLE_AT, &sample(k));
-                shm.seq(PING).store(k, Ordering::Release);
-                while shm.seq(PONG).load(Ordering::Acquire) != k {
-                    std::hint::spin_loop();
-                }
-                let r: ActuatorCommand = shm.read(CMD_AT);
-                assert_eq!(r.seq, k);
-            }
-            t.elapsed()
-        })
+    bench_round_trips(c, "raw shared memory + atomics (floor)", |k| {
+        shm.write(SAMPLE_AT, &sample(k));
+        shm.seq(PING).store(k, Ordering::Release);
+        while shm.seq(PONG).load(Ordering::Acquire) != k {
+            std::hint::spin_loop();
+        }
+        let r: ActuatorCommand = shm.read(CMD_AT);
+        assert_eq!(r.seq, k);
     });
     shm.seq(PING).store(u64::MAX, Ordering::Release);
     let _ = child.wait();

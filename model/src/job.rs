@@ -126,6 +126,9 @@ pub enum SafeStop {
     BrakeRamp,
 }
 
+crate::key_choice!(SafeStop, "safe stop", default BrakeRamp,
+    ["torque_off" => TorqueOff, "brake_ramp" => BrakeRamp]);
+
 impl SafeStop {
     /// Name in files and summaries.
     pub fn id(self) -> &'static str {
@@ -478,15 +481,7 @@ fn safety_options(
 ) -> Result<SafetyOptions, ConfigError> {
     let empty = toml::Table::new();
     let mut f = Fields::new(t.unwrap_or(&empty), path, "safety");
-    let safe_stop = f.choice(
-        "safe_stop",
-        "safe stop",
-        &[
-            ("torque_off", SafeStop::TorqueOff),
-            ("brake_ramp", SafeStop::BrakeRamp),
-        ],
-        SafeStop::BrakeRamp,
-    )?;
+    let safe_stop: SafeStop = f.choose("safe_stop")?;
     let brake_time_s = f.f64_or("brake_time_s", Range::Within(0.0, 60.0), 0.2)?;
     let max_following_error = f.opt_f64("max_following_error_m", Range::Positive)?;
     let max_saturation_s = f.opt_f64("max_saturation_s", Range::Positive)?;

@@ -181,6 +181,30 @@ impl Range {
 #[error("{0}")]
 pub struct RangeError(pub String);
 
+/// A closed set of spellings for one key: the value each names, and the value when the key is
+/// absent. Read with [`Fields::choose`]; implemented with [`key_choice!`](crate::key_choice).
+pub trait KeyChoice: Copy + 'static {
+    /// What the key names, in messages (`unknown WHAT ...`).
+    const WHAT: &'static str;
+    /// Each spelling with its value.
+    const SPELLINGS: &'static [(&'static str, Self)];
+    /// The value when the key is absent.
+    const DEFAULT: Self;
+}
+
+/// Implements [`KeyChoice`](crate::params::KeyChoice) for an enum:
+/// `key_choice!(Type, "what", default Variant, ["spelling" => Variant, ...]);`.
+#[macro_export]
+macro_rules! key_choice {
+    ($t:ty, $what:literal, default $d:ident, [$($name:literal => $v:ident),+ $(,)?]) => {
+        impl $crate::params::KeyChoice for $t {
+            const WHAT: &'static str = $what;
+            const SPELLINGS: &'static [(&'static str, Self)] = &[$(($name, Self::$v)),+];
+            const DEFAULT: Self = Self::$d;
+        }
+    };
+}
+
 /// A view of one TOML table that remembers which keys were read, so unknown keys can be refused.
 pub struct Fields<'a> {
     table: &'a toml::Table,
@@ -373,6 +397,12 @@ impl<'a> Fields<'a> {
                 ))
             }
         }
+    }
+
+    /// A [`KeyChoice`] under `key`: its default when absent, else the value its spelling names
+    /// (see [`Fields::choice`]).
+    pub fn choose<T: KeyChoice>(&mut self, key: &str) -> Result<T, ConfigError> {
+        self.choice(key, T::WHAT, T::SPELLINGS, T::DEFAULT)
     }
 
     /// A required string.

@@ -53,6 +53,7 @@ use std::path::Path;
 use feedloop_control::controller::{
     AxisContext, AxisSignals, Controller, ControllerState, CycleContext, Stage,
 };
+use feedloop_model::key_choice;
 use feedloop_model::model::PlantParams;
 use feedloop_model::params::{ConfigError, Fields, Range};
 
@@ -221,6 +222,12 @@ pub enum MotorVelMeasure {
     Difference,
 }
 
+key_choice!(Structure, "structure", default Split, ["split" => Split, "literal" => Literal]);
+key_choice!(LagDiscretisation, "lag discretisation", default Tustin,
+    ["tustin" => Tustin, "backward_euler" => BackwardEuler]);
+key_choice!(MotorVelMeasure, "velocity estimate", default Sampled,
+    ["exact" => Sampled, "difference" => Difference]);
+
 /// Parameters of [`InverseFeedforward`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InverseFeedforwardParams {
@@ -245,12 +252,7 @@ pub struct InverseFeedforwardParams {
 impl PluginParams for InverseFeedforwardParams {
     /// Reads the plugin keys, defaulting to the axis model and its `[controller]`.
     fn read(mut f: Fields<'_>, axis: &AxisContext, file: &Path) -> Result<Self, ConfigError> {
-        let structure = f.choice(
-            "structure",
-            "structure",
-            &[("split", Structure::Split), ("literal", Structure::Literal)],
-            Structure::Split,
-        )?;
+        let structure: Structure = f.choose("structure")?;
         let mut model = TwoMassModel::of_plant(&axis.plant);
         let pos = Range::Within(1e-12, 1e9);
         let nonneg = Range::Within(0.0, 1e9);
@@ -270,24 +272,8 @@ impl PluginParams for InverseFeedforwardParams {
             "torque_advance_s",
             Range::Within(-axis.period_s * 10.0, axis.period_s * 10.0),
         )?;
-        let motor_vel = f.choice(
-            "velocity_estimate",
-            "velocity estimate",
-            &[
-                ("exact", MotorVelMeasure::Sampled),
-                ("difference", MotorVelMeasure::Difference),
-            ],
-            MotorVelMeasure::Sampled,
-        )?;
-        let lag = f.choice(
-            "lag_discretisation",
-            "lag discretisation",
-            &[
-                ("tustin", LagDiscretisation::Tustin),
-                ("backward_euler", LagDiscretisation::BackwardEuler),
-            ],
-            LagDiscretisation::Tustin,
-        )?;
+        let motor_vel: MotorVelMeasure = f.choose("velocity_estimate")?;
+        let lag: LagDiscretisation = f.choose("lag_discretisation")?;
         f.finish()?;
         let kv = kv.or(axis.defaults.kv);
         let kv = match (structure, kv) {

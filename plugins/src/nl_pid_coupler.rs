@@ -67,6 +67,7 @@
 use std::path::Path;
 
 use feedloop_control::controller::{AxisContext, AxisSignals, Coupler, CycleContext};
+use feedloop_model::key_choice;
 use feedloop_model::model::AxisKind;
 use feedloop_model::params::{ConfigError, Fields, Range};
 use feedloop_motion::cam::XcGeometry;
@@ -208,6 +209,9 @@ pub enum Contact {
     Commanded,
 }
 
+key_choice!(AxisLoops, "axis_loops", default Tangential, ["tangential" => Tangential, "full" => Full]);
+key_choice!(Contact, "contact", default Measured, ["measured" => Measured, "commanded" => Commanded]);
+
 impl NlPidCouplerParams {
     /// Reads the coupler keys (`file` for messages).
     pub fn from_table(params: &toml::Table, file: &Path) -> Result<Self, ConfigError> {
@@ -227,25 +231,9 @@ impl NlPidCouplerParams {
             kd_width_m: f.f64_or("kd_width_m", width, d.kd_width_m)?,
         };
         let max = f.f64_or("max_correction_m_per_s", Range::Within(0.0, 10.0), 0.1)?;
-        let contact = f.choice(
-            "contact",
-            "contact",
-            &[
-                ("measured", Contact::Measured),
-                ("commanded", Contact::Commanded),
-            ],
-            Contact::Measured,
-        )?;
+        let contact: Contact = f.choose("contact")?;
         let share = f.f64_or("x_bandwidth_share", Range::Within(0.0, 1.0), 0.25)?;
-        let axis_loops = f.choice(
-            "axis_loops",
-            "axis_loops",
-            &[
-                ("tangential", AxisLoops::Tangential),
-                ("full", AxisLoops::Full),
-            ],
-            AxisLoops::Tangential,
-        )?;
+        let axis_loops: AxisLoops = f.choose("axis_loops")?;
         if axis_loops == AxisLoops::Tangential {
             // the coupler is then the only position feedback normal to the profile
             for (key, kp) in [

@@ -387,6 +387,14 @@ mod tests {
         ctx_of(1e-3)
     }
 
+    /// Signals with velocity command `vel_cmd` and nothing else.
+    fn commanded(vel_cmd: f64) -> AxisSignals {
+        AxisSignals {
+            vel_cmd,
+            ..Default::default()
+        }
+    }
+
     /// Cycle 0 at period `period_s`.
     fn ctx_of(period_s: f64) -> CycleContext {
         CycleContext {
@@ -408,10 +416,7 @@ mod tests {
     #[test]
     fn integral_term_ramps_by_kv_t_over_tv_per_cycle() {
         let mut c = pi(2.0, 0.01, 100.0);
-        let mut io = AxisSignals {
-            vel_cmd: 1.0,
-            ..Default::default()
-        };
+        let mut io = commanded(1.0);
         c.step(&ctx(), &mut io);
         // Kv (e + T e / Tv) = 2 (1 + 0.1) = 2.2
         assert!((io.torque - 2.2).abs() < 1e-12, "{}", io.torque);
@@ -422,10 +427,7 @@ mod tests {
     #[test]
     fn output_is_clamped_and_integrator_does_not_wind_up() {
         let mut c = pi(2.0, 0.01, 1.0);
-        let mut io = AxisSignals {
-            vel_cmd: 10.0,
-            ..Default::default()
-        };
+        let mut io = commanded(10.0);
         for _ in 0..1000 {
             c.step(&ctx(), &mut io);
             assert!(io.torque <= 1.0);
@@ -439,10 +441,7 @@ mod tests {
     #[test]
     fn nan_input_never_produces_nan_torque() {
         let mut c = pi(2.0, 0.01, 1.0);
-        let mut io = AxisSignals {
-            vel_cmd: f64::NAN,
-            ..Default::default()
-        };
+        let mut io = commanded(f64::NAN);
         c.step(&ctx(), &mut io);
         assert!(io.torque.is_finite());
         io.vel_cmd = 0.5;
@@ -566,10 +565,7 @@ mod tests {
         let mut b = filtered();
         b.restore(&snap);
         for k in 50..80 {
-            let mut ia = AxisSignals {
-                vel_cmd: (k as f64 * 0.3).sin(),
-                ..Default::default()
-            };
+            let mut ia = commanded((k as f64 * 0.3).sin());
             let mut ib = ia;
             a.step(&c1, &mut ia);
             b.step(&c1, &mut ib);

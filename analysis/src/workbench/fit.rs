@@ -238,6 +238,9 @@ struct Adder<'a> {
     held_effects: Vec<EffectId>,
 }
 
+/// One effect fitted by an [`Adder`], or why it is refused.
+type Fitted = Result<Effect, WorkbenchError>;
+
 impl<'a> Adder<'a> {
     fn new(
         model: &'a WbModel,
@@ -266,11 +269,7 @@ impl<'a> Adder<'a> {
 
     /// Effect `id` at its best variant, on the channel where it shows (what was doubtful or
     /// held said in `warnings`), or why it is refused.
-    fn effect(
-        &mut self,
-        id: EffectId,
-        warnings: &mut Vec<String>,
-    ) -> Result<Effect, WorkbenchError> {
+    fn effect(&mut self, id: EffectId, warnings: &mut Vec<String>) -> Fitted {
         let (model, d) = (self.model, self.d);
         if !id.repeatable() && model.effects.iter().any(|e| e.id == id) {
             return Err(WorkbenchError::EffectRefused {
@@ -303,11 +302,7 @@ impl<'a> Adder<'a> {
     }
 
     /// [`Adder::effect`] on the torque channel (or its path).
-    fn torque_effect(
-        &mut self,
-        id: EffectId,
-        warnings: &mut Vec<String>,
-    ) -> Result<Effect, WorkbenchError> {
+    fn torque_effect(&mut self, id: EffectId, warnings: &mut Vec<String>) -> Fitted {
         let (model, d) = (self.model, self.d);
         let y = d.torque.as_ref().ok_or_else(|| {
             missing_column(d, "torque", format!("fitting `{id}` by inverse dynamics"))

@@ -470,25 +470,17 @@ impl Store {
                 self.event("deadline_miss", r.seq, String::new());
             }
             // every overrun and stall cycle counts; a run of them is marked once on the plot
-            if r.flags & REC_OVERRUN != 0 {
-                self.mark("plant_overrun", r.seq);
-            }
-            if rising & REC_OVERRUN != 0 {
-                self.event(
-                    "plant_overrun",
-                    r.seq,
-                    format!("woke {} us late", r.wake_late_ns / 1000),
-                );
-            }
-            if r.flags & REC_STALL != 0 {
-                self.mark("stall", r.seq);
-            }
-            if rising & REC_STALL != 0 {
-                self.event(
-                    "stall",
-                    r.seq,
-                    format!("woke {} us late", r.wake_late_ns / 1000),
-                );
+            for (kind, flag) in [("plant_overrun", REC_OVERRUN), ("stall", REC_STALL)] {
+                if r.flags & flag != 0 {
+                    self.mark(kind, r.seq);
+                }
+                if rising & flag != 0 {
+                    self.event(
+                        kind,
+                        r.seq,
+                        format!("woke {} us late", r.wake_late_ns / 1000),
+                    );
+                }
             }
             if rising & REC_STOPPING != 0 {
                 self.event(

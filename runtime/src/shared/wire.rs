@@ -153,44 +153,45 @@ pub trait WireMessage: Copy {
     fn write_used(&self, dst: &mut Self);
 }
 
-impl WireMessage for SensorSample {
-    fn zeroed() -> Self {
-        SensorSample::empty(0, 0)
-    }
+/// Implements [`WireMessage`] for `$t`, whose header is the fields listed and whose axes follow
+/// in `axes`, the first `axis_count` of them used.
+macro_rules! wire_message {
+    ($t:ident { $($field:ident),+ $(,)? }) => {
+        impl WireMessage for $t {
+            fn zeroed() -> Self {
+                $t::empty(0, 0)
+            }
 
-    #[inline]
-    fn write_used(&self, dst: &mut Self) {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        dst.seq = self.seq;
-        dst.plant_time_s = self.plant_time_s;
-        dst.protocol = self.protocol;
-        dst.flags = self.flags;
-        dst.instance_tag = self.instance_tag;
-        dst.axis_count = self.axis_count;
-        dst.deadline_misses = self.deadline_misses;
-        dst.plant_overruns = self.plant_overruns;
-        dst.reserved = self.reserved;
-        dst.axes[..n].copy_from_slice(&self.axes[..n]);
-    }
+            #[inline]
+            fn write_used(&self, dst: &mut Self) {
+                let n = (self.axis_count as usize).min(MAX_AXES);
+                $(dst.$field = self.$field;)+
+                dst.axes[..n].copy_from_slice(&self.axes[..n]);
+            }
+        }
+    };
 }
 
-impl WireMessage for ActuatorCommand {
-    fn zeroed() -> Self {
-        ActuatorCommand::empty(0, 0)
-    }
+wire_message!(SensorSample {
+    seq,
+    plant_time_s,
+    protocol,
+    flags,
+    instance_tag,
+    axis_count,
+    deadline_misses,
+    plant_overruns,
+    reserved,
+});
 
-    #[inline]
-    fn write_used(&self, dst: &mut Self) {
-        let n = (self.axis_count as usize).min(MAX_AXES);
-        dst.seq = self.seq;
-        dst.protocol = self.protocol;
-        dst.flags = self.flags;
-        dst.instance_tag = self.instance_tag;
-        dst.axis_count = self.axis_count;
-        dst.reserved = self.reserved;
-        dst.axes[..n].copy_from_slice(&self.axes[..n]);
-    }
-}
+wire_message!(ActuatorCommand {
+    seq,
+    protocol,
+    flags,
+    instance_tag,
+    axis_count,
+    reserved
+});
 
 /// A stable 64-bit tag of an instance name (FNV-1a), used to refuse cross-instance messages.
 pub fn instance_tag(instance: &str) -> u64 {
@@ -213,13 +214,25 @@ mod tests {
         assert_eq!(core::mem::size_of::<ActuatorCommand>(), 32 + 16 * MAX_AXES);
     }
 
+    /// A sample of `axis_count` axes of instance tag 77 with the header figures given.
+    fn sample(
+        axis_count: u32,
+        seq: u64,
+        plant_time_s: f64,
+        flags: u32,
+        deadline_misses: u32,
+    ) -> SensorSample {
+        let mut s = SensorSample::empty(axis_count, 77);
+        s.seq = seq;
+        s.plant_time_s = plant_time_s;
+        s.flags = flags;
+        s.deadline_misses = deadline_misses;
+        s
+    }
+
     #[test]
     fn copy_used_keeps_the_header_and_the_used_axes_and_zeroes_the_rest() {
-        let mut s = SensorSample::empty(3, 77);
-        s.seq = 9;
-        s.plant_time_s = 0.5;
-        s.flags = FLAG_END;
-        s.deadline_misses = 4;
+        let mut s = sample(3, 9, 0.5, FLAG_END, 4);
         s.plant_overruns = 6;
         for (i, a) in s.axes.iter_mut().enumerate() {
             a.motor_pos = i as f64 + 1.0;
@@ -260,11 +273,7 @@ mod tests {
 
     #[test]
     fn write_used_overwrites_the_header_and_the_used_axes_and_leaves_the_rest() {
-        let mut s = SensorSample::empty(2, 77);
-        s.seq = 12;
-        s.plant_time_s = 1.25;
-        s.flags = FLAG_HELLO;
-        s.deadline_misses = 3;
+        let mut s = sample(2, 12, 1.25, FLAG_HELLO, 3);
         s.axes[0].motor_pos = 1.0;
         s.axes[1].load_pos = -2.0;
         s.axes[2].motor_vel = 9.0; // beyond axis_count: not sent
