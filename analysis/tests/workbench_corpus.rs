@@ -748,3 +748,31 @@ fn a_lead_error_is_not_named_beside_the_lost_motion_it_only_re_explains() {
         .unwrap();
     assert!(!pitch.significant, "{}", pitch.evidence);
 }
+
+#[test]
+fn a_record_that_moves_one_way_only_names_a_constant_force_not_a_friction() {
+    // the shipped rotary C axis turns one and a half turns one way between two holds, at speeds
+    // that vary: while it moves one way a friction level and a constant torque are one column on
+    // every moving row (the holds are not scored), so whichever sign the hidden torque has, the
+    // constant torque is the name and no friction is claimed
+    let base = include_str!("../../examples/models/xc-c.toml");
+    let mut cmd = vec![0.0; (0.2 / DT) as usize];
+    let n = (2.0 / DT) as usize;
+    for k in 1..=n {
+        let u = k as f64 / n as f64;
+        // speed between 0.2 and 1.8 times its mean, never negative
+        cmd.push(3.0 * PI * (u - 0.8 * (2.0 * PI * u).sin() / (2.0 * PI)));
+    }
+    cmd.extend(vec![3.0 * PI; (0.3 / DT) as usize]);
+    for torque in [-20.0, 20.0] {
+        let hidden = format!("\n[effects.constant_force]\ntorque_nm = {torque}\n");
+        let sensor = "\n[sensor]\nmotor_counts_per_rev = 1048576\nload_counts_per_rev = 4194304\nmotor_pos_noise_rad = 2.0e-6\nseed = 7\n";
+        let tr = simulate_cmd(&format!("{base}{hidden}{sensor}"), cmd.clone());
+        let (_, _, dg) = diagnose_trace(&tr, base);
+        let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+        assert_eq!(top.effect, "constant_force", "{torque} N m: {}", dg.verdict);
+        for c in dg.candidates.iter().filter(|c| c.class == "friction") {
+            assert!(!c.significant, "{torque} N m: {}: {}", c.effect, c.evidence);
+        }
+    }
+}
