@@ -112,6 +112,49 @@ fn kuka_joint_1_names_friction_first_and_its_fit_matches_the_published_level() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// Joints 2 and 3 carry a friction and a gravity torque that changes with the pose, each
+/// hiding part of the other: `fit --add coulomb_friction,unbalance` searches the unbalance
+/// beside the friction, so its period is found inside its search (not at an edge, doubtful)
+/// and the friction level stays near the published one.
+#[test]
+fn kuka_friction_and_unbalance_are_fitted_together_on_joints_2_and_3() {
+    for (j, published) in [(2, 2.0), (3, 1.5)] {
+        let dir = scratch(&format!("pair{j}"));
+        let Some((m, d)) = kuka(j, &dir) else { return };
+        let both = [EffectId::CoulombFriction, EffectId::Unbalance];
+        let r = fit(&m, &d, &both, None, 0.05).unwrap();
+        assert!(
+            !r.warnings.iter().any(|w| w.contains("edge of the range")),
+            "joint {j}: {:?} {:?}",
+            r.warnings,
+            r.params
+        );
+        let alone = fit(
+            &m,
+            &d,
+            &[EffectId::ConstantForce, EffectId::CoulombFriction],
+            None,
+            0.05,
+        )
+        .unwrap();
+        let (a2, a1) = (
+            r.after.equation_nrmse_pct.unwrap(),
+            alone.after.equation_nrmse_pct.unwrap(),
+        );
+        assert!(
+            a2 < a1,
+            "joint {j}: {a2} % with the unbalance, {a1} % with a constant"
+        );
+        // Weigand et al.: Coulomb about 2.0 (joint 2) and 1.5 N m (joint 3) at the motor
+        let fc = r.params["fc_nm"];
+        assert!(
+            (fc / published - 1.0).abs() < 0.35,
+            "joint {j}: fc {fc} N m"
+        );
+        std::fs::remove_dir_all(dir).ok();
+    }
+}
+
 #[test]
 fn a_fit_that_would_write_a_negative_friction_level_is_refused() {
     // a rigid mass with viscous friction only, driven open loop; the model overstates its

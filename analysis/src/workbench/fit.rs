@@ -199,15 +199,32 @@ pub fn fit(
     let (work, replaced) = prepared(model, d, add, &free_keys, &mut warnings);
     let moved = work.base != model.base || work.effects.len() != model.effects.len();
     let model = &work;
-    let rel = Released::of(model, d, free_effects.as_deref());
-    let mut adder = Adder::new(model, d, &free_keys, &rel);
-    let mut effects = Vec::new();
+    // each effect is searched beside those added before it (their coefficients refitted with
+    // the base parameters): a friction and a gravity torque that each hide the other are found
+    // together, the nonlinear parameter of the second (an unbalance's period) chosen with the
+    // first in place
+    let mut effects: Vec<Effect> = Vec::new();
+    let mut search = model.clone();
+    let mut held = Held::default();
     for &id in add {
-        effects.push(adder.effect(id, &mut warnings)?);
+        let only: Option<Vec<EffectId>> = free_effects.as_ref().map(|f| {
+            let mut v = f.clone();
+            v.extend(effects.iter().map(|e| e.id));
+            v
+        });
+        let rel = Released::of(&search, d, only.as_deref());
+        let mut adder = Adder::new(&search, d, &free_keys, &rel);
+        let e = adder.effect(id, &mut warnings)?;
+        held.base.extend(adder.held_all);
+        held.effects.extend(adder.held_effects);
+        if channel(e.id) != Channel::Deflection {
+            search.effects.push(e.clone());
+        }
+        effects.push(e);
     }
     // the base parameters the effects' own refits held (what the data cannot tell apart from
     // them) stay held in the joint refit: the same refit that diagnose ranks by
-    let narrowed = adder.narrowed(free_effects.as_deref());
+    let narrowed = held.narrowed(model, &free_keys, free_effects.as_deref());
     let free = narrowed.as_deref().or(free);
     let mut r = fit_with(model, d, effects, free, window_s)?;
     if moved {
@@ -359,21 +376,36 @@ impl<'a> Adder<'a> {
         }
         Ok(e)
     }
+}
 
+/// What the added effects' own refits held: base parameters, and the model's effects whose
+/// coefficients they could not be told apart from.
+#[derive(Default)]
+struct Held {
+    base: Vec<BaseParam>,
+    effects: Vec<EffectId>,
+}
+
+impl Held {
     /// The free parameters of the joint refit when the effects' refits held some (`None`: as
     /// given): the free base parameters and the model's effects (those `free_effects` lists,
     /// all when `None`) less those held.
-    fn narrowed(&self, free_effects: Option<&[EffectId]>) -> Option<Vec<String>> {
-        (!self.held_all.is_empty() || !self.held_effects.is_empty()).then(|| {
+    fn narrowed(
+        &self,
+        model: &WbModel,
+        free_keys: &[BaseParam],
+        free_effects: Option<&[EffectId]>,
+    ) -> Option<Vec<String>> {
+        (!self.base.is_empty() || !self.effects.is_empty()).then(|| {
             let effects: Vec<EffectId> = free_effects
                 .map(<[EffectId]>::to_vec)
-                .unwrap_or_else(|| self.model.effects.iter().map(|e| e.id).collect())
+                .unwrap_or_else(|| model.effects.iter().map(|e| e.id).collect())
                 .into_iter()
-                .filter(|id| !self.held_effects.contains(id))
+                .filter(|id| !self.effects.contains(id))
                 .collect();
-            self.free_keys
+            free_keys
                 .iter()
-                .filter(|k| !self.held_all.contains(k))
+                .filter(|k| !self.base.contains(k))
                 .map(|k| k.key().to_string())
                 .chain(effects.iter().map(|id| id.id().to_string()))
                 .collect()
