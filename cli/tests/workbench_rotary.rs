@@ -2,6 +2,7 @@
 //! which turns the C axis one and a half turns one way): effects hidden in a copy of the model,
 //! simulated with `feedloop sim`, diagnosed with the plain model.
 
+use std::f64::consts::FRAC_PI_2;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -92,8 +93,9 @@ fn a_constant_torque_on_an_axis_turning_one_way_is_not_named_friction() {
 }
 
 #[test]
-fn an_unbalance_hidden_at_two_sizes_is_named_first_with_its_size() {
-    for (mgr, zero, constant) in [(5.0, 0.4, 0.0), (20.0, -1.0, 3.0)] {
+fn an_unbalance_hidden_at_two_sizes_and_any_phase_is_named_first_with_its_size() {
+    // the third hangs a quarter turn off zero: its torque is all in the cosine of the angle
+    for (mgr, zero, constant) in [(5.0, 0.4, 0.0), (20.0, -1.0, 3.0), (8.0, FRAC_PI_2, 0.0)] {
         let dir = Scratch::new("rotary", &format!("unbalance{mgr}"));
         let dg = diagnose_hidden(
             &dir,
@@ -116,4 +118,17 @@ fn an_unbalance_hidden_at_two_sizes_is_named_first_with_its_size() {
         let dz = (z - zero).rem_euclid(period);
         assert!(dz.min(period - dz) < 0.05, "zero {z} rad for {zero}");
     }
+}
+
+#[test]
+fn a_cogging_ripple_in_the_cosine_of_the_angle_is_named_first_with_its_size() {
+    let dir = Scratch::new("rotary", "cogging");
+    let dg = diagnose_hidden(
+        &dir,
+        "[effects.cogging]\namplitude_nm = 2.0\nperiods_per_rev = 24\nphase_rad = 1.5707963",
+    );
+    let top = first_significant(&dg);
+    assert_eq!(top["effect"], "cogging", "{}", dg["verdict"]);
+    let got = top["params"]["amplitude_nm"].as_f64().unwrap();
+    assert!((got / 2.0 - 1.0).abs() < 0.1, "amplitude {got} N m for 2");
 }

@@ -535,9 +535,8 @@ pub(super) fn scored_candidate(
     let mut extra = extra;
     // its leading coefficient must lie outside its own confidence interval around zero
     let nb = ch.base_cols.len();
-    if channel(id) == Channel::Torque && cv.theta.len() > nb {
-        let (c, se) = (cv.theta[nb], cv.theta_se[nb]);
-        if c.abs() <= CI_SIGMAS * se {
+    if channel(id) == Channel::Torque {
+        if let Some((_, se)) = leading_size(id, &cv, nb).filter(|(c, se)| *c <= CI_SIGMAS * se) {
             significant = false;
             ev = format!("{ev}; its size is inside its own confidence interval (+-{} at {CI_SIGMAS} standard errors): not significant", fmt(CI_SIGMAS * se));
         }

@@ -391,8 +391,7 @@ pub(super) fn condition_on_top(
         let nb = cols.len();
         let inside_ci = rescored.as_ref().is_some_and(|r| {
             channel(r.effect.id) == Channel::Torque
-                && r.cv.theta.len() > nb
-                && r.cv.theta[nb].abs() <= CI_SIGMAS * r.cv.theta_se[nb]
+                && leading_size(r.effect.id, &r.cv, nb).is_some_and(|(c, se)| c <= CI_SIGMAS * se)
         });
         let earns = extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci;
         if let Some(e) = top.judge(c, earns, extra, rescored, d) {

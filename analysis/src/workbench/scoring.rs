@@ -14,6 +14,7 @@ use super::lsq::Cv;
 use super::refit::{cv_cols_masked, moving_mask, Released, FOLDS};
 use super::signal::{mean, rms};
 use feedloop_model::model::AxisKind;
+use feedloop_model::EffectId;
 
 /// Smallest cross-validated error reduction that counts, % of the model's error.
 pub const MIN_REDUCTION_PCT: f64 = 3.0;
@@ -186,4 +187,28 @@ impl TorqueChannel<'_> {
     pub(super) fn cut_pct(&self, cv: &Cv) -> f64 {
         100.0 * (self.cvb.rms - cv.rms) / self.e0.max(self.cvb.rms)
     }
+}
+
+/// The size of an effect's leading term in the refit `cv` (its coefficients after the `nb` base
+/// ones) and that size's standard error, `None` when the refit has no coefficient of its own.
+/// One coefficient for most effects; for an effect whose leading pair is the sine and the
+/// cosine of one angle (an unbalance, a cogging ripple) the amplitude of the pair, with the
+/// standard error in its direction (delta method): a phase that puts the term in the cosine
+/// must not read as no term at all.
+pub(super) fn leading_size(id: EffectId, cv: &Cv, nb: usize) -> Option<(f64, f64)> {
+    let (t, s) = (&cv.theta, &cv.theta_se);
+    if t.len() <= nb {
+        return None;
+    }
+    let phase_pair = matches!(id, EffectId::Unbalance | EffectId::Cogging) && t.len() > nb + 1;
+    if !phase_pair {
+        return Some((t[nb].abs(), s[nb]));
+    }
+    let (a, b) = (t[nb], t[nb + 1]);
+    let amp = a.hypot(b);
+    if amp == 0.0 {
+        return Some((0.0, s[nb].max(s[nb + 1])));
+    }
+    let se = ((a * s[nb]).powi(2) + (b * s[nb + 1]).powi(2)).sqrt() / amp;
+    Some((amp, se))
 }
