@@ -563,19 +563,8 @@ pub(super) fn scored_candidate(
         significant = false;
         ev = format!("{ev}; {NEGATIVE_MASS}: not significant");
     }
-    // a friction law needs reversals to be told from an offset and a slope, and the
-    // cross-validation needs them spread over its blocks (a block without one can only refit the
-    // level it already saw): say so where that is why it is not named
-    let turns = reversals(d);
-    let one_way = class_of(id) == "friction" && turns == 0;
-    if one_way {
-        // while the axis moves one way only, a friction level and a constant torque are the
-        // same column on every row that is scored (standstills are not): the constant force is
-        // the simpler name, and the friction cannot be claimed
-        significant = false;
-        ev = format!(
-            "{ev}; the axis moves in one direction only in this record (no reversal): a friction level cannot be told from a constant torque (constant_force carries it)"
-        );
+    if class_of(id) == "friction" {
+        (significant, ev) = reversal_words(d, significant, ev);
     }
     let red = if significant {
         (100.0 * (reference.e0 - cv.rms) / reference.e0).max(extra)
@@ -583,11 +572,6 @@ pub(super) fn scored_candidate(
         extra
     };
     let contribution = contribution_of(&add, model, d, ch);
-    if !significant && !one_way && class_of(id) == "friction" && turns < FOLDS {
-        ev = format!(
-            "{ev}; too few reversals to judge friction ({turns} in this record, fewer than the {FOLDS} blocks of the cross-validation): record more moves in both directions"
-        );
-    }
     Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
@@ -601,6 +585,30 @@ pub(super) fn scored_candidate(
         contribution: decimate(&contribution, a, b),
         channel: "torque",
     })
+}
+
+/// A friction candidate's significance and evidence after the record's reversals are counted:
+/// a friction law needs reversals to be told from an offset and a slope, and the
+/// cross-validation needs them spread over its blocks (a block without one can only refit the
+/// level it already saw). While the axis moves one way only, a friction level and a constant
+/// torque are the same column on every row that is scored (standstills are not): the constant
+/// force is the simpler name, and the friction cannot be claimed. Where too few reversals are
+/// why a friction is not named, the evidence says so.
+fn reversal_words(d: &AxisData, significant: bool, ev: String) -> (bool, String) {
+    let turns = reversals(d);
+    if turns == 0 {
+        return (
+            false,
+            format!("{ev}; the axis moves in one direction only in this record (no reversal): a friction level cannot be told from a constant torque (constant_force carries it)"),
+        );
+    }
+    if !significant && turns < FOLDS {
+        return (
+            false,
+            format!("{ev}; too few reversals to judge friction ({turns} in this record, fewer than the {FOLDS} blocks of the cross-validation): record more moves in both directions"),
+        );
+    }
+    (significant, ev)
 }
 
 /// What the effects `add` change in the torque balance of `model` on `d`: their contribution to

@@ -11,6 +11,7 @@
 //! - [`fit`] adds effects, refits and writes a new model file;
 //! - [`import`] brings foreign CSV exports into format v1 and builds a nominal model from a trace.
 
+mod adder;
 pub mod auto;
 pub mod base;
 mod candidates;
