@@ -156,3 +156,32 @@ fn the_example_plugin_depends_on_feedloop_control_alone_and_not_on_the_ipc_stack
         );
     }
 }
+
+/// The example plugin is built with `--offline` by these tests: every crate its lock file names
+/// must be one the workspace's lock file already pins, or a fresh machine that fetched only the
+/// workspace's crates cannot build it.
+#[test]
+fn the_example_plugin_locks_only_crate_versions_the_workspace_locks() {
+    fn packages(path: &Path) -> Vec<(String, String)> {
+        let text = std::fs::read_to_string(path).expect("reading a Cargo.lock");
+        let lock: toml::Table = text.parse().expect("a Cargo.lock is TOML");
+        let list = lock["package"].as_array().expect("[[package]] entries");
+        list.iter()
+            .filter(|p| p.get("source").is_some())
+            .map(|p| {
+                let name = p["name"].as_str().expect("name").to_string();
+                (name, p["version"].as_str().expect("version").to_string())
+            })
+            .collect()
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let workspace = packages(&root.join("Cargo.lock"));
+    let plugin = packages(&root.join("examples/plugins/pi-velocity-c/Cargo.lock"));
+    assert!(!plugin.is_empty(), "the plugin's lock names no registry crate");
+    let foreign: Vec<_> = plugin.iter().filter(|p| !workspace.contains(p)).collect();
+    assert!(
+        foreign.is_empty(),
+        "the example plugin locks versions the workspace does not: {foreign:?}; \
+         copy the workspace's Cargo.lock into examples/plugins/pi-velocity-c/"
+    );
+}
