@@ -446,7 +446,7 @@ fn page_counters_agree(cdp: &mut Cdp) -> Value {
            const windowed = [...document.querySelectorAll('#counters td[data-window]')]
              .map(td => td.dataset.window).filter(w => w !== 'since start');
            return { status, line, windowed, seconds: scope.state.window.seconds, counts: scope.state.window.counts,
-                    first: scope.state.window.first_cycle, lost: scope.state.lost,
+                    first: scope.state.window.first_cycle, end: scope.state.window.end_cycle, lost: scope.state.lost,
                     lineText: document.getElementById('status-line').textContent,
                     head: document.querySelector('#counters tr').textContent };
          })()",
@@ -485,8 +485,11 @@ fn page_counters_agree(cdp: &mut Cdp) -> Value {
             "{seen}"
         );
     }
-    // the scope watched from the loop's first cycle and lost none: it counts what the loop counts
+    // the scope watched from the loop's first cycle, lost none and has received every cycle up
+    // to the status' one (on a busy machine it may lag the status by a few blocks): it counts
+    // what the loop counts
     let whole = seen["first"] == 0
+        && seen["end"] == seen["status"]["cycle"]
         && seen["lost"]["plant_cycles"] == 0
         && seen["lost"]["scope_blocks"] == 0
         && seen["lost"]["recorder_dropped"] == 0;
