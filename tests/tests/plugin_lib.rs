@@ -177,10 +177,7 @@ fn the_example_plugin_locks_only_crate_versions_the_workspace_locks() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let workspace = packages(&root.join("Cargo.lock"));
     let plugin = packages(&root.join("examples/plugins/pi-velocity-c/Cargo.lock"));
-    assert!(
-        !plugin.is_empty(),
-        "the plugin's lock names no registry crate"
-    );
+    assert!(!plugin.is_empty(), "the plugin's lock names no registry crate");
     let foreign: Vec<_> = plugin.iter().filter(|p| !workspace.contains(p)).collect();
     assert!(
         foreign.is_empty(),
