@@ -136,6 +136,16 @@ impl PyTrace {
     fn __repr__(&self) -> String {
         format!("<feedloop.Trace {}>", self.inner)
     }
+
+    /// Writes the trace as a trace file (format v1), as the CLI writes it.
+    fn write(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let tr = self.inner.clone();
+        py.detach(move || {
+            tr.write(&path)
+                .with_context(|| format!("{}: cannot write", path.display()))
+        })
+        .map_err(py_err)
+    }
 }
 
 /// Reads a trace file (format v1).
