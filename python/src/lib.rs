@@ -108,14 +108,26 @@ impl PyTrace {
         self.inner.has(name)
     }
 
-    /// The values of a column as a float64 numpy array (a copy); a missing column raises
-    /// KeyError naming the file and the columns there are.
-    fn __getitem__<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let c = self
+    /// The values of a column as a read-only float64 numpy array that views the trace's memory
+    /// (no copy; `.copy()` gives a writable one); a missing column raises KeyError naming the
+    /// file and the columns there are.
+    fn __getitem__<'py>(
+        slf: &Bound<'py, Self>,
+        name: &str,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let c = slf
+            .get()
             .inner
             .require(name)
             .map_err(|e| pyo3::exceptions::PyKeyError::new_err(e.to_string()))?;
-        Ok(PyArray1::from_slice(py, c))
+        let view = numpy::ndarray::ArrayView1::from(c);
+        // SAFETY: the array's base object is this trace, which keeps the column alive; the trace
+        // is frozen behind an Arc and never changes, and the array is made read-only.
+        let a = unsafe { PyArray1::borrow_from_array(&view, slf.clone().into_any()) };
+        let kw = pyo3::types::PyDict::new(slf.py());
+        kw.set_item("write", false)?;
+        a.call_method("setflags", (), Some(&kw))?;
+        Ok(a)
     }
 
     /// The trace as a pandas DataFrame, one float64 column per trace column (needs pandas).

@@ -191,3 +191,21 @@ def test_parquet_export_reads_back_every_column_and_sample(cli, cli_trace, tmp_p
         assert np.array_equal(col.to_numpy(), want[c]), c
     meta = table.schema.metadata
     assert float(meta[b"period_s"]) == pytest.approx(feedloop.read_trace(cli_trace).period_s)
+
+
+def test_columns_view_the_trace_read_only_and_outlive_it(cli_trace):
+    import gc
+
+    tr = feedloop.read_trace(cli_trace)
+    a = tr["x.load"]
+    want = csv_columns(cli_trace)["x.load"]
+    assert not a.flags.writeable
+    with pytest.raises(ValueError):
+        a[0] = 1.0
+    del tr
+    gc.collect()
+    # the array keeps the trace's memory alive
+    assert np.array_equal(a, want)
+    b = a.copy()
+    b[0] = 1.0
+    assert b.flags.writeable and a[0] == want[0]
