@@ -111,10 +111,7 @@ impl PyTrace {
     /// The values of a column as a read-only float64 numpy array that views the trace's memory
     /// (no copy; `.copy()` gives a writable one); a missing column raises KeyError naming the
     /// file and the columns there are.
-    fn __getitem__<'py>(
-        slf: &Bound<'py, Self>,
-        name: &str,
-    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn __getitem__<'py>(slf: &Bound<'py, Self>, name: &str) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let c = slf
             .get()
             .inner
