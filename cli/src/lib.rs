@@ -6,3 +6,6 @@ pub mod browser;
 pub mod scope;
 pub mod scope_sandbox;
 pub mod signals;
+pub mod trace_export;
+pub mod trace_import;
+pub mod workbench_load;

@@ -192,15 +192,7 @@ fn main() -> ExitCode {
     }
 }
 
-/// An error with its causes, each said once: a message that already quotes its cause (`FILE:
-/// cannot read trace: No such file or directory`) is not followed by that cause again.
+/// An error with its causes, each said once ([`feedloop_cli::workbench_load::error_text`]).
 fn error_text(e: &anyhow::Error) -> String {
-    let mut text = e.to_string();
-    for cause in e.chain().skip(1) {
-        let c = cause.to_string();
-        if !text.contains(&c) {
-            text = format!("{text}: {c}");
-        }
-    }
-    text
+    feedloop_cli::workbench_load::error_text(e)
 }

@@ -1,4 +1,4 @@
-//! CLI of the model workbench: `trace import`, `model init`, `compare`, `diagnose`, `fit`.
+//! CLI of the model workbench: `trace import`, `trace export`, `model init`, `compare`, `diagnose`, `fit`.
 //!
 //! With `--json` a command prints pure JSON on standard output (progress and hints go to
 //! standard error).
@@ -10,14 +10,16 @@ use anyhow::Context;
 use feedloop_analysis::workbench::{
     auto::{auto, diagnosis_html},
     compare::compare,
-    data::{held_block, load_axis, load_axis_held, pick_axis, AxisData, Prep},
+    data::AxisData,
     diagnose::{diagnose, DiagOptions},
     effects::WbModel,
     fit::{fit, parse_effects},
     import::{import, model_init, parse_map, InitSpec},
-    refit::LONG_TRACE,
     report, WorkbenchError,
 };
+use feedloop_cli::trace_export::{export, ExportFormat};
+use feedloop_cli::trace_import::{import_hal, ImportFormat};
+use feedloop_cli::workbench_load::{self, dictionary_columns, LoadOptions};
 use feedloop_model::model::AxisKind;
 use feedloop_model::units::{si, sig};
 use feedloop_trace::Trace;
@@ -124,14 +126,32 @@ pub struct Common {
     json: bool,
 }
 
+impl Common {
+    /// The options that decide how the input is read.
+    fn options(&self) -> LoadOptions {
+        LoadOptions {
+            axis: self.axis.clone(),
+            cutoff_hz: self.cutoff_hz,
+            raw_torque: self.raw_torque,
+            window_s: self.window_s,
+            added_input: self.added_input.clone(),
+        }
+    }
+}
+
 /// `feedloop trace ...`
 #[derive(clap::Subcommand, Debug)]
 pub enum TraceCmd {
-    /// Import another tool's CSV export with explicit column mapping and scaling.
+    /// Import another tool's export (CSV, LinuxCNC halsampler or halscope) with explicit
+    /// column mapping and scaling.
     Import {
-        /// Source CSV (header row; `,`, `;` or tab separated).
+        /// Source file (CSV: header row; `,`, `;` or tab separated).
         #[arg(long)]
         from: PathBuf,
+        /// What the source is: a CSV with a header row, halsampler output (fields named 1, 2,
+        /// ... by position) or a halscope log file (channels named by their HAL names).
+        #[arg(long, value_enum, default_value_t = ImportFormat::Csv)]
+        format: ImportFormat,
         /// `target=source[*factor][/divisor][+offset],...`, e.g. "t=time_ms*0.001,x.cmd=ref_mm*0.001".
         #[arg(long)]
         map: String,
@@ -144,6 +164,18 @@ pub enum TraceCmd {
         /// Print pure JSON.
         #[arg(long)]
         json: bool,
+    },
+    /// Write a trace as MCAP (Foxglove, PlotJuggler: one channel per axis) or Parquet (pandas,
+    /// polars, DuckDB: the trace's columns).
+    Export {
+        /// Trace (format v1).
+        trace: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum)]
+        format: ExportFormat,
+        /// Output file.
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -198,12 +230,8 @@ pub enum ModelCmd {
     },
 }
 
-/// Reads the model and the trace's axis it describes; `need_torque` names what needs the torque
-/// column when one does. The trace itself is dropped once its axis is prepared. Warnings about
-/// the pair are printed on standard error and returned (for the JSON's `warnings`). With
-/// `held`, a long trace ([`LONG_TRACE`] samples or more, when its rate is at least twenty
-/// times the filter's cut-off) is held in block means ([`load_axis_held`]): memory and time
-/// then grow with the trace's length ten times slower.
+/// Reads the model and the trace's axis it describes ([`workbench_load::load`]) and prints
+/// the warnings about the pair on standard error (they are returned for the JSON's `warnings`).
 fn load(
     trace: &Path,
     model: &Path,
@@ -211,146 +239,11 @@ fn load(
     need_torque: Option<&str>,
     held: bool,
 ) -> Result<(WbModel, AxisData, Vec<String>), WorkbenchError> {
-    check_window_and_cutoff(c, None)?;
-    let m = WbModel::load(model)?;
-    // read only the columns of the axis the model describes (and the declared added input):
-    // a long multi-axis trace then takes one axis' memory
-    let header = Trace::read_header(trace)?;
-    let axes = feedloop_trace::axes_of(&header);
-    let chosen = match (&c.axis, axes.as_slice()) {
-        (Some(a), _) => Some(a.clone()),
-        (None, [one]) => Some(one.clone()),
-        _ => None,
-    };
-    let tr = match &chosen {
-        // an axis with no column at all is read whole: its refusal lists the axes there are
-        Some(a) if header.iter().any(|h| h.starts_with(&format!("{a}."))) => {
-            let prefix = format!("{a}.");
-            let added = c.added_input.clone();
-            Trace::read_columns(trace, &|name: &str| {
-                name.starts_with(&prefix) || added.as_deref() == Some(name)
-            })?
-        }
-        _ => Trace::read(trace)?,
-    };
-    check_window_and_cutoff(c, Some((trace, tr.period_s())))?;
-    let axis = pick_axis(&tr, model, c.axis.as_deref())?;
-    let prep = Prep {
-        cutoff_hz: c.cutoff_hz,
-        filter_torque: !c.raw_torque,
-        added_input: c.added_input.clone(),
-    };
-    let dt = tr.period_s();
-    let q = held_block(dt, c.cutoff_hz.unwrap_or((0.1 / dt).min(100.0)));
-    // (without the torque column the ordinary reading says what is missing)
-    let d = if held && tr.len() >= LONG_TRACE && q >= 2 && tr.has(&format!("{axis}.torque")) {
-        load_axis_held(tr, &m.file, &axis, &prep, q)?
-    } else {
-        let d = load_axis(&tr, &m.file, &axis, &prep)?;
-        if let Some(why) = need_torque {
-            d.require_torque(why, &tr)?;
-        }
-        d
-    };
-    let mut warnings: Vec<String> = one_position_warning(&m, &d, model).into_iter().collect();
-    if let Some(c) = d.encoder_offset {
-        let at_load = match m.kind() {
-            AxisKind::BallScrew => si(c / d.r, "m"),
-            AxisKind::Rotary | AxisKind::Rigid => format!("{} rad", sig(c / d.r)),
-        };
-        warnings.push(format!(
-            "{}: the motor and load encoders' zeros differ by {} rad on the motor side ({at_load} at the load); removed from `{}.motor` before every fit and simulation",
-            trace.display(),
-            sig(c),
-            d.axis
-        ));
-    }
-    for w in &warnings {
+    let r = workbench_load::load(trace, model, &c.options(), need_torque, held)?;
+    for w in &r.2 {
         eprintln!("warning: {w}");
     }
-    Ok((m, d, warnings))
-}
-
-/// Refuses a `--window-s` or `--cutoff-hz` outside its range; `trace` (file, sampling period)
-/// adds the limits that depend on the trace.
-fn check_window_and_cutoff(c: &Common, trace: Option<(&Path, f64)>) -> Result<(), WorkbenchError> {
-    let bad = |flag: &str, v: f64, reason: String| WorkbenchError::BadArgument {
-        arg: format!("{flag} {v}"),
-        reason,
-    };
-    if !(c.window_s.is_finite() && c.window_s > 0.0) {
-        return Err(bad(
-            "--window-s",
-            c.window_s,
-            "must be a finite length of time > 0 s, at least two sample periods of the trace (default 0.05 s)".into(),
-        ));
-    }
-    if let Some(f) = c.cutoff_hz {
-        if !(f.is_finite() && f > 0.0) {
-            return Err(bad(
-                "--cutoff-hz",
-                f,
-                "must be a finite frequency > 0 Hz, below the trace's Nyquist frequency (half its sampling rate)".into(),
-            ));
-        }
-    }
-    let Some((path, dt)) = trace else {
-        return Ok(());
-    };
-    // (a trace's period is the median of its steps, a hair off the nominal one)
-    if c.window_s < 2.0 * dt * (1.0 - 1e-6) {
-        return Err(bad(
-            "--window-s",
-            c.window_s,
-            format!(
-                "shorter than two sample periods of {} ({} s each): a window must be at least {} s",
-                path.display(),
-                sig6(dt),
-                sig6(2.0 * dt)
-            ),
-        ));
-    }
-    let nyquist = 0.5 / dt;
-    if let Some(f) = c.cutoff_hz {
-        if f >= nyquist {
-            return Err(bad(
-                "--cutoff-hz",
-                f,
-                format!(
-                    "at or above the Nyquist frequency of {} ({} Hz at {} s per sample): give a cut-off in (0, {}) Hz (default min(100 Hz, fs/10) = {} Hz)",
-                    path.display(),
-                    sig6(nyquist),
-                    sig6(dt),
-                    sig6(nyquist),
-                    sig6((0.1 / dt).min(100.0))
-                ),
-            ));
-        }
-    }
-    Ok(())
-}
-
-/// `x` to 6 significant digits, printed shortest (a trace's period of 0.0010000000000000009 s
-/// reads 0.001).
-fn sig6(x: f64) -> f64 {
-    format!("{x:.5e}").parse().unwrap_or(x)
-}
-
-/// A warning when a two-body model (ball screw or rotary: motor and load coupled by a spring)
-/// meets a trace with one position (no `A.motor`): motor and load are then taken to move
-/// together, so the figures judge the sum of the two bodies and nothing of the spring.
-fn one_position_warning(m: &WbModel, d: &AxisData, model: &Path) -> Option<String> {
-    if d.kind == feedloop_model::model::AxisKind::Rigid || d.has_motor() {
-        return None;
-    }
-    Some(format!(
-        "{} is a {} model (motor and load coupled by kl_nm_per_rad) but {} has no `{}.motor` column, only one measured position: motor and load are taken to move together, so the figures judge jm_kgm2 + jl_kgm2 (and dm + dl) as one rigid body and say nothing about kl_nm_per_rad, cl_nms_per_rad or the split between motor and load; use a kind = \"rigid\" model, or a trace that records `{}.motor`",
-        model.display(),
-        m.kind().id(),
-        d.path.display(),
-        d.axis,
-        d.axis
-    ))
+    Ok(r)
 }
 
 fn mkdir(dir: &Path) -> anyhow::Result<()> {
@@ -389,12 +282,26 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
             cmd:
                 TraceCmd::Import {
                     from,
+                    format,
                     map,
                     period_s,
                     out,
                     json,
                 },
-        } => trace_import(&from, &map, period_s, &out, json)?,
+        } => trace_import(&from, format, &map, period_s, &out, json)?,
+        WorkbenchCmd::Trace {
+            cmd: TraceCmd::Export { trace, format, out },
+        } => {
+            let tr = Trace::read(&trace)?;
+            export(&tr, format, &out)?;
+            println!(
+                "wrote {} ({}: {} samples, {} columns)",
+                out.display(),
+                format.id(),
+                tr.len(),
+                tr.columns.len()
+            );
+        }
         WorkbenchCmd::Model {
             cmd:
                 ModelCmd::Init {
@@ -461,13 +368,17 @@ pub fn run(cmd: WorkbenchCmd) -> anyhow::Result<ExitCode> {
 /// `feedloop trace import`.
 fn trace_import(
     from: &Path,
+    format: ImportFormat,
     map: &str,
     period_s: Option<f64>,
     out: &Path,
     json: bool,
 ) -> anyhow::Result<()> {
     let m = parse_map(map)?;
-    let tr = import(from, &m, period_s, out)?;
+    let tr = match format {
+        ImportFormat::Csv => import(from, &m, period_s, out)?,
+        _ => import_hal(from, format, &m, period_s, out)?,
+    };
     if json {
         println!(
             "{}",
@@ -617,39 +528,6 @@ fn diagnose_auto(
 }
 
 /// `feedloop diagnose` without `--auto`: ranks the candidates once (report files with `--out`).
-/// The trace columns `names` at the samples of axis `d` (block means of a long trace held in
-/// them), for the dictionary of `diagnose`; a missing column is refused with the columns there.
-fn dictionary_columns(
-    trace: &Path,
-    names: &[String],
-    d: &AxisData,
-) -> Result<Vec<(String, Vec<f64>)>, WorkbenchError> {
-    if names.is_empty() {
-        return Ok(Vec::new());
-    }
-    let tr = Trace::read_columns(trace, &|n: &str| names.iter().any(|x| x == n))?;
-    names
-        .iter()
-        .map(|n| {
-            let c = tr.column(n).ok_or_else(|| WorkbenchError::MissingColumn {
-                path: trace.to_path_buf(),
-                column: n.clone(),
-                needed_for: "--dictionary-column".into(),
-                present: Trace::read_header(trace)
-                    .map(|h| h.join(", "))
-                    .unwrap_or_default(),
-            })?;
-            let mut v = if d.sub > 1 {
-                feedloop_analysis::workbench::signal::block_means(c, d.sub)
-            } else {
-                c.to_vec()
-            };
-            v.resize(d.len(), v.last().copied().unwrap_or(0.0));
-            Ok((n.clone(), v))
-        })
-        .collect()
-}
-
 fn diagnose_once(
     m: &WbModel,
     d: &AxisData,
@@ -663,18 +541,7 @@ fn diagnose_once(
         ..DiagOptions::default()
     };
     let dg = diagnose(m, d, &opts);
-    let mut j = dg.to_json();
-    j["warnings"] = serde_json::json!(warnings);
-    if d.sub > 1 {
-        j["held_in_block_means"] = serde_json::json!({
-            "recorded_samples_per_block": d.sub,
-            "blocks": d.len(),
-            "why": format!(
-                "a long trace ({} samples or more) is held as the means of blocks of {} samples (the held rate is ten times the filter's cut-off of {} Hz or more); the controller law is evaluated on every recorded sample",
-                LONG_TRACE, d.sub, d.cutoff_hz
-            ),
-        });
-    }
+    let j = workbench_load::diagnosis_json(&dg, d, warnings);
     if let Some(out) = out {
         mkdir(out)?;
         let c = compare(m, d, common.window_s);
