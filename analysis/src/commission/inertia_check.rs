@@ -79,7 +79,7 @@ pub fn check_inertia(
         name,
         &rec,
         &format!(
-            "seed 000's check of the load inertia: {:.0} mm in {:.3} s (a third of the torque limit at the peak acceleration), the feedforward at the fitted inertia",
+            "the load-inertia patent's check of the load inertia (simulation matching): {:.0} mm in {:.3} s (a third of the torque limit at the peak acceleration), the feedforward at the fitted inertia",
             len * 1e3,
             t_move
         ),

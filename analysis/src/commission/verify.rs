@@ -209,7 +209,7 @@ fn learn(
         notes.push(
             &format!("quadrant learning run {n}"),
             &rec,
-            "seed 004: the reversal error of this pass",
+            "quadrant learning (the quadrant-crossing patent): the reversal error of this pass",
         );
         match rec.stopped {
             Some(why) => Err(why),
