@@ -3,6 +3,7 @@
 //! figures of `bench latency`.
 #![warn(missing_docs)]
 
+pub mod commission;
 pub mod identify;
 pub mod latency;
 pub mod learn;

@@ -6,6 +6,7 @@
 
 mod bench;
 mod choice;
+mod commission;
 mod control;
 mod identify;
 mod learn;
@@ -102,6 +103,8 @@ enum Command {
     Identify(identify::IdentifyCmd),
     /// Grid search of control parameters on a constant-velocity ramp test.
     Tune(identify::TuneArgs),
+    /// Commission one axis: measure it, identify, tune, set the feedforwards, verify.
+    Commission(commission::CommissionArgs),
     /// Write an excitation command as a trace a job can play.
     Excite(identify::ExciteArgs),
     /// Learning compensators (the quadrant compensator).
@@ -174,6 +177,7 @@ fn main() -> ExitCode {
         Command::Identify(c) => identify::identify(c),
         Command::Tune(a) => identify::tune(a),
         Command::Excite(a) => identify::excite(a),
+        Command::Commission(a) => commission::run(a),
         Command::Swap(a) => control::swap(&a),
         Command::Scope(a) => scope::run(&a),
         Command::Status {

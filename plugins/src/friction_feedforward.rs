@@ -9,6 +9,13 @@
 //! torque F lead / (2 pi gear_ratio)). Both default to 0; they add. With the friction known
 //! exactly it removes about 99 % of the reversal spike (brief); with a wrong Fc, the
 //! remainder scales with the mismatch.
+//!
+//! A measured velocity-dependent curve (what `feedloop commission` writes), motor side:
+//! `fs_nm` (static level, default `fc_nm`), `vs_rad_per_s` (Stribeck velocity), the shape exponent
+//! (`stribeck_exponent`, default 2), `fc_neg_nm` / `fs_neg_nm` (levels for negative velocity, default the positive
+//! ones), `c_nms_per_rad` (viscous, default 0): torque_ff += sign(w) (fc + (fs - fc)
+//! exp(-(|w| / vs)^exponent) + c |w|) at the commanded motor velocity w. [`FrictionCurve`] is
+//! shared with `quadrant_compensator`, which plays it under its learned pulses.
 
 use std::path::Path;
 
@@ -24,6 +31,62 @@ use crate::plugin::{reference_only_plugin, AxisPlugin};
 pub struct FrictionFeedforward {
     /// Coulomb level in motor units, N m (N).
     pub fc: f64,
+    /// The velocity-dependent part, when given (`None`: Coulomb only).
+    pub curve: Option<FrictionCurve>,
+}
+
+/// A measured friction curve per direction, motor side: `T(w) = fc + (fs - fc) exp(-(|w| /
+/// vs)^e) + c |w|` for each sign of w.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrictionCurve {
+    /// Coulomb levels, positive and negative velocity, N m.
+    pub fc: [f64; 2],
+    /// Static levels, N m.
+    pub fs: [f64; 2],
+    /// Stribeck velocity, rad/s.
+    pub vs: f64,
+    /// Shape exponent.
+    pub exponent: f64,
+    /// Viscous coefficient, N m s/rad.
+    pub c: f64,
+}
+
+impl FrictionCurve {
+    /// Reads the curve's keys (none given: `None`); `fc` is the Coulomb level read already.
+    pub fn read(f: &mut Fields<'_>, fc: f64) -> Result<Option<Self>, ConfigError> {
+        let level = Range::Within(0.0, 1e6);
+        let fs = f.opt_f64("fs_nm", level)?;
+        let vs = f.opt_f64("vs_rad_per_s", Range::Within(1e-9, 1e9))?;
+        let exponent = f.f64_or("stribeck_exponent", Range::Within(0.5, 4.0), 2.0)?;
+        let fc_neg = f.opt_f64("fc_neg_nm", level)?;
+        let fs_neg = f.opt_f64("fs_neg_nm", level)?;
+        let c = f.f64_or("c_nms_per_rad", Range::Within(0.0, 1e6), 0.0)?;
+        if fs.is_none() && vs.is_none() && fc_neg.is_none() && fs_neg.is_none() && c == 0.0 {
+            return Ok(None);
+        }
+        let fs = fs.unwrap_or(fc).max(fc);
+        let fc_neg = fc_neg.unwrap_or(fc);
+        Ok(Some(Self {
+            fc: [fc, fc_neg],
+            fs: [fs, fs_neg.unwrap_or(fs).max(fc_neg)],
+            vs: vs.unwrap_or(1.0),
+            exponent,
+            c,
+        }))
+    }
+
+    /// The friction torque at motor velocity `w` (0 at rest), N m.
+    #[inline]
+    pub fn torque(&self, w: f64) -> f64 {
+        if !(w != 0.0 && w.is_finite()) {
+            return 0.0;
+        }
+        let d = usize::from(w < 0.0);
+        let a = w.abs();
+        let level =
+            self.fc[d] + (self.fs[d] - self.fc[d]) * (-(a / self.vs).powf(self.exponent)).exp();
+        w.signum() * (level + self.c * a)
+    }
 }
 
 impl AxisPlugin for FrictionFeedforward {
@@ -40,8 +103,13 @@ impl AxisPlugin for FrictionFeedforward {
             fc +=
                 f.f64_or("fc_load_n", Range::Within(0.0, 1e6), 0.0)? / axis.plant.motor_per_load();
         }
+        let curve = if kind == AxisKind::Rigid {
+            None
+        } else {
+            FrictionCurve::read(&mut f, fc)?
+        };
         f.finish()?;
-        Ok(Self { fc })
+        Ok(Self { fc, curve })
     }
 }
 
@@ -50,6 +118,10 @@ impl Controller for FrictionFeedforward {
 
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
         let v = io.reference[1];
+        if let Some(c) = &self.curve {
+            io.torque_ff += c.torque(v);
+            return;
+        }
         if v > 0.0 {
             io.torque_ff += self.fc;
         } else if v < 0.0 {
@@ -75,7 +147,10 @@ mod tests {
 
     #[test]
     fn torque_follows_the_sign_of_the_commanded_velocity_and_nan_adds_nothing() {
-        let mut f = FrictionFeedforward { fc: 0.2 };
+        let mut f = FrictionFeedforward {
+            fc: 0.2,
+            curve: None,
+        };
         let ctx = CycleContext {
             period_s: 1e-4,
             cycle: 0,
@@ -87,6 +162,23 @@ mod tests {
             f.step(&ctx, &mut io);
             assert_eq!(io.torque_ff, want, "v {v}");
         }
+    }
+
+    #[test]
+    fn a_stribeck_curve_gives_the_static_level_at_slow_speed_and_coulomb_plus_viscous_fast() {
+        let t: toml::Table =
+            "fc_nm = 0.1\nfs_nm = 0.2\nvs_rad_per_s = 1.0\nfc_neg_nm = 0.12\nc_nms_per_rad = 0.01"
+                .parse()
+                .unwrap();
+        let f =
+            FrictionFeedforward::build(&t, &crate::test_util::ballscrew_axis(1e-4), Path::new("j"))
+                .unwrap();
+        let c = f.curve.unwrap();
+        assert!((c.torque(1e-6) - 0.2).abs() < 1e-6);
+        assert!((c.torque(100.0) - 1.1).abs() < 1e-9);
+        assert!((c.torque(-100.0) + 1.12).abs() < 1e-9);
+        assert!((c.torque(-1e-6) + 0.2).abs() < 1e-6, "{}", c.torque(-1e-6));
+        assert_eq!(c.torque(0.0), 0.0);
     }
 
     #[test]

@@ -61,8 +61,12 @@ use feedloop_control::controller::{
 };
 use feedloop_model::params::{ConfigError, Fields, Range};
 
+pub mod backlash;
+
+use crate::friction_feedforward::FrictionCurve;
 use crate::keys::{key_for, read_kp, read_pi_gains, PiGains};
 use crate::plugin::{axis_plugin, reference_only_plugin, AxisPlugin, PluginParams};
+use backlash::BacklashPulse;
 
 /// Commanded velocities at or below this magnitude count as rest, load units/s (1 nm/s).
 pub const REST_VELOCITY: f64 = 1e-9;
@@ -399,6 +403,12 @@ pub struct QuadrantParams {
     pub twist_s2: f64,
     /// Load-side inertia JL, kg m^2 (0 on a rigid axis).
     pub load_inertia: f64,
+    /// A measured friction curve played under the pulses (the keys of `friction_feedforward`'s
+    /// curve, `fc_nm` first), when given.
+    pub friction: Option<FrictionCurve>,
+    /// The backlash crossed at each reversal (`backlash_m`, load units, over `backlash_s`),
+    /// when given.
+    pub backlash: Option<BacklashPulse>,
 }
 
 impl PluginParams for QuadrantParams {
@@ -452,7 +462,25 @@ impl PluginParams for QuadrantParams {
                 ))
             }
         };
+        let friction = match f.opt_f64("fc_nm", Range::Within(0.0, 1e6))? {
+            Some(fc) => Some(FrictionCurve::read(&mut f, fc)?.unwrap_or(FrictionCurve {
+                fc: [fc; 2],
+                fs: [fc; 2],
+                vs: 1.0,
+                exponent: 2.0,
+                c: 0.0,
+            })),
+            None => None,
+        };
+        let gap = f.f64_or("backlash_m", Range::Within(0.0, 1.0), 0.0)?;
+        let gap_s = f.f64_or("backlash_s", Range::Within(1e-4, 1.0), 0.002)?;
         f.finish()?;
+        let backlash = (gap > 0.0).then(|| BacklashPulse {
+            gap_motor: gap * axis.plant.motor_per_load(),
+            duration_s: gap_s,
+            jm: (inertia - jl).max(0.0),
+            active: None,
+        });
         let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         let dir = file.parent().unwrap_or(Path::new("."));
         let table_path = dir.join(table_rel);
@@ -478,6 +506,8 @@ impl PluginParams for QuadrantParams {
             inertia,
             twist_s2,
             load_inertia: jl,
+            friction,
+            backlash,
         })
     }
 }
@@ -573,6 +603,10 @@ impl Controller for QuadrantCompensator {
         let v = io.reference[1] / mpl;
         if let Some(r) = self.detector.update(ctx.t_s, v) {
             self.active = Some((r.t_s, r.direction.index()));
+            if let Some(b) = &mut self.params.backlash {
+                let sign = if r.direction.index() == 0 { 1.0 } else { -1.0 };
+                b.start(r.t_s, sign);
+            }
             self.predicted = false;
         } else if self.active.is_none() || self.predicted {
             // Pulses that start before the reversal play from its predicted instant.
@@ -594,6 +628,15 @@ impl Controller for QuadrantCompensator {
             }
         }
         let [delta, rate, acc, jerk, snap] = self.offset(ctx.t_s);
+        let p = &self.params;
+        if let Some(c) = &p.friction {
+            io.torque_ff += c.torque(io.reference[1]);
+        }
+        if let Some(b) = &mut self.params.backlash {
+            let (wb, tb) = b.at(ctx.t_s);
+            io.vel_cmd += wb;
+            io.torque_ff += tb;
+        }
         let p = &self.params;
         // load offset delta; the motor moves delta + twist, twist = (JL/KL) delta''
         let w = p.gain * (p.kp_per_s * delta + rate + p.twist_s2 * jerk) * p.motor_per_load;
@@ -801,6 +844,8 @@ mod tests {
             inertia: 0.0,
             twist_s2: 0.0,
             load_inertia: 0.0,
+            friction: None,
+            backlash: None,
         })
     }
 
@@ -918,6 +963,8 @@ mod tests {
             inertia: 5e-3,
             twist_s2,
             load_inertia: 3e-3,
+            friction: None,
+            backlash: None,
             ..compensator(Injection::Velocity).params
         };
         let (mut rigid, mut two) = (
