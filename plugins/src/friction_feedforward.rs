@@ -75,6 +75,17 @@ impl FrictionCurve {
         }))
     }
 
+    /// A Coulomb level alone, the same in both directions.
+    pub fn coulomb(fc: f64) -> Self {
+        Self {
+            fc: [fc; 2],
+            fs: [fc; 2],
+            vs: 1.0,
+            exponent: 2.0,
+            c: 0.0,
+        }
+    }
+
     /// The friction torque at motor velocity `w` (0 at rest), N m.
     #[inline]
     pub fn torque(&self, w: f64) -> f64 {

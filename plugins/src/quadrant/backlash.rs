@@ -6,7 +6,8 @@
 
 use std::f64::consts::PI;
 
-/// A backlash crossing, played at each reversal.
+/// A backlash crossing, played at each reversal (the crossing in progress is the
+/// compensator's state, snapshotted with the rest of it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BacklashPulse {
     /// Gap in motor units (rad).
@@ -15,33 +16,23 @@ pub struct BacklashPulse {
     pub duration_s: f64,
     /// Motor inertia, kg m^2.
     pub jm: f64,
-    /// Reversal being played: (instant, sign of the new direction).
-    pub active: Option<(f64, f64)>,
 }
 
 impl BacklashPulse {
-    /// Starts a crossing at `t_s` towards `sign` (+1 / -1).
-    pub fn start(&mut self, t_s: f64, sign: f64) {
-        self.active = Some((t_s, sign));
-    }
-
-    /// Motor velocity (rad/s) and torque (N m) of the crossing at `t_s`.
-    pub fn at(&mut self, t_s: f64) -> (f64, f64) {
-        let Some((t0, sign)) = self.active else {
-            return (0.0, 0.0);
-        };
+    /// Motor velocity (rad/s) and torque (N m) at `t_s` of the crossing that started at `t0`
+    /// towards `sign` (+1 / -1); `None` once it is over.
+    pub fn at(&self, t_s: f64, t0: f64, sign: f64) -> Option<(f64, f64)> {
         let (tau, d) = (t_s - t0, self.duration_s);
         if tau > d {
-            self.active = None;
-            return (0.0, 0.0);
+            return None;
         }
         if tau < 0.0 {
-            return (0.0, 0.0);
+            return Some((0.0, 0.0));
         }
         let s = (PI * tau / d).sin();
         let w = sign * self.gap_motor * 2.0 / d * s * s;
         let a = sign * self.gap_motor * 2.0 * PI / (d * d) * (2.0 * PI * tau / d).sin();
-        (w, self.jm * a)
+        Some((w, self.jm * a))
     }
 }
 
@@ -51,17 +42,16 @@ mod tests {
 
     #[test]
     fn the_velocity_pulse_crosses_the_gap_and_ends() {
-        let mut b = BacklashPulse {
+        let b = BacklashPulse {
             gap_motor: 0.01,
             duration_s: 0.002,
             jm: 1e-3,
-            active: None,
         };
-        b.start(1.0, -1.0);
         let dt = 1e-6;
-        let area: f64 = (0..2100).map(|k| b.at(1.0 + k as f64 * dt).0 * dt).sum();
+        let area: f64 = (0..2000)
+            .map(|k| b.at(1.0 + k as f64 * dt, 1.0, -1.0).unwrap().0 * dt)
+            .sum();
         assert!((area + 0.01).abs() < 1e-6, "{area}");
-        assert_eq!(b.at(1.01), (0.0, 0.0));
-        assert!(b.active.is_none());
+        assert_eq!(b.at(1.01, 1.0, -1.0), None);
     }
 }

@@ -463,13 +463,9 @@ impl PluginParams for QuadrantParams {
             }
         };
         let friction = match f.opt_f64("fc_nm", Range::Within(0.0, 1e6))? {
-            Some(fc) => Some(FrictionCurve::read(&mut f, fc)?.unwrap_or(FrictionCurve {
-                fc: [fc; 2],
-                fs: [fc; 2],
-                vs: 1.0,
-                exponent: 2.0,
-                c: 0.0,
-            })),
+            Some(fc) => {
+                Some(FrictionCurve::read(&mut f, fc)?.unwrap_or(FrictionCurve::coulomb(fc)))
+            }
             None => None,
         };
         let gap = f.f64_or("backlash_m", Range::Within(0.0, 1.0), 0.0)?;
@@ -479,7 +475,6 @@ impl PluginParams for QuadrantParams {
             gap_motor: gap * axis.plant.motor_per_load(),
             duration_s: gap_s,
             jm: (inertia - jl).max(0.0),
-            active: None,
         });
         let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         let dir = file.parent().unwrap_or(Path::new("."));
@@ -540,6 +535,8 @@ pub struct QuadrantCompensator {
     lead: [f64; 2],
     /// Integral of the injected velocity (torque injection), motor units.
     integral: f64,
+    /// Backlash crossing in progress: (start, sign of the new direction).
+    crossing: Option<(f64, f64)>,
 }
 
 axis_plugin!(
@@ -570,6 +567,7 @@ impl QuadrantCompensator {
             predicted: false,
             lead,
             integral: 0.0,
+            crossing: None,
         }
     }
 
@@ -603,9 +601,9 @@ impl Controller for QuadrantCompensator {
         let v = io.reference[1] / mpl;
         if let Some(r) = self.detector.update(ctx.t_s, v) {
             self.active = Some((r.t_s, r.direction.index()));
-            if let Some(b) = &mut self.params.backlash {
+            if self.params.backlash.is_some() {
                 let sign = if r.direction.index() == 0 { 1.0 } else { -1.0 };
-                b.start(r.t_s, sign);
+                self.crossing = Some((r.t_s, sign));
             }
             self.predicted = false;
         } else if self.active.is_none() || self.predicted {
@@ -632,12 +630,15 @@ impl Controller for QuadrantCompensator {
         if let Some(c) = &p.friction {
             io.torque_ff += c.torque(io.reference[1]);
         }
-        if let Some(b) = &mut self.params.backlash {
-            let (wb, tb) = b.at(ctx.t_s);
-            io.vel_cmd += wb;
-            io.torque_ff += tb;
+        if let (Some(b), Some((t0, sign))) = (&p.backlash, self.crossing) {
+            match b.at(ctx.t_s, t0, sign) {
+                Some((wb, tb)) => {
+                    io.vel_cmd += wb;
+                    io.torque_ff += tb;
+                }
+                None => self.crossing = None,
+            }
         }
-        let p = &self.params;
         // load offset delta; the motor moves delta + twist, twist = (JL/KL) delta''
         let w = p.gain * (p.kp_per_s * delta + rate + p.twist_s2 * jerk) * p.motor_per_load;
         let tau =
@@ -682,6 +683,9 @@ impl Controller for QuadrantCompensator {
             dir,
             self.integral,
             self.predicted as u8 as f64,
+            self.crossing.is_some() as u8 as f64,
+            self.crossing.map_or(0.0, |c| c.0),
+            self.crossing.map_or(0.0, |c| c.1),
         ])
     }
 
@@ -695,6 +699,7 @@ impl Controller for QuadrantCompensator {
         self.active = (at(3) != 0.0).then(|| (at(4), (at(5) as usize).min(1)));
         self.integral = at(6);
         self.predicted = self.active.is_some() && at(7) != 0.0;
+        self.crossing = (at(8) != 0.0).then(|| (at(9), at(10).signum()));
     }
 
     fn initialize_from(&mut self, last: &AxisSignals) {
@@ -993,23 +998,38 @@ mod tests {
 
     #[test]
     fn snapshot_restores_a_reversal_in_progress() {
-        let mut a = compensator(Injection::Velocity);
-        let t = 1e-4;
-        let ctx = |k: u64| at(k, t);
-        for k in 0..120 {
-            let mut io = AxisSignals::default();
-            io.reference[1] = 100.5 - k as f64;
-            a.step(&ctx(k), &mut io);
-        }
-        let mut b = compensator(Injection::Velocity);
-        b.restore(&a.snapshot());
-        for k in 120..200 {
-            let mut ia = AxisSignals::default();
-            ia.reference[1] = 100.5 - k as f64;
-            let mut ib = ia;
-            a.step(&ctx(k), &mut ia);
-            b.step(&ctx(k), &mut ib);
-            assert_eq!(ia.vel_cmd, ib.vel_cmd);
+        // with and without a backlash crossing (5 ms, still under way when the snapshot is taken)
+        let crossing = |c: &mut QuadrantCompensator| {
+            c.params.backlash = Some(BacklashPulse {
+                gap_motor: 1e-3,
+                duration_s: 5e-3,
+                jm: 1e-3,
+            });
+        };
+        for with_backlash in [false, true] {
+            let mut a = compensator(Injection::Velocity);
+            let mut b = compensator(Injection::Velocity);
+            if with_backlash {
+                crossing(&mut a);
+                crossing(&mut b);
+            }
+            let t = 1e-4;
+            let ctx = |k: u64| at(k, t);
+            for k in 0..120 {
+                let mut io = AxisSignals::default();
+                io.reference[1] = 100.5 - k as f64;
+                a.step(&ctx(k), &mut io);
+            }
+            assert_eq!(a.crossing.is_some(), with_backlash);
+            b.restore(&a.snapshot());
+            for k in 120..200 {
+                let mut ia = AxisSignals::default();
+                ia.reference[1] = 100.5 - k as f64;
+                let mut ib = ia;
+                a.step(&ctx(k), &mut ia);
+                b.step(&ctx(k), &mut ib);
+                assert_eq!((ia.vel_cmd, ia.torque_ff), (ib.vel_cmd, ib.torque_ff));
+            }
         }
     }
 }
