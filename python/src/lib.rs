@@ -348,11 +348,7 @@ fn diagnose_json(
             )?;
             if auto_loop {
                 let r = auto(&m, &d, opts.window_s, max_steps)?;
-                let dir = TempDir::new()?;
-                let path = dir.0.join("model.toml");
-                r.model.write(&path)?;
-                let text = std::fs::read_to_string(&path)
-                    .with_context(|| format!("{}: cannot read", path.display()))?;
+                let text = r.model.text();
                 let c = compare(&r.model, &d, opts.window_s);
                 let extra = format!("{}{}", r.html(), diagnosis_html(&r.last));
                 let html = report::html(&d, &c, "diagnose --auto: final model", &extra);
@@ -406,11 +402,7 @@ fn fit_json(
         let (m, d, warnings) = load(&trace, &ma, &opts, None, false)?;
         let add = parse_effects(&add)?;
         let r = fit(&m, &d, &add, free.as_deref(), opts.window_s)?;
-        let dir = TempDir::new()?;
-        let path = dir.0.join("model.toml");
-        r.model.write(&path)?;
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("{}: cannot read", path.display()))?;
+        let text = r.model.text();
         let mut j = r.to_json();
         let all: Vec<&String> = warnings.iter().chain(&r.warnings).collect();
         j["warnings"] = serde_json::json!(all);

@@ -670,6 +670,12 @@ impl WbModel {
 
     /// Writes the model with the current base values and effects to `path`.
     pub fn write(&self, path: &Path) -> Result<(), WorkbenchError> {
+        std::fs::write(path, self.text()).map_err(|e| WorkbenchError::io(path, e))
+    }
+
+    /// The model file's text with the current base values and effects (what [`Self::write`]
+    /// writes).
+    pub fn text(&self) -> String {
         let mut t = self.table.clone();
         for (k, v) in &self.base {
             t.insert(k.key().to_string(), toml::Value::Float(round_sig(*v)));
@@ -680,11 +686,10 @@ impl WbModel {
         } else {
             t.insert("effects".into(), toml::Value::Table(eff));
         }
-        let text = format!(
+        format!(
             "# written by `feedloop fit` (feedloop model workbench)\n{}",
             toml::to_string_pretty(&t).unwrap_or_default()
-        );
-        std::fs::write(path, text).map_err(|e| WorkbenchError::io(path, e))
+        )
     }
 }
 // What `diagnose` says of each effect: its class and its evidence sentence, beside the
