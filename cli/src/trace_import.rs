@@ -38,6 +38,17 @@ struct Table {
     header_line: usize,
 }
 
+impl Table {
+    /// Appends the row of source line `ln` (as many cells as names, checked by the caller).
+    fn push_row(&mut self, from: &Path, ln: usize, cells: &[&str]) -> Result<()> {
+        for (k, c) in cells.iter().enumerate() {
+            self.cols[k].push(number(from, ln, &self.names[k], c)?);
+        }
+        self.lines.push(ln);
+        Ok(())
+    }
+}
+
 fn err(from: &Path, line: usize, what: String) -> anyhow::Error {
     anyhow!("{}: line {line}: {what}", from.display())
 }
@@ -90,10 +101,7 @@ fn read_halsampler(from: &Path, text: &str) -> Result<Table> {
                 )
             ));
         }
-        for (k, c) in cells.iter().enumerate() {
-            t.cols[k].push(number(from, ln, &t.names[k], c)?);
-        }
-        t.lines.push(ln);
+        t.push_row(from, ln, &cells)?;
     }
     if t.lines.is_empty() {
         bail!(
@@ -183,10 +191,7 @@ fn read_halscope(from: &Path, text: &str) -> Result<Table> {
                 )
             ));
         }
-        for (k, c) in cells.iter().enumerate() {
-            t.cols[k].push(number(from, ln, &t.names[k], c)?);
-        }
-        t.lines.push(ln);
+        t.push_row(from, ln, &cells)?;
     }
     if t.names.is_empty() {
         bail!(
