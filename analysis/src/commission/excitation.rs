@@ -78,6 +78,10 @@ pub struct Identified {
     pub jl_ci_pct: Option<f64>,
     /// Backlash read at the reversals of the excitation's traverse, m.
     pub backlash_m: Option<f64>,
+    /// Lost motion at those reversals, m: the shift of the motor less the table, the gap plus
+    /// the screw's change of twist under the load-side friction (what the motor travels at a
+    /// reversal before the table follows).
+    pub lost_motion_m: Option<f64>,
     /// Whether the kept result passed every check.
     pub credible: bool,
     /// Why not, when it did not.
@@ -264,6 +268,7 @@ fn kept(tried: Vec<(Attempt, Option<StiffnessResult>)>) -> Result<Identified, St
         kl_ci_pct: r.checks.kl_ci_pct,
         jl_ci_pct: r.checks.jl_ci_pct,
         backlash_m: e.and_then(|e| e.backlash_m),
+        lost_motion_m: e.and_then(|e| e.lost_motion_m),
         credible: a.credible,
         problems: a.problems.clone(),
         attempts,

@@ -97,6 +97,15 @@ pub fn friction_params(s: &Survey) -> toml::Table {
     ])
 }
 
+/// What the motor travels at a reversal before the table follows, m: the measured lost motion
+/// (the gap plus the screw's change of twist under the load-side friction; the backlash alone
+/// leaves the motor that much short of the far flank, and the table waits while the loop closes
+/// the rest), the backlash when the lost motion was not measured; `None` without a dead band.
+pub fn crossed_m(id: &Identified) -> Option<f64> {
+    let b = id.backlash_m.filter(|b| *b > 0.0)?;
+    Some(id.lost_motion_m.filter(|l| *l >= b).unwrap_or(b))
+}
+
 /// What the tuned chain holds besides the cascade.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Compensation {
@@ -145,12 +154,15 @@ pub fn chain(
         if c.friction {
             p.extend(friction_params(s));
         }
-        if let Some(b) = id.backlash_m.filter(|b| *b > 0.0) {
+        if let Some(b) = crossed_m(id) {
             // Crossing time: the motor's peak torque through the gap at a tenth of the limit.
             let peak = 2.0 * std::f64::consts::PI * b * f.ratio() * f.jm_kgm2;
             let d = (peak / (0.1 * f.torque_limit_nm)).sqrt().max(0.002);
             p.insert("backlash_m".into(), toml::Value::Float(b));
             p.insert("backlash_s".into(), toml::Value::Float(d));
+            // The table stands while the motor crosses: centred on the reversal, where the
+            // command moves least.
+            p.insert("backlash_lead_s".into(), toml::Value::Float(0.5 * d));
         }
         out.push(entry(axis, "compensator", "quadrant_compensator", p));
     } else if c.friction {

@@ -470,11 +470,13 @@ impl PluginParams for QuadrantParams {
         };
         let gap = f.f64_or("backlash_m", Range::Within(0.0, 1.0), 0.0)?;
         let gap_s = f.f64_or("backlash_s", Range::Within(1e-4, 1.0), 0.002)?;
+        let lead_s = f.f64_or("backlash_lead_s", Range::Within(0.0, 1.0), 0.0)?;
         f.finish()?;
         let backlash = (gap > 0.0).then(|| BacklashPulse {
             gap_motor: gap * axis.plant.motor_per_load(),
             duration_s: gap_s,
             jm: (inertia - jl).max(0.0),
+            lead_s: lead_s.min(gap_s),
         });
         let kp_per_s = axis.param_or_model(kp, axis.defaults.kp_per_s, "kp_per_s", file)?;
         let dir = file.parent().unwrap_or(Path::new("."));
@@ -535,8 +537,12 @@ pub struct QuadrantCompensator {
     lead: [f64; 2],
     /// Integral of the injected velocity (torque injection), motor units.
     integral: f64,
-    /// Backlash crossing in progress: (start, sign of the new direction).
+    /// Backlash crossing in progress: (start, sign of the new direction times the share of the
+    /// gap it crosses, 1 but for the return of an anticipated crossing).
     crossing: Option<(f64, f64)>,
+    /// The predicted reversal instant of a crossing started ahead of it, until the reversal
+    /// is seen, s.
+    crossing_ahead: Option<f64>,
 }
 
 axis_plugin!(
@@ -568,6 +574,7 @@ impl QuadrantCompensator {
             lead,
             integral: 0.0,
             crossing: None,
+            crossing_ahead: None,
         }
     }
 
@@ -599,11 +606,29 @@ impl Controller for QuadrantCompensator {
     fn step(&mut self, ctx: &CycleContext, io: &mut AxisSignals) {
         let mpl = self.params.motor_per_load;
         let v = io.reference[1] / mpl;
+        let sign_of = |d: usize| if d == 0 { 1.0 } else { -1.0 };
+        if let (Some(b), None) = (&self.params.backlash, self.crossing) {
+            // a crossing with a lead starts before the reversal, from its predicted instant
+            if b.lead_s > 0.0 {
+                if let Some((t_to, d)) =
+                    time_to_reversal(v, io.reference[2] / mpl, io.reference[3] / mpl)
+                {
+                    if t_to <= b.lead_s {
+                        self.crossing = Some((ctx.t_s + t_to - b.lead_s, sign_of(d)));
+                        self.crossing_ahead = Some(ctx.t_s + t_to);
+                    }
+                }
+            }
+        }
         if let Some(r) = self.detector.update(ctx.t_s, v) {
             self.active = Some((r.t_s, r.direction.index()));
             if self.params.backlash.is_some() {
-                let sign = if r.direction.index() == 0 { 1.0 } else { -1.0 };
-                self.crossing = Some((r.t_s, sign));
+                let sign = sign_of(r.direction.index());
+                // the crossing started ahead of this reversal plays on
+                if self.crossing_ahead.is_none() || self.crossing.is_none_or(|c| c.1 != sign) {
+                    self.crossing = Some((r.t_s, sign));
+                }
+                self.crossing_ahead = None;
             }
             self.predicted = false;
         } else if self.active.is_none() || self.predicted {
@@ -630,13 +655,26 @@ impl Controller for QuadrantCompensator {
         if let Some(c) = &p.friction {
             io.torque_ff += c.torque(io.reference[1]);
         }
+        if let (Some(b), Some(t_r), Some((t0, sign))) =
+            (&p.backlash, self.crossing_ahead, self.crossing)
+        {
+            // the reversal did not come (the axis stopped): the share of the gap crossed so far
+            // is crossed back
+            if ctx.t_s > t_r + 2.0 * ctx.period_s {
+                self.crossing = Some((ctx.t_s, -sign * b.share(ctx.t_s, t0)));
+                self.crossing_ahead = None;
+            }
+        }
         if let (Some(b), Some((t0, sign))) = (&p.backlash, self.crossing) {
             match b.at(ctx.t_s, t0, sign) {
                 Some((wb, tb)) => {
                     io.vel_cmd += wb;
                     io.torque_ff += tb;
                 }
-                None => self.crossing = None,
+                None => {
+                    self.crossing = None;
+                    self.crossing_ahead = None;
+                }
             }
         }
         // load offset delta; the motor moves delta + twist, twist = (JL/KL) delta''
@@ -667,7 +705,8 @@ impl Controller for QuadrantCompensator {
     }
 
     /// Snapshot layout: [detector sign, last velocity, last time, active (0/1), t_r, direction,
-    /// torque-injection integral, predicted (0/1)].
+    /// torque-injection integral, predicted (0/1), crossing (0/1), its start, its signed share,
+    /// crossing ahead of the reversal (0/1), the reversal's predicted instant].
     fn snapshot(&self) -> ControllerState {
         let d = &self.detector;
         let (act, t_r, dir) = match self.active {
@@ -686,6 +725,8 @@ impl Controller for QuadrantCompensator {
             self.crossing.is_some() as u8 as f64,
             self.crossing.map_or(0.0, |c| c.0),
             self.crossing.map_or(0.0, |c| c.1),
+            self.crossing_ahead.is_some() as u8 as f64,
+            self.crossing_ahead.unwrap_or(0.0),
         ])
     }
 
@@ -699,7 +740,8 @@ impl Controller for QuadrantCompensator {
         self.active = (at(3) != 0.0).then(|| (at(4), (at(5) as usize).min(1)));
         self.integral = at(6);
         self.predicted = self.active.is_some() && at(7) != 0.0;
-        self.crossing = (at(8) != 0.0).then(|| (at(9), at(10).signum()));
+        self.crossing = (at(8) != 0.0).then(|| (at(9), at(10).clamp(-1.0, 1.0)));
+        self.crossing_ahead = (self.crossing.is_some() && at(11) != 0.0).then(|| at(12));
     }
 
     fn initialize_from(&mut self, last: &AxisSignals) {
@@ -997,6 +1039,48 @@ mod tests {
     }
 
     #[test]
+    fn a_backlash_crossing_with_a_lead_is_centred_on_the_reversal_and_undone_at_a_stop() {
+        let params = QuadrantParams {
+            pulses: AxisPulses::default(),
+            backlash: Some(BacklashPulse {
+                gap_motor: 1e-3,
+                duration_s: 5e-3,
+                jm: 0.0,
+                lead_s: 2.5e-3,
+            }),
+            ..compensator(Injection::Velocity).params
+        };
+        let t = 1e-4;
+        // the commanded velocity falls by 1 load unit/s^2 through zero at 10.05 ms (a
+        // reversal), or to rest at 10 ms (a stop)
+        for reverses in [true, false] {
+            let mut c = QuadrantCompensator::new(params.clone());
+            let (mut area, mut first) = (0.0, None);
+            for k in 0..400u64 {
+                let mut io = AxisSignals::default();
+                let v = 1e-4 * (100.5 - k as f64);
+                io.reference[1] = if reverses { v } else { v.max(0.0) };
+                io.reference[2] = if reverses || v > 0.0 { -1.0 } else { 0.0 };
+                c.step(&at(k, t), &mut io);
+                area += io.vel_cmd * t;
+                if io.vel_cmd != 0.0 {
+                    first.get_or_insert(k);
+                }
+            }
+            // half the crossing (25 periods) ahead of the reversal
+            let k0 = first.unwrap();
+            assert!((75..=77).contains(&k0), "{k0}");
+            if reverses {
+                assert!((area + 1e-3).abs() < 1e-6, "{area}");
+            } else {
+                // within the period's share of the pulse cut off at the switch
+                assert!(area.abs() < 3e-5, "{area}");
+            }
+            assert!(c.crossing.is_none() && c.crossing_ahead.is_none());
+        }
+    }
+
+    #[test]
     fn snapshot_restores_a_reversal_in_progress() {
         // with and without a backlash crossing (5 ms, still under way when the snapshot is taken)
         let crossing = |c: &mut QuadrantCompensator| {
@@ -1004,6 +1088,7 @@ mod tests {
                 gap_motor: 1e-3,
                 duration_s: 5e-3,
                 jm: 1e-3,
+                lead_s: 0.0,
             });
         };
         for with_backlash in [false, true] {
