@@ -190,10 +190,8 @@ fn learn(
     if let Some(toml::Value::Table(axes)) = jt.get_mut("axes") {
         for (_, a) in axes.iter_mut() {
             let mut m = toml::Table::new();
-            m.insert(
-                "model".into(),
-                dir.join("model.toml").display().to_string().into(),
-            );
+            // relative to the job's own file, which lies in `dir` beside the model
+            m.insert("model".into(), "model.toml".into());
             *a = toml::Value::Table(m);
         }
     }
