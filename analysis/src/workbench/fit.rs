@@ -405,7 +405,14 @@ impl JointRefit<'_> {
             .next()
             .expect("one block");
         let (nk, nr) = (free_keys.len(), rel.cols.len());
-        let (keep, delta) = constrained(&all, model, free_keys, rel);
+        let split = unseen_split(free_keys, d);
+        let (keep, delta) = constrained(&all, model, free_keys, rel, split);
+        // said when holding it mattered: a free split would have moved the motor's inertia by
+        // more than a percent
+        let mattered = split.filter(|i| {
+            let (_, free) = constrained(&all, model, free_keys, rel, None);
+            free[*i].abs() > 0.01 * model.base_value(free_keys[*i]).abs()
+        });
         for (i, key) in free_keys.iter().enumerate() {
             let v = model.base_value(*key) + delta[i];
             if let Some(b) = new.base.iter_mut().find(|(kk, _)| kk == key) {
@@ -416,8 +423,15 @@ impl JointRefit<'_> {
         for key in free_keys {
             params.insert(key.key().to_string(), new.base_value(*key));
         }
-        if let Some(w) = self.held_warning(&keep) {
+        if let Some(w) = self.held_warning(&keep, split) {
             warnings.push(w);
+        }
+        if mattered.is_some() {
+            warnings.push(format!(
+                "{} held at its value: on this record the motor's and the load's accelerations are one column (the transmission barely deflects), so the data determine only the total inertia; its change went to {}",
+                BaseParam::JmKgm2.key(),
+                BaseParam::JlKgm2.key()
+            ));
         }
         let mut fitted = self.effects.to_vec();
         for (s, (i, j)) in slots.iter().enumerate() {
@@ -433,10 +447,10 @@ impl JointRefit<'_> {
 
     /// The sentence naming the base parameters and model effects the refit held (those of
     /// whose columns `keep` lists none), when it held any.
-    fn held_warning(&self, keep: &[usize]) -> Option<String> {
+    fn held_warning(&self, keep: &[usize], split: Option<usize>) -> Option<String> {
         let (free_keys, nk) = (self.free_keys, self.free_keys.len());
         let mut held: Vec<String> = (0..nk)
-            .filter(|i| !keep.contains(i))
+            .filter(|i| !keep.contains(i) && Some(*i) != split)
             .map(|i| free_keys[i].key().to_string())
             .collect();
         for (k, (e, _)) in self.rel.slots.iter().enumerate() {
@@ -530,6 +544,7 @@ fn constrained(
     model: &WbModel,
     free_keys: &[BaseParam],
     rel: &Released,
+    held: Option<usize>,
 ) -> (Vec<usize>, Vec<f64>) {
     let p = all.xty.len();
     let (nk, nr) = (free_keys.len(), rel.cols.len());
@@ -551,7 +566,8 @@ fn constrained(
         }
     };
     let mut best: Option<(u32, f64, Vec<usize>, nalgebra::DVector<f64>)> = None;
-    for mask in 0u32..(1 << nh) {
+    let forced: u32 = held.filter(|i| *i < nh).map_or(0, |i| 1 << i);
+    for mask in (0u32..(1 << nh)).filter(|m| m & forced == forced) {
         let keep: Vec<usize> = (0..nh)
             .filter(|i| mask & (1 << i) == 0)
             .chain(nh..p)
@@ -579,6 +595,20 @@ fn constrained(
         delta[*i] = th[k];
     }
     (keep, delta)
+}
+
+/// The index of `jm_kgm2` among `free_keys` when it is free beside `jl_kgm2` and the two
+/// columns, the motor's and the load's acceleration, are one (a fit of the first on the second
+/// leaves less than 1 % of its energy): the split of a change between them is then set by the
+/// noise of the two derivatives, not by the motion (the noisier acceleration's inertia is
+/// diluted and the other takes its share), and a model with the wrong split reads its
+/// transmission's deflection wrong. The motor's inertia is the data sheet's; the load's is the
+/// one that changes with the workpiece, so the change goes to it.
+fn unseen_split(free_keys: &[BaseParam], d: &AxisData) -> Option<usize> {
+    let jm = free_keys.iter().position(|k| *k == BaseParam::JmKgm2)?;
+    let jl = free_keys.iter().position(|k| *k == BaseParam::JlKgm2)?;
+    let (am, al) = (free_keys[jm].column(d), free_keys[jl].column(d));
+    super::refit::spanned(am, &[al], d.range, None).then_some(jm)
 }
 
 fn update_plant(m: &mut WbModel) {

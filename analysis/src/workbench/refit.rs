@@ -668,7 +668,12 @@ pub fn spanned_base(id: EffectId, d: &AxisData, base: &[&[f64]]) -> Vec<usize> {
 /// given, is not 0): a least-squares fit of it leaves less than 1 % of its energy (a variance
 /// inflation of 100: the regression cannot share it out; an offset against a filtered friction
 /// asymmetry differs only in the filter's tails at the reversals).
-fn spanned(b: &[f64], cols: &[&[f64]], range: (usize, usize), mask: Option<&[f64]>) -> bool {
+pub(super) fn spanned(
+    b: &[f64],
+    cols: &[&[f64]],
+    range: (usize, usize),
+    mask: Option<&[f64]>,
+) -> bool {
     if cols.is_empty() {
         return false;
     }

@@ -1,0 +1,115 @@
+//! The workbench on the shipped circle (`examples/jobs/xy-circle.toml`): effects hidden in a copy
+//! of the X axis' model (with a sensor model), simulated with `feedloop sim`, and `diagnose
+//! --auto` run with the shipped model. On a circle the motor and the table accelerate together
+//! (the screw barely deflects): the torque balance sees only the sum of the two inertias, and a
+//! refit that splits a change between them at random reads the screw's deflection wrong, where
+//! it then finds a lead error or a mode that is not there.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use feedloop_test_support::Scratch;
+use serde_json::Value;
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_feedloop")
+}
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+const SENSOR: &str = "
+[sensor]
+motor_counts_per_rev = 1048576
+load_resolution_m = 1.0e-8
+load_pos_noise_m = 1.5e-8
+motor_vel_noise_rad_per_s = 0.004
+seed = 23
+";
+
+/// Simulates the circle with `hidden` in the X axis' model and runs `diagnose --auto --json`
+/// of axis x with the shipped model (and the same sensor).
+fn auto_hidden(dir: &Path, hidden: &str) -> Value {
+    let plain = std::fs::read_to_string(repo("examples/models/xy-x.toml")).unwrap();
+    std::fs::write(dir.join("x0.toml"), format!("{plain}\n{SENSOR}")).unwrap();
+    std::fs::write(dir.join("x.toml"), format!("{plain}\n{hidden}\n{SENSOR}")).unwrap();
+    std::fs::copy(repo("examples/models/xy-y.toml"), dir.join("y.toml")).unwrap();
+    let job = std::fs::read_to_string(repo("examples/jobs/xy-circle.toml"))
+        .unwrap()
+        .replace("../models/xy-x.toml", "x.toml")
+        .replace("../models/xy-y.toml", "y.toml");
+    std::fs::write(dir.join("job.toml"), job).unwrap();
+    let out = dir.join("out");
+    let o = Command::new(bin())
+        .args(["sim", "--quiet"])
+        .arg(dir.join("job.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = Command::new(bin())
+        .args(["diagnose", "--auto", "--axis", "x", "--json", "--trace"])
+        .arg(out.join("trace.csv"))
+        .arg("--model")
+        .arg(dir.join("x0.toml"))
+        .arg("--out")
+        .arg(dir.join("auto"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// What each step of the guided loop added.
+fn added(a: &Value) -> Vec<String> {
+    a["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|s| s["added"].as_array().unwrap().clone())
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect()
+}
+
+/// A base parameter of the final model written by `diagnose --auto --out`.
+fn final_param(dir: &Path, key: &str) -> f64 {
+    let text = std::fs::read_to_string(dir.join("auto").join("model.toml")).unwrap();
+    let t: toml::Table = text.parse().unwrap();
+    t[key].as_float().unwrap()
+}
+
+fn check(tag: &str, hidden: &str, expect: &[&str]) {
+    let dir = Scratch::new("workbench_circle", tag);
+    let a = auto_hidden(&dir, hidden);
+    let got = added(&a);
+    println!("{tag}: added {got:?}; {}", a["verdict"]);
+    assert_eq!(got, expect, "{tag}: the guided loop added {got:?}");
+    // the two inertias stay where they were: the record cannot split them
+    for (key, truth) in [("jm_kgm2", 2.0e-3), ("jl_kgm2", 3.0e-3)] {
+        let v = final_param(&dir, key);
+        assert!(
+            (v / truth - 1.0).abs() < 0.02,
+            "{tag}: {key} = {v}, the model's {truth}"
+        );
+    }
+}
+
+#[test]
+fn a_constant_force_on_the_circle_is_added_alone_and_keeps_the_inertias() {
+    check(
+        "constant_force",
+        "[effects.constant_force]\nforce_n = -120.0\n",
+        &["constant_force"],
+    );
+}
+
+#[test]
+fn cogging_on_the_circle_is_added_alone_and_keeps_the_inertias() {
+    check(
+        "cogging",
+        "[[effects.cogging]]\namplitude_nm = 0.05\nperiods_per_rev = 36\n",
+        &["cogging"],
+    );
+}
