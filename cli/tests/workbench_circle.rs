@@ -31,9 +31,15 @@ seed = 23
 /// Simulates the circle with `hidden` in the X axis' model and runs `diagnose --auto --json`
 /// of axis x with the shipped model (and the same sensor).
 fn auto_hidden(dir: &Path, hidden: &str) -> Value {
+    auto_machine(dir, hidden, |m| m.to_string())
+}
+
+/// As [`auto_hidden`], the machine's model also changed by `edit` (the plain model kept).
+fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Value {
     let plain = std::fs::read_to_string(repo("examples/models/xy-x.toml")).unwrap();
     std::fs::write(dir.join("x0.toml"), format!("{plain}\n{SENSOR}")).unwrap();
-    std::fs::write(dir.join("x.toml"), format!("{plain}\n{hidden}\n{SENSOR}")).unwrap();
+    let machine = edit(&plain);
+    std::fs::write(dir.join("x.toml"), format!("{machine}\n{hidden}\n{SENSOR}")).unwrap();
     std::fs::copy(repo("examples/models/xy-y.toml"), dir.join("y.toml")).unwrap();
     let job = std::fs::read_to_string(repo("examples/jobs/xy-circle.toml"))
         .unwrap()
@@ -112,4 +118,27 @@ fn cogging_on_the_circle_is_added_alone_and_keeps_the_inertias() {
         "[[effects.cogging]]\namplitude_nm = 0.05\nperiods_per_rev = 36\n",
         &["cogging"],
     );
+}
+
+#[test]
+fn a_heavier_table_on_the_circle_is_refitted_as_the_load_inertia_alone() {
+    let dir = Scratch::new("workbench_circle", "heavier");
+    let a = auto_machine(&dir, "", |m| {
+        assert!(
+            m.contains("jl_kgm2 = 3.0e-3"),
+            "the shipped model's load inertia moved"
+        );
+        m.replace("jl_kgm2 = 3.0e-3", "jl_kgm2 = 3.6e-3")
+    });
+    let got = added(&a);
+    println!("heavier: added {got:?}; {}", a["verdict"]);
+    // the step names what it moved: the motor's inertia is held, the load's takes the change
+    assert_eq!(got, ["refit jl_kgm2"]);
+    for (key, truth) in [("jm_kgm2", 2.0e-3), ("jl_kgm2", 3.6e-3)] {
+        let v = final_param(&dir, key);
+        assert!(
+            (v / truth - 1.0).abs() < 0.02,
+            "{key} = {v}, the machine's {truth}"
+        );
+    }
 }

@@ -99,7 +99,19 @@ pub fn auto(
             break;
         }
         let added = if top.is_param {
-            vec![format!("refit {}", top.effect)]
+            // the parameters the refit moved (of those freed with the candidate, the one the
+            // data cannot tell from the other may have been held)
+            let moved: Vec<String> = m
+                .base
+                .iter()
+                .filter(|(k, v)| res.model.base_value(*k) != *v)
+                .map(|(k, _)| format!("refit {}", k.key()))
+                .collect();
+            if moved.is_empty() {
+                vec![format!("refit {}", top.effect)]
+            } else {
+                moved
+            }
         } else if !res.replaced.is_empty() {
             res.added
                 .iter()
