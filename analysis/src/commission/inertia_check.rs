@@ -15,7 +15,9 @@ use super::facts::{entry, experiment, floats, per_axis, Facts};
 use super::friction::Survey;
 use super::model_out::{feedforward_params, model_text};
 use super::Notes;
-use crate::identify::inertia::{records_deviation, sim_match, DeviationKind, Probe};
+use crate::identify::inertia::{
+    job_with_jl, records_deviation, run_axis, sim_match, DeviationKind, InertiaEstimate, Probe,
+};
 
 /// The two estimates of the load inertia.
 #[derive(Debug, Clone, Serialize)]
@@ -93,21 +95,94 @@ pub fn check_inertia(
         kind: DeviationKind::CommandLoad,
     };
     let measured = records_deviation(&rec.records[0], ratio, probe).map_err(|e| e.to_string())?;
+    // Where the table sits in the backlash when the move starts: what the motor travels before
+    // it drives the table (the motor-load offset at the probe less the one at rest before the
+    // move, the screw's twist at the probe included).
+    let start = ((0.2 + 0.1) / rec.period_s).round() as usize;
+    let settle = (0.05 / rec.period_s).round() as usize;
+    let model_probe = Probe {
+        at: probe.at - pre,
+        ..probe
+    };
+    let offset_rise =
+        |r: &[feedloop_trace::log::AxisRecord], probe: Probe| -> Result<f64, String> {
+            let twist_probe = Probe {
+                kind: DeviationKind::MotorLoad,
+                ..probe
+            };
+            let at_probe = records_deviation(r, ratio, twist_probe).map_err(|e| e.to_string())?;
+            let rest = r
+                .get(start.saturating_sub(settle)..start)
+                .filter(|w| !w.is_empty())
+                .ok_or("the check move's record is too short")?;
+            let at_rest =
+                rest.iter().map(|x| x.motor / ratio - x.load).sum::<f64>() / rest.len() as f64;
+            Ok(at_probe - at_rest)
+        };
+    let rise = offset_rise(&rec.records[0], probe)?;
     let dir = std::env::temp_dir().join(format!("feedloop-commission-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let model = dir.join("identified.toml");
-    std::fs::write(&model, model_text(f, s, id, id.jl_kgm2, f.start))
-        .map_err(|e| format!("{}: {e}", model.display()))?;
-    let mut table = exp.job.clone();
-    if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
-        let mut a = toml::Table::new();
-        a.insert("model".into(), model.display().to_string().into());
-        axes.insert(axis.into(), toml::Value::Table(a));
-    }
-    let job = Job::from_table(&table, &dir.join("check.toml")).map_err(|e| e.to_string());
-    let est = job.and_then(|job| sim_match(&job, 0, measured, probe).map_err(|e| e.to_string()));
+    let job_with_gap = |gap: Option<f64>| -> Result<Job, String> {
+        let mut idg = id.clone();
+        idg.backlash_m = gap;
+        std::fs::write(&model, model_text(f, s, &idg, id.jl_kgm2, f.start))
+            .map_err(|e| format!("{}: {e}", model.display()))?;
+        let mut table = exp.job.clone();
+        // The model starts with its table in the middle of its gap, where the simulation
+        // starts it, and rests instead of the first move: the motor then crosses half the
+        // model's gap before it drives the table, and the gap is set to make that what the
+        // machine's motor crossed.
+        if let Some(toml::Value::Table(traj)) = table.get_mut("trajectory") {
+            traj.insert(
+                "segments".into(),
+                toml::Value::Array(vec![
+                    seg("dwell", None, 0.2),
+                    seg("dwell", None, 0.1),
+                    seg("move", Some(len), t_move),
+                    seg("dwell", None, 0.1),
+                ]),
+            );
+        }
+        if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
+            let mut a = toml::Table::new();
+            a.insert("model".into(), model.display().to_string().into());
+            axes.insert(axis.into(), toml::Value::Table(a));
+        }
+        Job::from_table(&table, &dir.join("check.toml")).map_err(|e| e.to_string())
+    };
+    let est = (|| -> Result<(InertiaEstimate, Option<f64>), String> {
+        // The identified model carries all the friction on the motor side, so its table is
+        // thrown across the backlash whenever the first move brakes, whereas the machine's
+        // table stays where its own friction holds it: the motor then crosses a different
+        // part of the gap at the start, and that transient, not the inertia, sets the
+        // deviation at the probe. So the model's gap is set to what the measured motor crosses
+        // (its offset rise matched, at most a few fixed-point steps: the rise moves one to one
+        // with the gap the model's table crosses).
+        let mut gap = id.backlash_m.filter(|b| *b > 0.0);
+        if gap.is_some() {
+            for _ in 0..4 {
+                let job = job_with_gap(gap)?;
+                let sim = run_axis(
+                    &job_with_jl(&job, 0, id.jl_kgm2, id.jl_kgm2).map_err(|e| e.to_string())?,
+                    0,
+                )
+                .map_err(|e| e.to_string())?;
+                let miss = rise - offset_rise(&sim, model_probe)?;
+                let g = gap.unwrap_or(0.0);
+                let next = (g + 2.0 * miss).max(0.0);
+                gap = Some(next);
+                if (next - g).abs() <= 1e-3 * id.backlash_m.unwrap_or(0.0) {
+                    break;
+                }
+            }
+        }
+        let job = job_with_gap(gap.filter(|g| *g > 0.0))?;
+        let est = sim_match(&job, 0, measured, model_probe).map_err(|e| e.to_string())?;
+        Ok((est, gap))
+    })();
     let _ = std::fs::remove_dir_all(&dir);
-    let est = est?;
+    let (est, _crossed) = est?;
     let diff = 100.0 * (est.jl_kgm2 / id.jl_kgm2 - 1.0);
     let tol = (3.0 * id.jl_ci_pct.unwrap_or(1.0)).max(2.0);
     Ok(InertiaCheck {
