@@ -160,10 +160,15 @@ fn print_text(c: &Commissioning, compute_s: f64, out: &std::path::Path) {
     );
     if let Some(ch) = &t.inertia_check {
         println!(
-            "load inertia by simulation matching: {:.4e} kg m^2 ({:+.2} % from the fit{})",
+            "load inertia by simulation matching: {:.4e} kg m^2 ({:+.2} % from the fit, tolerance +-{:.2} %){}",
             ch.jl_sim_match_kgm2,
             ch.difference_pct,
-            if ch.agrees { "" } else { "; the fit is kept" }
+            ch.tolerance_pct,
+            if ch.agrees {
+                ""
+            } else {
+                "; beyond it, the fit is kept"
+            }
         );
     }
     println!(

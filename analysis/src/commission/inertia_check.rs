@@ -1,10 +1,17 @@
 //! The load inertia checked by simulation matching (seed 000, method 1): a fast move with the
 //! inverse-model feedforward at the fitted inertia is run on the axis, the same move is
 //! simulated on the identified model, and the model's JL is moved (secant) until the simulated
-//! command-load deviation at the peak acceleration equals the measured one. Near the
-//! feedforward's own inertia the deviation is linear in the load inertia's error and hardly
-//! depends on the friction, so the match reads the inertia where the frequency response's notch
-//! is noisiest.
+//! command-load deviation at the peak acceleration equals the measured one.
+//!
+//! What sets that deviation besides the inertia is where the table sits in the backlash when
+//! the move starts: the motor crosses that part of the gap first, and the transient it leaves
+//! at the probe is as large as a 10 % change of the inertia. The table's place is set by the
+//! friction's split between motor and table (the table's own friction holds it where the first
+//! move left it; a table without friction is thrown across when that move brakes), and the
+//! traverses measure only the sum. So the model does not repeat the first move: its table starts
+//! in the middle of a gap chosen to make the motor cross what the machine's motor crossed (the
+//! motor-load offset's rise from rest to the probe matched). The check's tolerance comes from
+//! the estimates' own uncertainties and the bound of the friction's unmeasured split.
 
 use feedloop_model::job::Job;
 use serde::Serialize;
@@ -15,7 +22,10 @@ use super::facts::{entry, experiment, floats, per_axis, Facts};
 use super::friction::Survey;
 use super::model_out::{feedforward_params, model_text};
 use super::Notes;
-use crate::identify::inertia::{records_deviation, sim_match, DeviationKind, Probe};
+use crate::identify::inertia::{
+    job_with_jl, records_deviation, run_axis, sim_match, simulated_deviation, DeviationKind,
+    InertiaEstimate, Probe,
+};
 
 /// The two estimates of the load inertia.
 #[derive(Debug, Clone, Serialize)]
@@ -26,8 +36,21 @@ pub struct InertiaCheck {
     pub jl_sim_match_kgm2: f64,
     /// Their difference, % of the fit's.
     pub difference_pct: f64,
-    /// Whether they agree within three of the fit's confidences (at least 2 %).
+    /// Whether they agree within `tolerance_pct`.
     pub agrees: bool,
+    /// The difference both estimates' own uncertainties allow, % of the fit's: 95 % of the
+    /// random part (the fit's interval, the simulation match's reading and stiffness) plus the
+    /// bound of the friction's split.
+    pub tolerance_pct: f64,
+    /// The simulation match's standard deviation (reading and stiffness), % of its estimate.
+    pub sim_match_sigma_pct: f64,
+    /// How far the friction's unmeasured split between motor and table can move the simulation
+    /// match (dry friction's twist in the crossing, viscous friction's side), % of its estimate.
+    pub friction_split_pct: f64,
+    /// What the machine's motor crossed of the backlash before it drove the table at the
+    /// move's start (the model's gap is twice it: its table starts in the middle), m; `null`
+    /// without a backlash.
+    pub backlash_crossed_m: Option<f64>,
     /// Moves simulated by the search.
     pub iterations: usize,
     /// Measured command-load deviation at the probe, m.
@@ -93,28 +116,157 @@ pub fn check_inertia(
         kind: DeviationKind::CommandLoad,
     };
     let measured = records_deviation(&rec.records[0], ratio, probe).map_err(|e| e.to_string())?;
+    // Where the table sits in the backlash when the move starts: what the motor travels before
+    // it drives the table (the motor-load offset at the probe less the one at rest before the
+    // move, the screw's twist at the probe included).
+    let start = ((0.2 + 0.1) / rec.period_s).round() as usize;
+    let settle = (0.05 / rec.period_s).round() as usize;
+    let model_probe = Probe {
+        at: probe.at - pre,
+        ..probe
+    };
+    let offset_rise =
+        |r: &[feedloop_trace::log::AxisRecord], probe: Probe| -> Result<f64, String> {
+            let twist_probe = Probe {
+                kind: DeviationKind::MotorLoad,
+                ..probe
+            };
+            let at_probe = records_deviation(r, ratio, twist_probe).map_err(|e| e.to_string())?;
+            let rest = r
+                .get(start.saturating_sub(settle)..start)
+                .filter(|w| !w.is_empty())
+                .ok_or("the check move's record is too short")?;
+            let at_rest =
+                rest.iter().map(|x| x.motor / ratio - x.load).sum::<f64>() / rest.len() as f64;
+            Ok(at_probe - at_rest)
+        };
+    let rise = offset_rise(&rec.records[0], probe)?;
     let dir = std::env::temp_dir().join(format!("feedloop-commission-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let model = dir.join("identified.toml");
-    std::fs::write(&model, model_text(f, s, id, id.jl_kgm2, f.start))
-        .map_err(|e| format!("{}: {e}", model.display()))?;
-    let mut table = exp.job.clone();
-    if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
-        let mut a = toml::Table::new();
-        a.insert("model".into(), model.display().to_string().into());
-        axes.insert(axis.into(), toml::Value::Table(a));
-    }
-    let job = Job::from_table(&table, &dir.join("check.toml")).map_err(|e| e.to_string());
-    let est = job.and_then(|job| sim_match(&job, 0, measured, probe).map_err(|e| e.to_string()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let est = est?;
+    let job_with = |gap: Option<f64>, kl: f64, viscous_on_load: bool| -> Result<Job, String> {
+        let mut idg = id.clone();
+        idg.backlash_m = gap;
+        idg.kl_nm_per_rad = kl;
+        let mut text = model_text(f, s, &idg, id.jl_kgm2, f.start);
+        if viscous_on_load {
+            // The measured viscous friction on the table's side instead of the motor's.
+            let dm = 0.5
+                * (s.friction.positive.viscous_nms_per_rad
+                    + s.friction.negative.viscous_nms_per_rad)
+                    .max(0.0);
+            text = text.replacen(
+                &format!("dm_nms_per_rad = {dm:e}"),
+                &format!("dm_nms_per_rad = 0.0\ndl_nms_per_rad = {dm:e}"),
+                1,
+            );
+        }
+        std::fs::write(&model, text).map_err(|e| format!("{}: {e}", model.display()))?;
+        let mut table = exp.job.clone();
+        // The model starts with its table in the middle of its gap, where the simulation
+        // starts it, and rests instead of the first move: the motor then crosses half the
+        // model's gap before it drives the table, and the gap is set to make that what the
+        // machine's motor crossed.
+        if let Some(toml::Value::Table(traj)) = table.get_mut("trajectory") {
+            traj.insert(
+                "segments".into(),
+                toml::Value::Array(vec![
+                    seg("dwell", None, 0.2),
+                    seg("dwell", None, 0.1),
+                    seg("move", Some(len), t_move),
+                    seg("dwell", None, 0.1),
+                ]),
+            );
+        }
+        if let Some(toml::Value::Table(axes)) = table.get_mut("axes") {
+            let mut a = toml::Table::new();
+            a.insert("model".into(), model.display().to_string().into());
+            axes.insert(axis.into(), toml::Value::Table(a));
+        }
+        Job::from_table(&table, &dir.join("check.toml")).map_err(|e| e.to_string())
+    };
+    let est = (|| -> Result<(InertiaEstimate, Option<f64>, f64, f64), String> {
+        // The identified model carries all the friction on the motor side, so its table is
+        // thrown across the backlash whenever the first move brakes, whereas the machine's
+        // table stays where its own friction holds it: the motor then crosses a different
+        // part of the gap at the start, and that transient, not the inertia, sets the
+        // deviation at the probe. So the model's gap is set to what the measured motor crosses
+        // (its offset rise matched, at most a few fixed-point steps: the rise moves one to one
+        // with the gap the model's table crosses).
+        let mut gap = id.backlash_m.filter(|b| *b > 0.0);
+        if gap.is_some() {
+            for _ in 0..4 {
+                let job = job_with(gap, id.kl_nm_per_rad, false)?;
+                let sim = run_axis(
+                    &job_with_jl(&job, 0, id.jl_kgm2, id.jl_kgm2).map_err(|e| e.to_string())?,
+                    0,
+                )
+                .map_err(|e| e.to_string())?;
+                let miss = rise - offset_rise(&sim, model_probe)?;
+                let g = gap.unwrap_or(0.0);
+                let next = (g + 2.0 * miss).max(0.0);
+                gap = Some(next);
+                if (next - g).abs() <= 1e-3 * id.backlash_m.unwrap_or(0.0) {
+                    break;
+                }
+            }
+        }
+        let matched = |gap: Option<f64>, kl: f64, load: bool| -> Result<InertiaEstimate, String> {
+            let job = job_with(gap.filter(|g| *g > 0.0), kl, load)?;
+            sim_match(&job, 0, measured, model_probe).map_err(|e| e.to_string())
+        };
+        let est = matched(gap, id.kl_nm_per_rad, false)?;
+        // The estimate's own uncertainty, as standard deviations of JL:
+        // - reading: the measured deviation's standard error (its least-squares line in the
+        //   window) over the deviation's change with JL;
+        // - stiffness: the estimate with KL one standard deviation of the fit higher;
+        // and, as bounds (the traverses measure the friction of motor and table together,
+        // not its split):
+        // - the crossing read from the offset rise includes the screw's twist under the
+        //   table's share of the dry friction, anywhere from none to the whole over KL: the
+        //   estimate with the model's gap less twice that twist;
+        // - the viscous friction: the estimate with it all on the table's side.
+        let jl = est.jl_kgm2;
+        let job = job_with(gap.filter(|g| *g > 0.0), id.kl_nm_per_rad, false)?;
+        let moved = simulated_deviation(&job, 0, 1.01 * jl, id.jl_kgm2, model_probe)
+            .map_err(|e| e.to_string())?;
+        let per_jl = (moved - est.deviation_model_m) / (0.01 * jl);
+        let reading = reading_error(&rec.records[0], probe) / per_jl.abs().max(1e-300);
+        let split = match gap {
+            Some(g) if g > 0.0 => {
+                let kl_load = id.kl_nm_per_rad * ratio * ratio;
+                let twist = s.friction.coulomb_nm() * ratio / kl_load;
+                let e = matched(Some((g - 2.0 * twist).max(0.0)), id.kl_nm_per_rad, false)?;
+                (e.jl_kgm2 - jl).abs()
+            }
+            _ => 0.0,
+        };
+        let stiffness = match id.kl_ci_pct {
+            Some(ci) if ci > 0.0 => {
+                let e = matched(gap, id.kl_nm_per_rad * (1.0 + ci / 196.0), false)?;
+                (e.jl_kgm2 - jl).abs()
+            }
+            _ => 0.0,
+        };
+        let viscous = (matched(gap, id.kl_nm_per_rad, true)?.jl_kgm2 - jl).abs();
+        let sigma = (reading * reading + stiffness * stiffness).sqrt();
+        Ok((est, gap, 100.0 * sigma / jl, 100.0 * (split + viscous) / jl))
+    })();
+    let (est, gap, sigma_pct, split_pct) = est?;
     let diff = 100.0 * (est.jl_kgm2 / id.jl_kgm2 - 1.0);
-    let tol = (3.0 * id.jl_ci_pct.unwrap_or(1.0)).max(2.0);
+    // 95 % of the difference of two independent estimates (the fit's interval is 1.96 of its
+    // standard deviations), plus the bound of the friction's unmeasured split.
+    let fit_sigma_pct = id.jl_ci_pct.unwrap_or(0.0) / 1.96;
+    let tol = 1.96 * (fit_sigma_pct * fit_sigma_pct + sigma_pct * sigma_pct).sqrt() + split_pct;
     Ok(InertiaCheck {
         jl_two_mass_kgm2: id.jl_kgm2,
         jl_sim_match_kgm2: est.jl_kgm2,
         difference_pct: diff,
         agrees: diff.abs() <= tol,
+        tolerance_pct: tol,
+        sim_match_sigma_pct: sigma_pct,
+        friction_split_pct: split_pct,
+        backlash_crossed_m: gap.map(|g| 0.5 * g),
         iterations: est.iterations,
         deviation_m: measured,
     })
@@ -148,4 +300,30 @@ fn check_chain(f: &Facts, axis: &str, s: &Survey, id: &Identified) -> Vec<toml::
             ]),
         ),
     ]
+}
+
+/// Standard error of the command-load deviation read at `probe` from `rec`: the scatter of the
+/// window's samples about their least-squares line over the root of their count.
+fn reading_error(rec: &[feedloop_trace::log::AxisRecord], probe: Probe) -> f64 {
+    let pts: Vec<(f64, f64)> = rec
+        .iter()
+        .skip_while(|r| r.load < probe.at - probe.half_window)
+        .take_while(|r| r.load <= probe.at + probe.half_window)
+        .map(|r| (r.load - probe.at, r.cmd - r.load))
+        .collect();
+    let m = pts.len() as f64;
+    if m < 4.0 {
+        return 0.0;
+    }
+    let (sx, sy) = pts.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    let (mx, my) = (sx / m, sy / m);
+    let sxx: f64 = pts.iter().map(|(x, _)| (x - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let res: f64 = pts
+        .iter()
+        .map(|(x, y)| (y - my - slope * (x - mx)).powi(2))
+        .sum::<f64>()
+        / (m - 2.0);
+    (res * (1.0 / m + mx * mx / sxx.max(1e-300))).sqrt()
 }
