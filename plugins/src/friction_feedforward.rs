@@ -29,10 +29,9 @@ use crate::plugin::{reference_only_plugin, AxisPlugin};
 /// The friction feedforward.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrictionFeedforward {
-    /// Coulomb level in motor units, N m (N).
-    pub fc: f64,
-    /// The velocity-dependent part, when given (`None`: Coulomb only).
-    pub curve: Option<FrictionCurve>,
+    /// The friction played, motor units: a Coulomb level alone ([`FrictionCurve::coulomb`])
+    /// unless the curve's keys are given.
+    pub curve: FrictionCurve,
 }
 
 /// A measured friction curve per direction, motor side: `T(w) = fc + (fs - fc) exp(-(|w| /
@@ -94,9 +93,13 @@ impl FrictionCurve {
         }
         let d = usize::from(w < 0.0);
         let a = w.abs();
-        let level =
-            self.fc[d] + (self.fs[d] - self.fc[d]) * (-(a / self.vs).powf(self.exponent)).exp();
-        w.signum() * (level + self.c * a)
+        let rise = self.fs[d] - self.fc[d];
+        let stribeck = if rise > 0.0 {
+            rise * (-(a / self.vs).powf(self.exponent)).exp()
+        } else {
+            0.0
+        };
+        w.signum() * (self.fc[d] + stribeck + self.c * a)
     }
 }
 
@@ -120,7 +123,9 @@ impl AxisPlugin for FrictionFeedforward {
             FrictionCurve::read(&mut f, fc)?
         };
         f.finish()?;
-        Ok(Self { fc, curve })
+        Ok(Self {
+            curve: curve.unwrap_or(FrictionCurve::coulomb(fc)),
+        })
     }
 }
 
@@ -128,16 +133,7 @@ impl Controller for FrictionFeedforward {
     reference_only_plugin!();
 
     fn step(&mut self, _ctx: &CycleContext, io: &mut AxisSignals) {
-        let v = io.reference[1];
-        if let Some(c) = &self.curve {
-            io.torque_ff += c.torque(v);
-            return;
-        }
-        if v > 0.0 {
-            io.torque_ff += self.fc;
-        } else if v < 0.0 {
-            io.torque_ff -= self.fc;
-        }
+        io.torque_ff += self.curve.torque(io.reference[1]);
     }
 }
 
@@ -153,14 +149,14 @@ mod tests {
         let f =
             FrictionFeedforward::build(&t, &crate::test_util::ballscrew_axis(1e-4), Path::new("j"))
                 .unwrap();
-        assert!((f.fc - 0.15).abs() < 1e-12, "{}", f.fc);
+        assert!((f.curve.fc[0] - 0.15).abs() < 1e-12, "{:?}", f.curve);
+        assert_eq!(f.curve, FrictionCurve::coulomb(f.curve.fc[0]));
     }
 
     #[test]
     fn torque_follows_the_sign_of_the_commanded_velocity_and_nan_adds_nothing() {
         let mut f = FrictionFeedforward {
-            fc: 0.2,
-            curve: None,
+            curve: FrictionCurve::coulomb(0.2),
         };
         let ctx = CycleContext {
             period_s: 1e-4,
@@ -184,7 +180,7 @@ mod tests {
         let f =
             FrictionFeedforward::build(&t, &crate::test_util::ballscrew_axis(1e-4), Path::new("j"))
                 .unwrap();
-        let c = f.curve.unwrap();
+        let c = f.curve;
         assert!((c.torque(1e-6) - 0.2).abs() < 1e-6);
         assert!((c.torque(100.0) - 1.1).abs() < 1e-9);
         assert!((c.torque(-100.0) + 1.12).abs() < 1e-9);
@@ -206,8 +202,9 @@ mod tests {
         assert_eq!(
             FrictionFeedforward::build(&t, &a, Path::new("j"))
                 .unwrap()
+                .curve
                 .fc,
-            12.0
+            [12.0; 2]
         );
     }
 }
