@@ -20,7 +20,7 @@ use super::device::Device;
 use super::excitation::Identified;
 use super::facts::{entry, experiment, floats, per_axis, Facts};
 use super::friction::Survey;
-use super::model_out::{feedforward_params, model_text};
+use super::model_out::{feedforward_params, model_text_viscous};
 use super::Notes;
 use crate::identify::inertia::{
     job_with_jl, records_deviation, run_axis, sim_match, simulated_deviation, DeviationKind,
@@ -221,19 +221,7 @@ impl CheckSim<'_> {
         let mut idg = id.clone();
         idg.backlash_m = gap;
         idg.kl_nm_per_rad = kl;
-        let mut text = model_text(f, s, &idg, id.jl_kgm2, f.start);
-        if viscous_on_load {
-            // The measured viscous friction on the table's side instead of the motor's.
-            let dm = 0.5
-                * (s.friction.positive.viscous_nms_per_rad
-                    + s.friction.negative.viscous_nms_per_rad)
-                    .max(0.0);
-            text = text.replacen(
-                &format!("dm_nms_per_rad = {dm:e}"),
-                &format!("dm_nms_per_rad = 0.0\ndl_nms_per_rad = {dm:e}"),
-                1,
-            );
-        }
+        let text = model_text_viscous(f, s, &idg, id.jl_kgm2, f.start, viscous_on_load);
         let model = self.dir.join("identified.toml");
         std::fs::write(&model, text).map_err(|e| format!("{}: {e}", model.display()))?;
         let mut table = self.job.clone();

@@ -13,14 +13,31 @@ use super::friction::{FrictionSide, Survey};
 /// part as DM), the backlash read at the reversals, the tuned gains. No sensor noise: the file
 /// is the mechanics.
 pub fn model_text(f: &Facts, s: &Survey, id: &Identified, jl: f64, g: Gains) -> String {
+    model_text_viscous(f, s, id, jl, g, false)
+}
+
+/// [`model_text`] with the measured viscous friction on the table's side (`dl_nms_per_rad`)
+/// instead of the motor's when `on_load` (the traverses measure the two together).
+pub fn model_text_viscous(
+    f: &Facts,
+    s: &Survey,
+    id: &Identified,
+    jl: f64,
+    g: Gains,
+    on_load: bool,
+) -> String {
     let fr = &s.friction;
     let (p, n) = (&fr.positive, &fr.negative);
-    let dm = 0.5 * (p.viscous_nms_per_rad + n.viscous_nms_per_rad).max(0.0);
+    let viscous = 0.5 * (p.viscous_nms_per_rad + n.viscous_nms_per_rad).max(0.0);
     let mut t = String::new();
     let _ = writeln!(t, "# Axis identified by feedloop commission: every value below was measured, except jm_kgm2, lead_m,\n# gear_ratio and torque_limit_nm (data sheet).");
     let _ = writeln!(t, "kind = \"ballscrew\"");
     let _ = writeln!(t, "jm_kgm2 = {:e}", f.jm_kgm2);
-    let _ = writeln!(t, "dm_nms_per_rad = {dm:e}");
+    if on_load {
+        let _ = writeln!(t, "dm_nms_per_rad = 0.0\ndl_nms_per_rad = {viscous:e}");
+    } else {
+        let _ = writeln!(t, "dm_nms_per_rad = {viscous:e}");
+    }
     let _ = writeln!(t, "kl_nm_per_rad = {:.6e}", id.kl_nm_per_rad);
     let _ = writeln!(t, "jl_kgm2 = {jl:.6e}");
     let _ = writeln!(
