@@ -481,11 +481,9 @@ pub(super) fn torque_effect_candidate(
     d: &AxisData,
     ch: &TorqueChannel<'_>,
 ) -> Result<Candidate, Untestable> {
-    let Some(old) = model.superseded_by(id) else {
+    let Some((reduced, old)) = model.without_superseded(id) else {
         return scored_candidate(id, model, d, ch, ch);
     };
-    let mut reduced = model.clone();
-    reduced.effects.retain(|e| e.id != old);
     let rel = Released::of(&reduced, d, None);
     let ch_r = TorqueChannel::new(&reduced, d, &rel);
     scored_candidate(id, &reduced, d, &ch_r, ch).map(|mut c| {
@@ -662,8 +660,13 @@ pub(super) fn coulomb_with_offset(
     );
     let nb = ch.base_cols.len();
     // the offset is kept only where the data say it is not zero (outside its own confidence
-    // interval) and it does not worsen the held-out error
-    if cv2.rms > cv.rms * 1.02 || cv2.theta[nb + 1].abs() <= CI_SIGMAS * cv2.theta_se[nb + 1] {
+    // interval), it is a torque a servo engineer would see (on a near noise-free record a
+    // confidence interval excludes zero for a thousandth of a newton), and it does not worsen
+    // the held-out error
+    let (a, b) = d.range;
+    let material = MATERIAL_FRACTION * rms(&ch.y_app[a..b]);
+    let off_t = cv2.theta[nb + 1].abs();
+    if cv2.rms > cv.rms * 1.02 || off_t <= CI_SIGMAS * cv2.theta_se[nb + 1] || off_t < material {
         return None;
     }
     let mut ec = e.clone();

@@ -500,9 +500,23 @@ pub struct WbModel {
     pub base: Vec<(BaseParam, f64)>,
     /// Effects in regressor form.
     pub effects: Vec<Effect>,
+    /// The side of the dry friction taken out by [`WbModel::without_superseded`]: the effect
+    /// that replaces it refines that friction's curve, on that side.
+    pub replaced_side: Option<Side>,
 }
 
 impl WbModel {
+    /// This model without the effect that effect `id` contains (see [`WbModel::superseded_by`]),
+    /// the side of a dry friction taken out kept in [`WbModel::replaced_side`]; and that
+    /// effect's id. `None` when the model has nothing `id` contains.
+    pub fn without_superseded(&self, id: EffectId) -> Option<(WbModel, EffectId)> {
+        let old = self.superseded_by(id)?;
+        let mut reduced = self.clone();
+        reduced.replaced_side = self.effects.iter().find(|e| e.id == old).map(|e| e.side);
+        reduced.effects.retain(|e| e.id != old);
+        Some((reduced, old))
+    }
+
     /// The effect of this model that effect `id` contains and so replaces when added (see
     /// [`EffectId::supersedes`]): what `fit` takes out and `diagnose` scores it without.
     pub fn superseded_by(&self, id: EffectId) -> Option<EffectId> {
@@ -534,6 +548,7 @@ impl WbModel {
             table,
             base,
             effects,
+            replaced_side: None,
         })
     }
 

@@ -160,8 +160,11 @@ fn prepared(
     let mut work = model.clone();
     let mut replaced = Vec::new();
     for &id in add {
-        if let Some(old) = work.superseded_by(id).filter(|s| !add.contains(s)) {
-            work.effects.retain(|e| e.id != old);
+        if let Some((reduced, old)) = work
+            .without_superseded(id)
+            .filter(|(_, s)| !add.contains(s))
+        {
+            work = reduced;
             warnings.push(format!("{id} replaces the model's {old} (it contains it)"));
             replaced.push(old.to_string());
         }

@@ -12,6 +12,15 @@ use nalgebra::{DMatrix, DVector};
 /// 4 degrees of freedom).
 pub const CI_SIGMAS: f64 = 3.0;
 
+/// Smallest cross-validated error reduction that counts, % of the model's error.
+pub const MIN_REDUCTION_PCT: f64 = 3.0;
+/// Whether a fit that takes its channel's error from `before` to `after` (%) cuts it
+/// materially: by at least [`MIN_REDUCTION_PCT`] % of it (a step that moves the error in its
+/// second decimal is no finding, whatever its cross-validated score).
+pub fn material_cut(before: f64, after: f64) -> bool {
+    after < before * (1.0 - MIN_REDUCTION_PCT / 100.0)
+}
+
 /// Normal equations of one block: `X^T X`, `X^T y`, `y^T y`, sample count.
 #[derive(Debug, Clone)]
 pub struct Normal {

@@ -11,9 +11,11 @@ use feedloop_model::model::AxisKind;
 use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv};
+use super::grids::{hyper_grid, logspace};
+use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv, CI_SIGMAS};
 use super::pinned::held_at_controller_limit;
-use super::signal::{golden_section, quantile, span};
+use super::side::{other_side, second_side_better, taken};
+use super::signal::{golden_section, quantile};
 use feedloop_model::units::sig;
 
 /// Folds of the blocked cross-validation.
@@ -62,97 +64,6 @@ pub fn moving_mask(d: &AxisData) -> Option<Vec<f64>> {
         .collect();
     let moving = mask[a..b].iter().filter(|w| **w != 0.0).count();
     (moving < b - a && 5 * moving >= b - a).then_some(mask)
-}
-
-/// The grid of nonlinear parameters tried for effect `id`.
-pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
-    let (a, b) = d.range;
-    let vmax = quantile(
-        &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
-        0.99,
-    )
-    .max(1e-12);
-    let fs = 1.0 / d.dt;
-    match id {
-        EffectId::StribeckFriction => {
-            let mut g = Vec::new();
-            for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
-                for e in [1.0, 2.0] {
-                    g.push(vec![vs, e]);
-                }
-            }
-            g
-        }
-        EffectId::Cogging => match d.kind {
-            AxisKind::Rigid => logspace(1e-3, 0.1, 120)
-                .into_iter()
-                .map(|p| vec![p])
-                .collect(),
-            AxisKind::BallScrew | AxisKind::Rotary => (1..=120)
-                .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
-                .collect(),
-        },
-        EffectId::ThirdMass => {
-            let mut g = Vec::new();
-            for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
-                for z in [0.02, 0.1, 0.3] {
-                    g.push(vec![f, z]);
-                }
-            }
-            g
-        }
-        EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
-        // time constants of the recording's period (that of the samples held on a long trace
-        // held in block means)
-        EffectId::CurrentLag => logspace(d.dt / d.sub as f64 * 0.3, d.dt / d.sub as f64 * 20.0, 16)
-            .into_iter()
-            .map(|t| vec![t])
-            .collect(),
-        EffectId::TorqueSaturation => {
-            let Some(y) = &d.torque_raw else {
-                return vec![];
-            };
-            let ay: Vec<f64> = y[a..b].iter().map(|x| x.abs()).collect();
-            let (lo, hi) = (quantile(&ay, 0.3), quantile(&ay, 1.0));
-            (0..40)
-                .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
-                .collect()
-        }
-        EffectId::PitchError => {
-            let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
-            vec![vec![lead]]
-        }
-        // linear in their coefficients: nothing to search (backlash takes its dead band from
-        // the model where it is fitted)
-        EffectId::ViscousFriction
-        | EffectId::CoulombFriction
-        | EffectId::ConstantForce
-        | EffectId::Backlash
-        | EffectId::DirectionalFriction => vec![vec![]],
-        // the motor travel over which the offset flips: from a millionth of the travel
-        // recorded (a step) to a hundredth of it
-        EffectId::LostMotion => {
-            let travel = span(&d.qm[a..b]).max(1e-12);
-            logspace(travel * 1e-6, travel * 1e-2, 16)
-                .into_iter()
-                .map(|w| vec![w])
-                .collect()
-        }
-        // one load revolution first (a tie keeps it), then the periods a load column referred
-        // through a gear shows: from half the travel to a thousand times it
-        EffectId::Unbalance => {
-            let travel = span(&d.ql[a..b]) / d.r;
-            let mut g = vec![vec![2.0 * std::f64::consts::PI]];
-            if travel > 0.0 {
-                g.extend(
-                    logspace(0.5 * travel, 1000.0 * travel, 40)
-                        .into_iter()
-                        .map(|p| vec![p]),
-                );
-            }
-            g
-        }
-    }
 }
 
 pub(crate) fn default_side(kind: AxisKind) -> Side {
@@ -263,13 +174,6 @@ pub struct Refit {
 /// of `fit --add`).
 pub type Untestable = String;
 
-/// `n` values from `lo` to `hi`, evenly spaced on a log scale.
-fn logspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    (0..n)
-        .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
-        .collect()
-}
-
 /// Best-scoring variant of effect `id` on `y` with `base` columns free (see [`Refit`]).
 /// `base_now` holds the current values of the base parameters whose columns are `base` (0 for
 /// those not checked, empty when those columns are not base parameters; see [`inertias_now`]):
@@ -300,18 +204,42 @@ pub fn best_effect(
         bl,
         mask,
     };
+    let side = default_side(d.kind);
+    let Some(other) = other_side(id, model, d, side) else {
+        return best_on_side(id, side, p);
+    };
+    // a friction that replaces one refines that one's curve, on its side; a side that carries
+    // a dry friction already takes no second one, so the other side is the one left
+    let taken = |s: Side| taken(model, s);
+    match model.replaced_side {
+        Some(s) => best_on_side(id, s, p),
+        None if taken(side) && !taken(other) => best_on_side(id, other, p),
+        None if taken(other) && !taken(side) => best_on_side(id, side, p),
+        None => match (best_on_side(id, side, p), best_on_side(id, other, p)) {
+            // the side whose model simulates the record better (see [`super::side`]), or the
+            // one that fits
+            (Ok(a), Ok(b)) if second_side_better(&a.effect, &b.effect, model, d) => Ok(b),
+            (Err(_), Ok(b)) => Ok(b),
+            (first, _) => first,
+        },
+    }
+}
+
+/// [`best_effect`] with the effect on `side`.
+fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untestable> {
+    let (model, d) = (p.model, p.d);
     let mut grid = search_grid(id, model, d)?;
     let searched = grid.clone();
-    if let Some(h) = presearch_decimated(id, &p, grid.len()) {
+    if let Some(h) = presearch_decimated(id, side, &p, grid.len()) {
         grid = vec![h];
     }
     let scorer = Scorer {
         id,
-        side: default_side(d.kind),
+        side,
         needed: (channel(id) == Channel::TorquePath).then(|| model.torque_needed(d)),
         // a base column that the effect's own columns span (the damping beside a friction with
         // viscous slopes) cannot be refitted beside it: held from the start
-        collinear: held_from_start(id, model, d, base, base_now),
+        collinear: held_from_start(id, model, d, p.base, p.base_now),
         p,
     };
     let (mut best, reason, best_i) = scorer.best_on(&grid);
@@ -373,7 +301,12 @@ fn search_grid(id: EffectId, model: &WbModel, d: &AxisData) -> Result<Vec<Vec<f6
 /// On a long trace, the grid (of `points` points) of an effect with regressor columns is
 /// searched on a decimated copy (the filtered signals are band-limited to the cut-off) and only
 /// its best point is scored on all samples: that point, when the pre-search found one.
-fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<Vec<f64>> {
+fn presearch_decimated(
+    id: EffectId,
+    side: Side,
+    p: &Problem<'_>,
+    points: usize,
+) -> Option<Vec<f64>> {
     let d = p.d;
     let q = ((1.0 / (d.dt * 10.0 * d.cutoff_hz)).floor() as usize).max(1);
     if !(channel(id) == Channel::Torque && points > 1 && q > 1 && d.len() >= LONG_TRACE) {
@@ -386,18 +319,16 @@ fn presearch_decimated(id: EffectId, p: &Problem<'_>, points: usize) -> Option<V
     let y_d = dec(p.y);
     let mask_d = p.mask.map(dec);
     let bl_d = blocks_of_rows(dd.range, p.bl.len(), mask_d.as_deref());
-    best_effect(
-        id,
-        p.model,
-        &dd,
-        &base_r,
-        p.base_now,
-        &y_d,
-        &bl_d,
-        mask_d.as_deref(),
-    )
-    .ok()
-    .map(|r| r.effect.hyper)
+    let pd = Problem {
+        model: p.model,
+        d: &dd,
+        base: &base_r,
+        base_now: p.base_now,
+        y: &y_d,
+        bl: &bl_d,
+        mask: mask_d.as_deref(),
+    };
+    best_on_side(id, side, pd).ok().map(|r| r.effect.hyper)
 }
 
 /// The base columns an effect is refitted without from the start: those its own columns span
@@ -422,6 +353,7 @@ fn held_from_start(
 }
 
 /// What an effect is refitted on (the arguments of [`best_effect`]).
+#[derive(Clone, Copy)]
 struct Problem<'a> {
     model: &'a WbModel,
     d: &'a AxisData,
@@ -560,14 +492,28 @@ impl Scorer<'_> {
 /// Why effect `e` (fitted by `cv`, its coefficients after the `nb` base columns) is not
 /// physical, for the effects that have such a bound.
 fn physical(id: EffectId, e: &Effect, cv: &Cv, nb: usize) -> Result<(), Untestable> {
-    // a Stribeck hump must be a rise of friction at low speed (fs >= fc)
-    if id == EffectId::StribeckFriction && cv.theta.get(nb + 1).copied().unwrap_or(0.0) < 0.0 {
-        return Err(
-            "its breakaway level fits below its sliding level (fs < fc) at every \
+    // a Stribeck hump must be a rise of friction at low speed (fs >= fc), and one the data
+    // tell from none: a hump inside its own confidence interval is a Coulomb friction, whose
+    // fit would then be credited to the Stribeck effect
+    if id == EffectId::StribeckFriction {
+        let hump = cv.theta.get(nb + 1).copied().unwrap_or(0.0);
+        let se = cv.theta_se.get(nb + 1).copied().unwrap_or(0.0);
+        if hump < 0.0 {
+            return Err(
+                "its breakaway level fits below its sliding level (fs < fc) at every \
                     Stribeck velocity searched: these data show no rise of friction at low \
                     speed"
-                .into(),
-        );
+                    .into(),
+            );
+        }
+        if hump <= CI_SIGMAS * se {
+            return Err(
+                "its rise of friction at low speed (fs - fc) lies inside its own confidence \
+                    interval at every Stribeck velocity searched: the friction these data show \
+                    is a Coulomb friction"
+                    .into(),
+            );
+        }
     }
     // a third mass has a positive mass (a negative one is coloured noise fitted by a mode)
     if id == EffectId::ThirdMass && cv.theta.get(nb).copied().unwrap_or(0.0) <= 0.0 {

@@ -16,14 +16,7 @@ use super::signal::{mean, rms};
 use feedloop_model::model::AxisKind;
 use feedloop_model::EffectId;
 
-/// Smallest cross-validated error reduction that counts, % of the model's error.
-pub const MIN_REDUCTION_PCT: f64 = 3.0;
-/// Whether a fit that takes its channel's error from `before` to `after` (%) cuts it
-/// materially: by at least [`MIN_REDUCTION_PCT`] % of it (a step that moves the error in its
-/// second decimal is no finding, whatever its cross-validated score).
-pub fn material_cut(before: f64, after: f64) -> bool {
-    after < before * (1.0 - MIN_REDUCTION_PCT / 100.0)
-}
+pub use super::lsq::{material_cut, MIN_REDUCTION_PCT};
 
 /// Blocks (of [`FOLDS`]) in which a significant candidate must lower the error.
 pub const MIN_FOLD_WINS: usize = 4;

@@ -329,6 +329,17 @@ impl Sim {
 
 /// Runs the windowed and free-run simulations.
 pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
+    window_sim_of(model, d, window_s, true)
+}
+
+/// The windowed simulation alone (the free run's figures are those of an all-zero simulation):
+/// for comparing two variants of a model at half the cost.
+pub fn windowed_only(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
+    window_sim_of(model, d, window_s, false)
+}
+
+/// [`window_sim`], with the free run only when `free`.
+fn window_sim_of(model: &WbModel, d: &AxisData, window_s: f64, free: bool) -> WindowSim {
     let c = &model.file.controller;
     let closed = c.kp_per_s.is_some() && c.kv.is_some();
     let n = d.len();
@@ -347,7 +358,11 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
         let Some(y) = d.torque.as_ref() else {
             // closed loop without a recorded torque: compare the following error only
             let (fe_w, _) = run_closed(model, &mut sim, d, wlen, None);
-            let (fe_f, _) = run_closed(model, &mut sim, d, n, None);
+            let (fe_f, _) = if free {
+                run_closed(model, &mut sim, d, n, None)
+            } else {
+                (vec![0.0; n], vec![])
+            };
             let meas: Vec<f64> = d.cmd.iter().zip(&d.ql).map(|(c, l)| c - l).collect();
             return finish(
                 "closed_loop",
@@ -358,7 +373,11 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
             );
         };
         let (fe_w, u_w) = run_closed(model, &mut sim, d, wlen, Some(y));
-        let (fe_f, u_f) = run_closed(model, &mut sim, d, n, Some(y));
+        let (fe_f, u_f) = if free {
+            run_closed(model, &mut sim, d, n, Some(y))
+        } else {
+            (vec![0.0; n], vec![0.0; n])
+        };
         // the measured torque went through the zero-phase filter (parallel filtering): so do
         // the simulated ones, so that the comparison is like with like
         let (u_w, u_f) = if d.torque_filtered {
@@ -393,7 +412,11 @@ pub fn window_sim(model: &WbModel, d: &AxisData, window_s: f64) -> WindowSim {
         model.applied(d).unwrap_or_else(|| y.clone())
     };
     let v_w = run_open(&mut sim, d, &u, wlen);
-    let v_f = run_open(&mut sim, d, &u, n);
+    let v_f = if free {
+        run_open(&mut sim, d, &u, n)
+    } else {
+        vec![0.0; n]
+    };
     finish(
         "open_loop",
         window_s,

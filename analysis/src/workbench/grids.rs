@@ -1,0 +1,106 @@
+//! The grids of nonlinear parameters an effect's refit searches (a Stribeck velocity, a mode's
+//! frequency, a time constant, a period), sized from the trace.
+
+use feedloop_model::model::AxisKind;
+
+use super::data::AxisData;
+use super::effects::EffectId;
+use super::signal::{quantile, span};
+
+/// The grid of nonlinear parameters tried for effect `id`.
+pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
+    let (a, b) = d.range;
+    let vmax = quantile(
+        &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
+        0.99,
+    )
+    .max(1e-12);
+    let fs = 1.0 / d.dt;
+    match id {
+        EffectId::StribeckFriction => {
+            let mut g = Vec::new();
+            for vs in logspace(vmax * 2e-3, vmax * 0.3, 14) {
+                for e in [1.0, 2.0] {
+                    g.push(vec![vs, e]);
+                }
+            }
+            g
+        }
+        EffectId::Cogging => match d.kind {
+            AxisKind::Rigid => logspace(1e-3, 0.1, 120)
+                .into_iter()
+                .map(|p| vec![p])
+                .collect(),
+            AxisKind::BallScrew | AxisKind::Rotary => (1..=120)
+                .map(|n| vec![2.0 * std::f64::consts::PI / n as f64])
+                .collect(),
+        },
+        EffectId::ThirdMass => {
+            let mut g = Vec::new();
+            for f in logspace(5.0, (fs / 5.0).min(2000.0), 24) {
+                for z in [0.02, 0.1, 0.3] {
+                    g.push(vec![f, z]);
+                }
+            }
+            g
+        }
+        EffectId::Delay => (1..=10).map(|k| vec![k as f64]).collect(),
+        // time constants of the recording's period (that of the samples held on a long trace
+        // held in block means)
+        EffectId::CurrentLag => logspace(d.dt / d.sub as f64 * 0.3, d.dt / d.sub as f64 * 20.0, 16)
+            .into_iter()
+            .map(|t| vec![t])
+            .collect(),
+        EffectId::TorqueSaturation => {
+            let Some(y) = &d.torque_raw else {
+                return vec![];
+            };
+            let ay: Vec<f64> = y[a..b].iter().map(|x| x.abs()).collect();
+            let (lo, hi) = (quantile(&ay, 0.3), quantile(&ay, 1.0));
+            (0..40)
+                .map(|i| vec![lo + (hi - lo) * i as f64 / 40.0])
+                .collect()
+        }
+        EffectId::PitchError => {
+            let lead = d.r.recip() * 2.0 * std::f64::consts::PI;
+            vec![vec![lead]]
+        }
+        // linear in their coefficients: nothing to search (backlash takes its dead band from
+        // the model where it is fitted)
+        EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::ConstantForce
+        | EffectId::Backlash
+        | EffectId::DirectionalFriction => vec![vec![]],
+        // the motor travel over which the offset flips: from a millionth of the travel
+        // recorded (a step) to a hundredth of it
+        EffectId::LostMotion => {
+            let travel = span(&d.qm[a..b]).max(1e-12);
+            logspace(travel * 1e-6, travel * 1e-2, 16)
+                .into_iter()
+                .map(|w| vec![w])
+                .collect()
+        }
+        // one load revolution first (a tie keeps it), then the periods a load column referred
+        // through a gear shows: from half the travel to a thousand times it
+        EffectId::Unbalance => {
+            let travel = span(&d.ql[a..b]) / d.r;
+            let mut g = vec![vec![2.0 * std::f64::consts::PI]];
+            if travel > 0.0 {
+                g.extend(
+                    logspace(0.5 * travel, 1000.0 * travel, 40)
+                        .into_iter()
+                        .map(|p| vec![p]),
+                );
+            }
+            g
+        }
+    }
+}
+
+/// `n` values from `lo` to `hi`, evenly spaced on a log scale.
+pub(super) fn logspace(lo: f64, hi: f64, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (n - 1) as f64))
+        .collect()
+}
