@@ -219,6 +219,46 @@ fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// A recorded torque that drifts with the time (a warming current sensor: 2 N more every second
+/// than the body meets) is among what the dictionary names ("the time"), but the generic peer does not
+/// regress on the time: its dictionary is the one an identification engineer builds for an
+/// axis' torque (constant, sign and tanh of the velocity, |v|, |v| v, the position's sine and
+/// cosine, a delayed torque).
+#[test]
+fn a_drift_is_named_by_the_dictionary_and_is_no_term_of_the_peer() {
+    use feedloop_analysis::workbench::diagnose::DiagOptions;
+    let dir = scratch("drift");
+    let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
+    let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+        let t = cells[0].parse::<f64>();
+        if let (Ok(t), Some(Ok(f))) = (t, cells.get(3).map(|c| c.parse::<f64>())) {
+            cells[3] = format!("{}", f + 2.0 * t);
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    std::fs::write(&trace, out).unwrap();
+    let (m, d) = setup(&trace, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
+    let dg = diagnose(&m, &d, &DiagOptions::default());
+    // (the open-loop body wanders, so slow shapes of its position stand beside the time)
+    assert!(
+        dg.residual_terms
+            .iter()
+            .any(|t| t.term == "time" && t.significant),
+        "{:?}",
+        dg.residual_terms
+    );
+    assert!(
+        !dg.sparse_peer.terms.contains(&"time".to_string()),
+        "{:?}",
+        dg.sparse_peer
+    );
+}
+
 #[test]
 fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
     // a right model whose recorded torque carries white noise of 5 % of the drive (a current

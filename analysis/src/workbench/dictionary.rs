@@ -243,6 +243,12 @@ pub struct SparsePeer {
     pub equation_nrmse_pct: f64,
 }
 
+/// Dictionary terms the peer does not regress on: the time is no term of the dictionary such
+/// an engineer would build for an axis' torque (constant, sign and tanh of the velocity, |v|,
+/// |v| v, sine and cosine of the position, a delayed torque); `diagnose` keeps it to say
+/// when a residual drifts.
+const PEER_LEAVES_OUT: [&str; 1] = ["time"];
+
 /// Thresholds tried, as shares of the applied torque's standard deviation (a term whose
 /// contribution is smaller than that is no finding: on a right model, all of them).
 const THRESHOLDS: [f64; 7] = [0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1];
@@ -262,7 +268,11 @@ pub fn sparse_peer(
     let (a, b) = range;
     let mut cols: Vec<&[f64]> = base.to_vec();
     let mut owner: Vec<Option<usize>> = vec![None; base.len()];
-    for (i, t) in terms.iter().enumerate() {
+    for (i, t) in terms
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| !PEER_LEAVES_OUT.contains(&t.id.as_str()))
+    {
         for c in &t.cols {
             cols.push(c);
             owner.push(Some(i));
