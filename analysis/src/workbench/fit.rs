@@ -228,6 +228,9 @@ pub fn fit(
     let narrowed = held.narrowed(model, &free_keys, free_effects.as_deref());
     let free = narrowed.as_deref().or(free);
     let mut r = fit_with(model, d, effects, free, window_s)?;
+    // the replaced friction's side served its replacement's search; the model written carries
+    // every friction with its own side
+    r.model.replaced_side = None;
     if moved {
         r.before = Errors::of(original, d, window_s);
     }
