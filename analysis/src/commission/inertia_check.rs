@@ -23,8 +23,8 @@ use super::friction::Survey;
 use super::model_out::{feedforward_params, model_text_viscous};
 use super::Notes;
 use crate::identify::inertia::{
-    job_with_jl, records_deviation, run_axis, sim_match, simulated_deviation, DeviationKind,
-    InertiaEstimate, Probe,
+    job_with_jl, records_deviation, records_deviation_read, run_axis, sim_match,
+    simulated_deviation, DeviationKind, DeviationRead, InertiaEstimate, Probe,
 };
 
 /// The two estimates of the load inertia.
@@ -98,7 +98,8 @@ pub fn check_inertia(
         half_window: 0.03 * len,
         kind: DeviationKind::CommandLoad,
     };
-    let measured = records_deviation(&rec.records[0], ratio, probe).map_err(|e| e.to_string())?;
+    let measured =
+        records_deviation_read(&rec.records[0], ratio, probe).map_err(|e| e.to_string())?;
     let dir = std::env::temp_dir().join(format!("feedloop-commission-{}", std::process::id()));
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let sim = CheckSim {
@@ -135,7 +136,7 @@ pub fn check_inertia(
         friction_split_pct: split_pct,
         backlash_crossed_m: gap.map(|g| 0.5 * g),
         iterations: est.iterations,
-        deviation_m: measured,
+        deviation_m: measured.value,
     })
 }
 
@@ -205,8 +206,8 @@ struct CheckSim<'a> {
     dir: &'a std::path::Path,
     len: f64,
     t_move: f64,
-    /// The measured command-load deviation at the probe, m.
-    measured: f64,
+    /// The measured command-load deviation at the probe (and its standard error), m.
+    measured: DeviationRead,
     /// The probe on the model's record (which starts without the first short move).
     probe: Probe,
     /// The rest before the main move (see [`rest_window`]).
@@ -246,7 +247,7 @@ impl CheckSim<'_> {
     /// The simulation match on the model with `gap`, `kl` and the viscous side.
     fn matched(&self, gap: Option<f64>, kl: f64, load: bool) -> Result<InertiaEstimate, String> {
         let job = self.job(gap.filter(|g| *g > 0.0), kl, load)?;
-        sim_match(&job, 0, self.measured, self.probe).map_err(|e| e.to_string())
+        sim_match(&job, 0, self.measured.value, self.probe).map_err(|e| e.to_string())
     }
 
     /// The model's gap that makes its motor cross what the machine's motor crossed (`rise`).
@@ -305,7 +306,7 @@ impl CheckSim<'_> {
         let moved = simulated_deviation(&job, 0, 1.01 * jl, id.jl_kgm2, self.probe)
             .map_err(|e| e.to_string())?;
         let per_jl = (moved - est.deviation_model_m) / (0.01 * jl);
-        let reading = reading_error(rec, probe) / per_jl.abs().max(1e-300);
+        let reading = self.measured.std_error / per_jl.abs().max(1e-300);
         let ratio = self.f.ratio();
         let split = match gap {
             Some(g) if g > 0.0 => {
@@ -357,30 +358,4 @@ fn check_chain(f: &Facts, axis: &str, s: &Survey, id: &Identified) -> Vec<toml::
             ]),
         ),
     ]
-}
-
-/// Standard error of the command-load deviation read at `probe` from `rec`: the scatter of the
-/// window's samples about their least-squares line over the root of their count.
-fn reading_error(rec: &[feedloop_trace::log::AxisRecord], probe: Probe) -> f64 {
-    let pts: Vec<(f64, f64)> = rec
-        .iter()
-        .skip_while(|r| r.load < probe.at - probe.half_window)
-        .take_while(|r| r.load <= probe.at + probe.half_window)
-        .map(|r| (r.load - probe.at, r.cmd - r.load))
-        .collect();
-    let m = pts.len() as f64;
-    if m < 4.0 {
-        return 0.0;
-    }
-    let (sx, sy) = pts.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
-    let (mx, my) = (sx / m, sy / m);
-    let sxx: f64 = pts.iter().map(|(x, _)| (x - mx).powi(2)).sum();
-    let sxy: f64 = pts.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
-    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    let res: f64 = pts
-        .iter()
-        .map(|(x, y)| (y - my - slope * (x - mx)).powi(2))
-        .sum::<f64>()
-        / (m - 2.0);
-    (res * (1.0 / m + mx * mx / sxx.max(1e-300))).sqrt()
 }

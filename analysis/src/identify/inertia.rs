@@ -94,6 +94,27 @@ pub fn deviation(
     reference_per_load: f64,
     probe: Probe,
 ) -> Result<f64, IdentifyError> {
+    deviation_read(load, reference, reference_per_load, probe).map(|r| r.value)
+}
+
+/// A deviation read at a probe: the value of the window's least-squares line at the probe and
+/// that value's standard error (the samples' scatter about the line; 0 when the window holds
+/// too few samples for a scatter).
+#[derive(Debug, Clone, Copy)]
+pub struct DeviationRead {
+    /// The deviation at the probe, load units.
+    pub value: f64,
+    /// Its standard error, load units.
+    pub std_error: f64,
+}
+
+/// [`deviation`] with its standard error.
+pub fn deviation_read(
+    load: &[f64],
+    reference: &[f64],
+    reference_per_load: f64,
+    probe: Probe,
+) -> Result<DeviationRead, IdentifyError> {
     let n = load.len().min(reference.len());
     if n < 3 {
         return Err(IdentifyError::Invalid(
@@ -120,10 +141,9 @@ pub fn deviation(
     while b + 1 < n && inside(b + 1) {
         b += 1;
     }
+    let point = |j: usize| (load[j] - at, reference[j] / reference_per_load - load[j]);
     let (mut sx, mut sy, mut sxx, mut sxy, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for j in a..=b {
-        let x = load[j] - at;
-        let y = reference[j] / reference_per_load - load[j];
+    for (x, y) in (a..=b).map(point) {
         sx += x;
         sy += y;
         sxx += x * x;
@@ -133,10 +153,24 @@ pub fn deviation(
     let den = m * sxx - sx * sx;
     if m < 3.0 || den.abs() < 1e-300 {
         // Too few samples for a line: the mean (or the single crossing sample).
-        return Ok(sy / m);
+        return Ok(DeviationRead {
+            value: sy / m,
+            std_error: 0.0,
+        });
     }
     let slope = (m * sxy - sx * sy) / den;
-    Ok((sy - slope * sx) / m)
+    let value = (sy - slope * sx) / m;
+    // the intercept's standard error: the scatter about the line over m - 2 degrees of
+    // freedom, times sqrt(1/m + mean(x)^2 / Sxx) with Sxx about the mean
+    let scatter = (a..=b)
+        .map(point)
+        .map(|(x, y)| (y - value - slope * x).powi(2))
+        .sum::<f64>()
+        / (m - 2.0);
+    let mx = sx / m;
+    let sxx_mean = sxx - m * mx * mx;
+    let std_error = (scatter * (1.0 / m + mx * mx / sxx_mean.max(1e-300))).sqrt();
+    Ok(DeviationRead { value, std_error })
 }
 
 /// The deviation of `axis` in a trace (columns `A.load` and `A.cmd` or `A.motor`).
@@ -236,12 +270,21 @@ pub fn records_deviation(
     motor_per_load: f64,
     probe: Probe,
 ) -> Result<f64, IdentifyError> {
+    records_deviation_read(rec, motor_per_load, probe).map(|r| r.value)
+}
+
+/// [`records_deviation`] with its standard error ([`deviation_read`]).
+pub fn records_deviation_read(
+    rec: &[AxisRecord],
+    motor_per_load: f64,
+    probe: Probe,
+) -> Result<DeviationRead, IdentifyError> {
     let load: Vec<f64> = rec.iter().map(|r| r.load).collect();
     let (reference, per_load): (Vec<f64>, f64) = match probe.kind {
         DeviationKind::CommandLoad => (rec.iter().map(|r| r.cmd).collect(), 1.0),
         DeviationKind::MotorLoad => (rec.iter().map(|r| r.motor).collect(), motor_per_load),
     };
-    deviation(&load, &reference, per_load, probe)
+    deviation_read(&load, &reference, per_load, probe)
 }
 
 /// Index of `axis` in the job.
