@@ -663,10 +663,8 @@ pub(super) fn coulomb_with_offset(
     // interval), it is a torque a servo engineer would see (on a near noise-free record a
     // confidence interval excludes zero for a thousandth of a newton), and it does not worsen
     // the held-out error
-    let (a, b) = d.range;
-    let material = MATERIAL_FRACTION * rms(&ch.y_app[a..b]);
     let off_t = cv2.theta[nb + 1].abs();
-    if cv2.rms > cv.rms * 1.02 || off_t <= CI_SIGMAS * cv2.theta_se[nb + 1] || off_t < material {
+    if cv2.rms > cv.rms * 1.02 || off_t <= CI_SIGMAS * cv2.theta_se[nb + 1] || off_t < ch.material {
         return None;
     }
     let mut ec = e.clone();

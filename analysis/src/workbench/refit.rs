@@ -210,18 +210,19 @@ pub fn best_effect(
     };
     // a friction that replaces one refines that one's curve, on its side; a side that carries
     // a dry friction already takes no second one, so the other side is the one left
-    let taken = |s: Side| taken(model, s);
-    match model.replaced_side {
-        Some(s) => best_on_side(id, s, p),
-        None if taken(side) && !taken(other) => best_on_side(id, other, p),
-        None if taken(other) && !taken(side) => best_on_side(id, side, p),
-        None => match (best_on_side(id, side, p), best_on_side(id, other, p)) {
-            // the side whose model simulates the record better (see [`super::side`]), or the
-            // one that fits
-            (Ok(a), Ok(b)) if second_side_better(&a.effect, &b.effect, model, d) => Ok(b),
-            (Err(_), Ok(b)) => Ok(b),
-            (first, _) => first,
-        },
+    match (model.replaced_side, taken(model, side), taken(model, other)) {
+        (Some(s), ..) => best_on_side(id, s, p),
+        (None, true, false) => best_on_side(id, other, p),
+        (None, false, true) => best_on_side(id, side, p),
+        (None, true, true) | (None, false, false) => {
+            match (best_on_side(id, side, p), best_on_side(id, other, p)) {
+                // the side whose model simulates the record better (see [`super::side`]), or the
+                // one that fits
+                (Ok(a), Ok(b)) if second_side_better(&a.effect, &b.effect, model, d) => Ok(b),
+                (Err(_), Ok(b)) => Ok(b),
+                (first, _) => first,
+            }
+        }
     }
 }
 

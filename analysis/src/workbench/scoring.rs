@@ -123,6 +123,9 @@ pub(super) struct TorqueChannel<'d> {
     pub(super) e0: f64,
     /// Cross-validation with every base parameter refitted.
     pub(super) cvb: Cv,
+    /// Smallest torque that counts on this channel: [`MATERIAL_FRACTION`] of the applied
+    /// torque's RMS, torque units.
+    pub(super) material: f64,
     /// Smallest reduction that counts on this channel, % of the model's error:
     /// [`MIN_REDUCTION_PCT`], or [`MATERIAL_FRACTION`] of the applied torque's RMS when that is
     /// more (a model whose error is already far below the torque has nothing left to name).
@@ -158,6 +161,7 @@ impl<'d> TorqueChannel<'d> {
         let min_pct = MIN_REDUCTION_PCT.max(100.0 * material / e0);
         Self {
             min_pct,
+            material,
             y_app,
             res,
             bl,

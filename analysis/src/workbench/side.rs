@@ -48,9 +48,7 @@ pub(super) fn second_side_better(
         let mut with = model.clone();
         with.effects.push(e.clone());
         let w = windowed_only(&with, d, SIDE_WINDOW_S);
-        (w.plant == "plant")
-            .then(|| w.headline_nrmse_pct())
-            .flatten()
+        w.on_plant().then(|| w.headline_nrmse_pct()).flatten()
     };
     match (windowed(first), windowed(second)) {
         (Some(ea), Some(eb)) => material_cut(ea, eb),

@@ -58,7 +58,15 @@ pub struct WindowSim {
     pub plant: String,
 }
 
+/// [`WindowSim::plant`] when the plant simulator ran the model.
+const PLANT: &str = "plant";
+
 impl WindowSim {
+    /// Whether the plant simulator ran the model (not the one-body approximation).
+    pub fn on_plant(&self) -> bool {
+        self.plant == PLANT
+    }
+
     /// NRMSE of the headline channel's windowed simulation, % (None when not simulated).
     pub fn headline_nrmse_pct(&self) -> Option<f64> {
         self.channels.first().map(|c| c.window_nrmse_pct)
@@ -248,7 +256,7 @@ impl Sim {
                         dead_band(d, &d.vl),
                         Hidden { third, lost },
                     ),
-                    "plant".to_string(),
+                    PLANT.to_string(),
                 )
             }
             Err(e) => (
