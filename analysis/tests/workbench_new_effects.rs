@@ -59,6 +59,40 @@ fn setup(trace: &Path, model: &str, dir: &Path) -> (WbModel, AxisData) {
     (m, d)
 }
 
+/// A copy of the recorded `trace` at `out` whose torque column (`x.torque`) carries `extra(t)`
+/// that the body did not meet, with a column `x.NAME` holding `column(t)` appended when given.
+fn torque_added(
+    trace: &Path,
+    out: &Path,
+    mut extra: impl FnMut(f64) -> f64,
+    column: Option<(&str, &dyn Fn(f64) -> f64)>,
+) -> PathBuf {
+    let text = std::fs::read_to_string(trace).unwrap();
+    let mut body = String::new();
+    for line in text.lines() {
+        if line.starts_with('#') {
+            body.push_str(line);
+        } else if line.starts_with("t,") {
+            body.push_str(line);
+            if let Some((name, _)) = column {
+                body.push_str(&format!(",x.{name}"));
+            }
+        } else {
+            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+            let t: f64 = cells[0].parse().unwrap();
+            let f: f64 = cells[3].parse().unwrap();
+            cells[3] = format!("{}", f + extra(t));
+            body.push_str(&cells.join(","));
+            if let Some((_, c)) = column {
+                body.push_str(&format!(",{}", c(t)));
+            }
+        }
+        body.push('\n');
+    }
+    std::fs::write(out, body).unwrap();
+    out.to_path_buf()
+}
+
 #[test]
 fn directional_friction_is_named_and_fitted_with_both_levels_and_slopes() {
     let dir = scratch("directional");
@@ -157,25 +191,13 @@ fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
     // a torque of 30 N times another signal of the machine (an unrelated slow sine)
     let other = |t: f64| (2.0 * PI * 0.07 * t + 1.0).sin();
     let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
-    let text = std::fs::read_to_string(&trace).unwrap();
-    let mut out = String::new();
-    for line in text.lines() {
-        if line.starts_with('#') {
-            out.push_str(line);
-        } else if line.starts_with("t,") {
-            out.push_str(&format!("{line},x.other"));
-        } else {
-            let t: f64 = line.split(',').next().unwrap().parse().unwrap();
-            // the recorded force carries the other signal's torque the model does not know
-            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
-            let f: f64 = cells[3].parse().unwrap();
-            cells[3] = format!("{}", f + 30.0 * other(t));
-            out.push_str(&format!("{},{}", cells.join(","), other(t)));
-        }
-        out.push('\n');
-    }
-    let path = dir.join("other.csv");
-    std::fs::write(&path, out).unwrap();
+    // the recorded force carries the other signal's torque the model does not know
+    let path = torque_added(
+        &trace,
+        &dir.join("other.csv"),
+        |t| 30.0 * other(t),
+        Some(("other", &other)),
+    );
     let (m, d) = setup(&path, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
     let col = Trace::read(&path)
         .unwrap()
@@ -230,18 +252,7 @@ fn a_drift_is_named_by_the_dictionary_and_is_no_term_of_the_peer() {
     let dir = scratch("drift");
     let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
     let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
-    let text = std::fs::read_to_string(&trace).unwrap();
-    let mut out = String::new();
-    for line in text.lines() {
-        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
-        let t = cells[0].parse::<f64>();
-        if let (Ok(t), Some(Ok(f))) = (t, cells.get(3).map(|c| c.parse::<f64>())) {
-            cells[3] = format!("{}", f + 2.0 * t);
-        }
-        out.push_str(&cells.join(","));
-        out.push('\n');
-    }
-    std::fs::write(&trace, out).unwrap();
+    let trace = torque_added(&trace, &dir.join("drift.csv"), |t| 2.0 * t, None);
     let (m, d) = setup(&trace, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
     let dg = diagnose(&m, &d, &DiagOptions::default());
     // (the open-loop body wanders, so slow shapes of its position stand beside the time)
@@ -257,6 +268,7 @@ fn a_drift_is_named_by_the_dictionary_and_is_no_term_of_the_peer() {
         "{:?}",
         dg.sparse_peer
     );
+    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -267,7 +279,6 @@ fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
     let dir = scratch("torque-noise");
     let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
     let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
-    let text = std::fs::read_to_string(&trace).unwrap();
     let mut seed = 0x2545_f491_4f6c_dd1du64;
     let mut uniform = || {
         seed ^= seed << 13;
@@ -275,21 +286,8 @@ fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
         seed ^= seed << 17;
         (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     };
-    let mut out = String::new();
-    for line in text.lines() {
-        if line.starts_with('#') || line.starts_with("t,") {
-            out.push_str(line);
-        } else {
-            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
-            let f: f64 = cells[3].parse().unwrap();
-            // uniform on +-60 N: an RMS of about 17 N beside the drive's 380 N
-            cells[3] = format!("{}", f + 120.0 * uniform());
-            out.push_str(&cells.join(","));
-        }
-        out.push('\n');
-    }
-    let path = dir.join("noisy.csv");
-    std::fs::write(&path, out).unwrap();
+    // uniform on +-60 N: an RMS of about 17 N beside the drive's 380 N
+    let path = torque_added(&trace, &dir.join("noisy.csv"), |_| 120.0 * uniform(), None);
     let (m, d) = setup(&path, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
     let dg = diagnose(&m, &d, &DiagOptions::default());
     assert!(

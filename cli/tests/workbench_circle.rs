@@ -79,11 +79,15 @@ fn added(a: &Value) -> Vec<String> {
         .collect()
 }
 
-/// A base parameter of the final model written by `diagnose --auto --out`.
-fn final_param(dir: &Path, key: &str) -> f64 {
+/// The final model written by `diagnose --auto --out`.
+fn final_model(dir: &Path) -> toml::Table {
     let text = std::fs::read_to_string(dir.join("auto").join("model.toml")).unwrap();
-    let t: toml::Table = text.parse().unwrap();
-    t[key].as_float().unwrap()
+    text.parse().unwrap()
+}
+
+/// A base parameter of the final model.
+fn final_param(dir: &Path, key: &str) -> f64 {
+    final_model(dir)[key].as_float().unwrap()
 }
 
 fn check(tag: &str, hidden: &str, expect: &[&str]) {
@@ -146,11 +150,10 @@ fn a_heavier_table_on_the_circle_is_refitted_as_the_load_inertia_alone() {
 /// The side the guided loop put its one dry friction on, and its level there (`fc_nm` on the
 /// motor, `fc_n` on the table), read from the final model.
 fn friction_side(dir: &Path) -> (String, f64) {
-    let text = std::fs::read_to_string(dir.join("auto").join("model.toml")).unwrap();
-    let t: toml::Table = text.parse().unwrap();
+    let t = final_model(dir);
     let f = t["effects"]["coulomb_friction"]
         .as_table()
-        .unwrap_or_else(|| panic!("one coulomb_friction table expected:\n{text}"));
+        .unwrap_or_else(|| panic!("one coulomb_friction table expected: {t}"));
     let side = f["side"].as_str().unwrap().to_string();
     let level = f
         .get("fc_nm")
