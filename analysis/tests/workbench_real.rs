@@ -314,15 +314,33 @@ fn a_friction_beside_an_offset_the_model_already_has_is_judged_against_the_model
         "{}",
         dg.verdict
     );
-    // three reversals in ten seconds: friction is not named, and its evidence says that the
-    // record's reversals are the reason (before: only a confidence interval or a block count)
+    // three reversals in ten seconds beside a gravity torque that follows the pose: alone, the
+    // friction's size is inside its confidence interval (the gravity's misfit makes the
+    // block-wise fits spread); refitted beside an unbalance it is outside it, and it is named,
+    // with the unbalance said to be what the data show but cannot size (before: not named,
+    // "too few reversals")
     assert!(
-        !coulomb.significant
-            && coulomb
-                .evidence
-                .contains("too few reversals to judge friction (3 in this record"),
+        coulomb.significant && coulomb.evidence.contains("refitted beside unbalance"),
         "{}",
         coulomb.evidence
+    );
+    assert!(
+        dg.verdict.contains("fit --add coulomb_friction"),
+        "{}",
+        dg.verdict
+    );
+    let unbalance = dg
+        .candidates
+        .iter()
+        .find(|c| c.effect == "unbalance")
+        .unwrap();
+    assert!(
+        !unbalance.significant
+            && unbalance
+                .evidence
+                .contains("coulomb_friction is named beside it"),
+        "{}",
+        unbalance.evidence
     );
     let r = fit(&with_offset, &d, &[EffectId::CoulombFriction], None, 0.05).unwrap();
     let fc = r.params["fc_nm"];

@@ -26,9 +26,10 @@ pub use super::controller_candidates::excitation_99_hz;
 use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
-use super::effects::{channel, Channel, Effect, WbModel};
-use super::lsq::Cv;
-use super::refit::{best_effect, cv_cols_masked, flat, inertias_now, Refit, Released};
+use super::effects::{Effect, WbModel};
+use super::beyond::{beyond_top, Top, TorqueFit};
+use super::pair::name_hidden_pair;
+use super::refit::{flat, inertias_now, Released};
 use super::scoring::*;
 pub use super::scoring::{
     material_cut, Candidate, CI_SIGMAS, DEFLECTION_FLOOR_M, MATERIAL_FRACTION, MIN_FOLD_WINS,
@@ -147,13 +148,20 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         }
     };
     let mut cands = cands;
+    let (white, ac) = residual_whiteness(d, &ch);
+    // a misfit that is not noise, with no candidate significant alone: two that hide each
+    // other, named together
+    let fitted = match fitted {
+        None if !white => name_hidden_pair(&mut cands, model, d, &tf, ch.e0, opts.window_s),
+        f => f,
+    };
     if let Some(e) = fitted.as_ref().and_then(|f| f.resized.clone()) {
         resize_candidate(&mut cands, e, d);
     }
     // the table reads top down: what is significant first, each part in the order of its cut
     // (a first candidate whose fit was refused no longer stands above the one named)
+    cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
     cands.sort_by_key(|c| !c.significant);
-    let (white, ac) = residual_whiteness(d, &ch);
     let (residual_terms, sparse_peer) = dictionary_of(model, d, &ch, &opts.extra_terms);
     let mut verdict = verdict(&cands, white, &ac, cc.as_ref(), d, fitted.as_ref());
     let follows: Vec<String> = residual_terms
@@ -321,19 +329,6 @@ pub(super) fn residual_whiteness(d: &AxisData, ch: &TorqueChannel<'_>) -> (bool,
     (white, ac)
 }
 
-/// What the torque channel's candidates are scored with: the base columns, the residual, the
-/// cross-validation blocks and the rows used (see [`moving_mask`]).
-pub(super) struct TorqueFit<'a> {
-    /// Smallest reduction that counts, % of the model's error (see [`TorqueChannel`]).
-    min_pct: f64,
-    base_cols: &'a [&'a [f64]],
-    /// Current values of the inertias among the base parameters (see [`inertias_now`]).
-    now: &'a [f64],
-    res: &'a [f64],
-    bl: &'a [(usize, usize)],
-    mask: Option<&'a [f64]>,
-}
-
 /// Forward selection: once the first candidate (an effect on the torque channel) is
 /// significant, every other torque-channel effect must earn its significance beyond it: it is
 /// refitted together with the base parameters and the first candidate, and keeps its
@@ -358,180 +353,23 @@ pub(super) fn condition_on_top(
     if top.is_param || top.channel != "torque" {
         return;
     }
-    let top = Top {
-        add: top.add.clone(),
-        class: top.class.clone(),
-        name: top.effect.clone(),
-    };
-    let needed = model.torque_needed(d);
-    let mut with_top = model.clone();
-    let top_cols = add_effects(&mut with_top, d, &top.add);
-    let mut cols: Vec<&[f64]> = tf.base_cols.to_vec();
-    cols.extend(top_cols.iter().map(|c| c.as_slice()));
-    let mut now_ext = tf.now.to_vec();
-    now_ext.resize(cols.len(), 0.0);
-    let beyond = Beyond {
-        with_top: &with_top,
-        d,
-        tf,
-        needed: &needed,
-        cols: &cols,
-        now: &now_ext,
-    };
-    let t_ref = beyond.target_of(&with_top);
-    let cv_ref = cv_cols_masked(&cols, &[], &t_ref, tf.bl, tf.mask);
+    let top = Top::of(top);
+    let others: Vec<usize> = (ti + 1..cands.len())
+        .filter(|i| {
+            let c = &cands[*i];
+            !c.is_param && c.channel == "torque" && !c.add.is_empty()
+        })
+        .collect();
+    let refs: Vec<&Candidate> = others.iter().map(|i| &cands[*i]).collect();
+    let results = beyond_top(&top, &refs, model, d, tf, e0);
     let mut included = Vec::new();
-    for c in cands.iter_mut().skip(ti + 1) {
-        if c.is_param || c.channel != "torque" || c.add.is_empty() {
-            continue;
-        }
-        let (cv, rescored) = beyond.rescore(c, &top, &t_ref);
-        let extra = 100.0 * (cv_ref.rms - cv.rms) / e0;
-        let wins = fold_wins(&cv, &cv_ref.fold_mse);
-        let nb = cols.len();
-        let inside_ci = rescored.as_ref().is_some_and(|r| {
-            channel(r.effect.id) == Channel::Torque
-                && leading_size(r.effect.id, &r.cv, nb).is_some_and(|(c, se)| c <= CI_SIGMAS * se)
-        });
-        let earns = extra >= tf.min_pct && wins >= MIN_FOLD_WINS && !inside_ci;
-        if let Some(e) = top.judge(c, earns, extra, rescored, d) {
+    for (i, r) in others.into_iter().zip(results) {
+        if let Some(e) = top.judge(&mut cands[i], r.earns, r.extra, r.rescored, d) {
             included.push(e);
         }
     }
     cands[ti].same_as.extend(included);
     cands.sort_by(|x, y| y.error_reduction_pct.total_cmp(&x.error_reduction_pct));
-}
-
-/// Adds the torque-path effects among `add` to `m` (they change the target); the columns of
-/// its torque-channel effects.
-fn add_effects(m: &mut WbModel, d: &AxisData, add: &[Effect]) -> Vec<Vec<f64>> {
-    let mut cols: Vec<Vec<f64>> = Vec::new();
-    for e in add {
-        match channel(e.id) {
-            Channel::TorquePath => m.effects.push(e.clone()),
-            Channel::Torque => cols.extend(e.columns(d)),
-            Channel::Deflection => {}
-        }
-    }
-    cols
-}
-
-/// The first significant candidate of [`condition_on_top`].
-struct Top {
-    add: Vec<Effect>,
-    class: String,
-    name: String,
-}
-
-impl Top {
-    /// Marks candidate `c` by whether it `earns` its significance beyond the first one (by
-    /// `extra` % of the model's error, refitted as `rescored` when refitted alone); the
-    /// candidate's effect when the first one already includes it.
-    fn judge(
-        &self,
-        c: &mut Candidate,
-        earns: bool,
-        extra: f64,
-        rescored: Option<Refit>,
-        d: &AxisData,
-    ) -> Option<String> {
-        let top_name = &self.name;
-        if earns {
-            if let Some(Refit { effect: e, .. }) = rescored {
-                c.params = flat(&e.to_table(d.kind, d.r));
-                c.evidence = evidence(&e, d);
-                c.add = vec![e];
-            }
-            if !c.significant {
-                c.significant = true;
-                c.error_reduction_pct = extra;
-            }
-            c.evidence = format!(
-                "{}; beyond {top_name} it lowers the cross-validated error by {extra:.1} %",
-                c.evidence
-            );
-            return None;
-        }
-        c.significant = false;
-        c.error_reduction_pct = extra;
-        let mut included = None;
-        if c.add.iter().all(|e| self.add.iter().any(|t| t.id == e.id)) {
-            c.class = self.class.clone();
-            if !c.same_as.contains(top_name) {
-                c.same_as.push(top_name.clone());
-            }
-            included = Some(c.effect.clone());
-        }
-        c.evidence = format!(
-            "{}; beyond {top_name} it lowers the cross-validated error by only {extra:.1} % (not significant)",
-            c.evidence
-        );
-        included
-    }
-}
-
-/// What a candidate is refitted with beyond the first one: the model with the first one's
-/// torque-path effects, the base columns followed by the first one's columns, and the current
-/// values of the inertias among them.
-struct Beyond<'a> {
-    with_top: &'a WbModel,
-    d: &'a AxisData,
-    tf: &'a TorqueFit<'a>,
-    /// The torque the model needs for the measured motion.
-    needed: &'a [f64],
-    cols: &'a [&'a [f64]],
-    now: &'a [f64],
-}
-
-impl Beyond<'_> {
-    /// The torque residual of `m`: its applied torque less the torque needed (the channel's
-    /// residual without a recorded torque).
-    fn target_of(&self, m: &WbModel) -> Vec<f64> {
-        match m.applied(self.d) {
-            Some(t) => t.iter().zip(self.needed).map(|(a, b)| a - b).collect(),
-            None => self.tf.res.to_vec(),
-        }
-    }
-
-    /// The cross-validation of candidate `c` beyond the first one (`top`, whose residual is
-    /// `t_ref`), and its refit when it is a single effect refitted alone.
-    fn rescore(&self, c: &Candidate, top: &Top, t_ref: &[f64]) -> (Cv, Option<Refit>) {
-        let (d, tf) = (self.d, self.tf);
-        // a single effect is refitted beyond the first one (its nonlinear parameter chosen
-        // again: the first one's misfit no longer hides it)
-        let single = (c.add.len() == 1).then(|| c.add[0].id).filter(|id| {
-            channel(*id) != Channel::Deflection
-                && (id.repeatable() || !top.add.iter().any(|t| t.id == *id))
-        });
-        let rescored = single.and_then(|id| {
-            best_effect(
-                id,
-                self.with_top,
-                d,
-                self.cols,
-                self.now,
-                t_ref,
-                tf.bl,
-                tf.mask,
-            )
-            .ok()
-        });
-        let cv = match &rescored {
-            Some(r) => r.cv.clone(),
-            None => {
-                let mut with = self.with_top.clone();
-                let extra_cols = add_effects(&mut with, d, &c.add);
-                let t = if with.effects.len() > self.with_top.effects.len() {
-                    self.target_of(&with)
-                } else {
-                    t_ref.to_vec()
-                };
-                let refs: Vec<&[f64]> = extra_cols.iter().map(|x| x.as_slice()).collect();
-                cv_cols_masked(self.cols, &refs, &t, tf.bl, tf.mask)
-            }
-        };
-        (cv, rescored)
-    }
 }
 
 impl Diagnosis {

@@ -240,6 +240,8 @@ pub struct Cv {
     /// Standard error of each coefficient of `theta`, from the spread of the leave-one-block-out
     /// fits (jackknife over the blocks, so correlated noise inside a block is accounted for).
     pub theta_se: DVector<f64>,
+    /// The leave-one-block-out fits themselves (empty with fewer than two blocks).
+    pub loo_theta: Vec<DVector<f64>>,
 }
 
 /// Blocked k-fold cross-validation from per-block normal equations.
@@ -285,6 +287,7 @@ pub fn cross_validate(ne: &[Normal]) -> Cv {
         theta,
         rms_in,
         theta_se,
+        loo_theta: if loo.len() < 2 { Vec::new() } else { loo },
     }
 }
 

@@ -14,6 +14,7 @@
 mod adder;
 pub mod auto;
 pub mod base;
+mod beyond;
 mod candidates;
 pub mod compare;
 pub mod controller;
@@ -29,6 +30,7 @@ mod grids;
 pub mod import;
 pub mod law;
 pub mod lsq;
+mod pair;
 mod pinned;
 pub mod refit;
 pub mod report;

@@ -650,6 +650,7 @@ fn expand(mut cv: Cv, nb: usize, held: &[usize]) -> Cv {
     };
     cv.theta = widen(&cv.theta);
     cv.theta_se = widen(&cv.theta_se);
+    cv.loo_theta = cv.loo_theta.iter().map(widen).collect();
     cv
 }
 

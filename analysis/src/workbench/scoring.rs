@@ -15,6 +15,7 @@ use super::refit::{cv_cols_masked, moving_mask, Released, FOLDS};
 use super::signal::{mean, rms};
 use feedloop_model::model::AxisKind;
 use feedloop_model::EffectId;
+use nalgebra::DVector;
 
 pub use super::lsq::{material_cut, MIN_REDUCTION_PCT};
 
@@ -188,17 +189,21 @@ impl TorqueChannel<'_> {
 
 /// The size of an effect's leading term in the refit `cv` (its coefficients after the `nb` base
 /// ones) and that size's standard error, `None` when the refit has no coefficient of its own.
-/// One coefficient for most effects; for an effect whose leading pair is the sine and the
-/// cosine of one angle (an unbalance, a cogging ripple) the amplitude of the pair, with the
-/// standard error in its direction (delta method): a phase that puts the term in the cosine
-/// must not read as no term at all.
-pub(super) fn leading_size(id: EffectId, cv: &Cv, nb: usize) -> Option<(f64, f64)> {
+/// One coefficient for most effects; for a cogging ripple, whose leading pair is the sine and
+/// the cosine of one angle, the amplitude of the pair, with the standard error in its direction
+/// (delta method): a phase that puts the term in the cosine must not read as no term at all. An
+/// unbalance is sized by the torque it varies by over the positions recorded
+/// ([`varying_torque_size`]): over an arc much shorter than its period its amplitude and phase
+/// trade off with its constant part, while the torque it adds along the arc does not.
+pub(super) fn leading_size(e: &Effect, cv: &Cv, nb: usize, d: &AxisData) -> Option<(f64, f64)> {
     let (t, s) = (&cv.theta, &cv.theta_se);
     if t.len() <= nb {
         return None;
     }
-    let phase_pair = matches!(id, EffectId::Unbalance | EffectId::Cogging) && t.len() > nb + 1;
-    if !phase_pair {
+    if e.id == EffectId::Unbalance && t.len() > nb + 1 {
+        return varying_torque_size(e, cv, nb, d);
+    }
+    if e.id != EffectId::Cogging || t.len() <= nb + 1 {
         return Some((t[nb].abs(), s[nb]));
     }
     let (a, b) = (t[nb], t[nb + 1]);
@@ -208,4 +213,45 @@ pub(super) fn leading_size(id: EffectId, cv: &Cv, nb: usize) -> Option<(f64, f64
     }
     let se = ((a * s[nb]).powi(2) + (b * s[nb + 1]).powi(2)).sqrt() / amp;
     Some((amp, se))
+}
+
+/// Rows at most used to size a contribution (a longer fit range is thinned evenly).
+const SIZE_ROWS: usize = 20_000;
+
+/// The RMS over the fit range of the part of effect `e`'s torque that varies with the position
+/// (its sine and cosine columns, their mean removed: a constant is carried by its own column),
+/// fitted by `cv`, and the standard error of that torque from the spread of the
+/// leave-one-block-out fits (jackknife over the blocks, RMS over the rows).
+fn varying_torque_size(e: &Effect, cv: &Cv, nb: usize, d: &AxisData) -> Option<(f64, f64)> {
+    let cols = e.columns(d);
+    let (a, b) = d.range;
+    let step = (b - a).div_ceil(SIZE_ROWS).max(1);
+    let rows: Vec<usize> = (a..b).step_by(step).collect();
+    if rows.is_empty() || cols.len() < 2 {
+        return None;
+    }
+    let shape = |t: &DVector<f64>| -> Vec<f64> {
+        let f: Vec<f64> = rows
+            .iter()
+            .map(|&i| t[nb] * cols[0][i] + t[nb + 1] * cols[1][i])
+            .collect();
+        let m = mean(&f);
+        f.into_iter().map(|x| x - m).collect()
+    };
+    let n = rows.len() as f64;
+    let fit = shape(&cv.theta);
+    let size = (fit.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let k = cv.loo_theta.len();
+    if k < 2 {
+        return Some((size, 0.0));
+    }
+    let loo: Vec<Vec<f64>> = cv.loo_theta.iter().map(shape).collect();
+    let spread: f64 = (0..rows.len())
+        .map(|i| {
+            let m = loo.iter().map(|f| f[i]).sum::<f64>() / k as f64;
+            loo.iter().map(|f| (f[i] - m).powi(2)).sum::<f64>()
+        })
+        .sum::<f64>();
+    let kf = k as f64;
+    Some((size, ((kf - 1.0) / kf * spread / n).sqrt()))
 }
