@@ -304,3 +304,68 @@ fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// A swivel axis over a short arc (about 60 degrees of the link, recorded on the motor side of a
+/// 50:1 gear, as a robot joint logs it) with gravity and friction: the guided loop ends with
+/// both, the friction at the level hidden. Before, the unbalance took a period shorter than the
+/// travel (a ripple that fits part of the friction's steps along this path) and the friction
+/// was never added.
+#[test]
+fn gravity_and_friction_of_a_short_swing_are_both_added() {
+    let dir = scratch("hidden-pair");
+    // motor-side inertia, damping, Coulomb level, gravity and constant torque (N m), gear
+    let (j, d_v, fc, g, zero, c0, u) = (0.05, 0.02, 2.0, 12.0, 1.1, 4.0, 50.0);
+    let (amp, f) = (0.45, 0.125);
+    let w = 2.0 * PI * f;
+    let mut text = String::from("# feedloop-trace v1\n# period_s=0.004\nt,x.cmd,x.load,x.torque\n");
+    // a deterministic, coloured torque noise (the drive's current ripple and quantisation)
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut coloured = 0.0;
+    for k in 0..3_000 {
+        let t = k as f64 * 4e-3;
+        let (s1, c1, s3, c3) = (
+            (w * t).sin(),
+            (w * t).cos(),
+            (3.1 * w * t).sin(),
+            (3.1 * w * t).cos(),
+        );
+        let q = amp * s1 + 0.08 * s3;
+        let v = amp * w * c1 + 0.08 * 3.1 * w * c3;
+        let a = -amp * w * w * s1 - 0.08 * (3.1 * w).powi(2) * s3;
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let white = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        coloured = 0.9 * coloured + 0.4 * white;
+        let tq = j * u * a + d_v * u * v + fc * v.signum() + c0 - g * (q - zero).sin() + coloured;
+        text.push_str(&format!("{t},{},{},{tq}\n", u * q, u * q));
+    }
+    let trace = dir.join("t.csv");
+    std::fs::write(&trace, text).unwrap();
+    let (m, d) = setup(
+        &trace,
+        "kind = \"rotary\"\njm_kgm2 = 0.025\njl_kgm2 = 0.025\nkl_nm_per_rad = 1e6\ndm_nms_per_rad = 0.02\n",
+        &dir,
+    );
+    let r = feedloop_analysis::workbench::auto::auto(&m, &d, 0.05, 6).unwrap();
+    let names: Vec<String> = r.steps.iter().flat_map(|s| s.added.clone()).collect();
+    let fc_fitted = r
+        .model
+        .effects
+        .iter()
+        .find(|e| e.id == EffectId::CoulombFriction)
+        .map(|e| e.coef[0].abs());
+    for want in ["unbalance", "coulomb_friction"] {
+        assert!(
+            names.iter().any(|n| n.starts_with(want)),
+            "{want} not added: {names:?}: {}",
+            r.last.verdict
+        );
+    }
+    let fc_fitted = fc_fitted.unwrap();
+    assert!(
+        (fc_fitted / fc - 1.0).abs() < 0.1,
+        "Fc {fc_fitted} for {fc}"
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

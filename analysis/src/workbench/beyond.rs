@@ -10,12 +10,12 @@ use super::scoring::*;
 use super::words::evidence;
 
 /// What the torque channel's candidates are scored with: the base columns, the residual, the
-/// cross-validation blocks and the rows used (see [`moving_mask`]).
+/// cross-validation blocks and the rows used (the moving rows, `refit::moving_mask`).
 pub(super) struct TorqueFit<'a> {
     /// Smallest reduction that counts, % of the model's error (see [`TorqueChannel`]).
     pub min_pct: f64,
     pub base_cols: &'a [&'a [f64]],
-    /// Current values of the inertias among the base parameters (see [`inertias_now`]).
+    /// Current values of the inertias among the base parameters (`refit::inertias_now`).
     pub now: &'a [f64],
     pub res: &'a [f64],
     pub bl: &'a [(usize, usize)],
@@ -80,7 +80,7 @@ pub(super) fn beyond_top(
                     .then(|| leading_size(&r.effect, &r.cv, nb, d))
                     .flatten()
             });
-            let inside_ci = size.is_some_and(|(c, se)| c <= CI_SIGMAS * se);
+            let inside_ci = size.is_some_and(|(c, se)| c.is_nan() || c <= CI_SIGMAS * se);
             let cuts = extra >= tf.min_pct && wins >= MIN_FOLD_WINS;
             Earned {
                 earns: cuts && !inside_ci,

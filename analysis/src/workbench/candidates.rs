@@ -534,7 +534,9 @@ pub(super) fn scored_candidate(
     // its leading coefficient must lie outside its own confidence interval around zero
     let nb = ch.base_cols.len();
     if channel(id) == Channel::Torque {
-        if let Some((_, se)) = leading_size(&e, &cv, nb, d).filter(|(c, se)| *c <= CI_SIGMAS * se) {
+        if let Some((_, se)) =
+            leading_size(&e, &cv, nb, d).filter(|(c, se)| c.is_nan() || *c <= CI_SIGMAS * se)
+        {
             significant = false;
             ev = format!("{ev}; its size is inside its own confidence interval (+-{} at {CI_SIGMAS} standard errors): not significant", fmt(CI_SIGMAS * se));
         }

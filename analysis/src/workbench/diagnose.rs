@@ -20,6 +20,7 @@
 
 use serde_json::{json, Value};
 
+use super::beyond::{beyond_top, Top, TorqueFit};
 use super::candidates::*;
 use super::controller::ControllerChannel;
 pub use super::controller_candidates::excitation_99_hz;
@@ -27,7 +28,6 @@ use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
 use super::effects::{Effect, WbModel};
-use super::beyond::{beyond_top, Top, TorqueFit};
 use super::pair::name_hidden_pair;
 use super::refit::{flat, inertias_now, Released};
 use super::scoring::*;
@@ -93,8 +93,9 @@ pub const MAX_CONFIRM: usize = 3;
 /// residual and its reference fits ([`TorqueChannel::new`]), a candidate per base parameter
 /// ([`base_parameter_candidates`]), a candidate per effect of the library on the channel where
 /// it shows ([`effect_candidates`]), forward selection beyond the first ([`condition_on_top`]),
-/// candidates the data cannot tell apart ([`mark_indistinguishable`]), and the verdict with the
-/// whiteness of what is left ([`residual_whiteness`], [`verdict`]).
+/// candidates the data cannot tell apart ([`mark_indistinguishable`]), two candidates that hide
+/// each other when none is significant alone (`pair::name_hidden_pair`), and the verdict with
+/// the whiteness of what is left ([`residual_whiteness`], [`verdict`]).
 pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis {
     let rel = Released::of(model, d, None);
     let ch = TorqueChannel::new(model, d, &rel);
@@ -143,6 +144,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
             Err(why) => {
                 cands[i].significant = false;
                 cands[i].evidence = format!("{}; {why}", cands[i].evidence);
+                rejected.push((cands[i].effect.clone(), why));
                 break (cands, None);
             }
         }
@@ -150,9 +152,12 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
     let mut cands = cands;
     let (white, ac) = residual_whiteness(d, &ch);
     // a misfit that is not noise, with no candidate significant alone: two that hide each
-    // other, named together
+    // other (both named, or the leader alone; none whose fit was refused above)
+    let refused: Vec<String> = rejected.iter().map(|(e, _)| e.clone()).collect();
     let fitted = match fitted {
-        None if !white => name_hidden_pair(&mut cands, model, d, &tf, ch.e0, opts.window_s),
+        None if !white => {
+            name_hidden_pair(&mut cands, &refused, model, d, &tf, ch.e0, opts.window_s)
+        }
         f => f,
     };
     if let Some(e) = fitted.as_ref().and_then(|f| f.resized.clone()) {

@@ -13,7 +13,7 @@ use std::f64::consts::PI;
 
 use super::data::AxisData;
 use super::effects::{dead_band, sgn};
-use super::lsq::{blocks, cross_validate, normals, Cv};
+use super::lsq::{blocks, contribution_size, cross_validate, normals, sizing_rows, Cv, CI_SIGMAS};
 use super::refit::{cv_cols_masked, FOLDS};
 use super::scoring::fold_wins;
 use super::signal::{filtfilt_butter4, mean, nrmse_pct, quantile, rms, span};
@@ -42,7 +42,8 @@ pub struct TermCut {
     pub words: String,
     /// Cut of the cross-validated error, % of the error before it.
     pub cut_pct: f64,
-    /// Whether the cut counts (at least the channel's smallest cut, in 4 of 5 blocks).
+    /// Whether the cut counts (at least the channel's smallest cut, in 4 of 5 blocks, its
+    /// contribution outside its own confidence interval).
     pub significant: bool,
 }
 
@@ -170,8 +171,10 @@ fn position_terms(d: &AxisData, filt: &dyn Fn(Vec<f64>) -> Vec<f64>) -> Vec<Term
 }
 
 /// What the residual `res` follows beyond the `base` columns: forward selection of at most
-/// [`MAX_TERMS`] terms, each scored by the blocked cross-validation against the fit before it;
-/// a term counts when it cuts that error by `min_pct` % or more in `min_wins` of the blocks. The
+/// [`MAX_TERMS`] terms, each scored by the blocked cross-validation against the fit before it
+/// (the one that cuts most among those that count is taken);
+/// a term counts when it cuts that error by `min_pct` % or more in `min_wins` of the blocks and
+/// its contribution lies outside its own confidence interval ([`contribution_size`]). The
 /// counted terms are returned, then the best one that did not count (so a user sees how close
 /// the next one came).
 #[allow(clippy::too_many_arguments)]
@@ -186,24 +189,50 @@ pub fn explain(
 ) -> Vec<TermCut> {
     let mut chosen: Vec<usize> = Vec::new();
     let mut out = Vec::new();
+    // sized on the rows the fit uses: those of its blocks, the mask's
+    let span = (
+        bl.first().map(|b| b.0).unwrap_or(0),
+        bl.last().map(|b| b.1).unwrap_or(0),
+    );
+    let rows = sizing_rows(span, mask);
     let mut reference = cv_with(terms, &[], base, res, bl, mask);
     while chosen.len() < MAX_TERMS {
-        let best = (0..terms.len())
+        let mut scored: Vec<(usize, Cv)> = (0..terms.len())
             .filter(|i| !chosen.contains(i))
             .map(|i| {
                 let mut with = chosen.clone();
                 with.push(i);
                 (i, cv_with(terms, &with, base, res, bl, mask))
             })
-            .min_by(|x, y| x.1.rms.total_cmp(&y.1.rms));
-        let Some((i, cv)) = best else { break };
-        let cut = 100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300);
-        let wins = fold_wins(&cv, &reference.fold_mse);
-        let significant = cut >= min_pct && wins >= min_wins;
+            .collect();
+        scored.sort_by(|x, y| x.1.rms.total_cmp(&y.1.rms));
+        let first = base.len() + chosen.iter().map(|c| terms[*c].cols.len()).sum::<usize>();
+        // the term that cuts most among those that count: its cut, in enough blocks, and its
+        // contribution outside its own confidence interval (as an effect's size); else the
+        // best one that does not count
+        let cut_of = |i: usize, cv: &Cv| {
+            let cut = 100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300);
+            let wins = fold_wins(cv, &reference.fold_mse);
+            let cols: Vec<&[f64]> = terms[i].cols.iter().map(|c| c.as_slice()).collect();
+            let (size, se) = contribution_size(&cols, cv, first, &rows, false);
+            (
+                cut,
+                cut >= min_pct && wins >= min_wins && size > CI_SIGMAS * se,
+            )
+        };
+        let counted = scored
+            .iter()
+            .map(|(i, cv)| (*i, cut_of(*i, cv)))
+            .position(|(_, (_, counts))| counts);
+        let Some(k) = counted.or((!scored.is_empty()).then_some(0)) else {
+            break;
+        };
+        let (i, cv) = scored.swap_remove(k);
+        let (cut_pct, significant) = cut_of(i, &cv);
         out.push(TermCut {
             term: terms[i].id.clone(),
             words: terms[i].words.clone(),
-            cut_pct: cut,
+            cut_pct,
             significant,
         });
         if !significant {

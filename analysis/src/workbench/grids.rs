@@ -82,13 +82,15 @@ pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
                 .collect()
         }
         // one load revolution first (a tie keeps it), then the periods a load column referred
-        // through a gear shows: from half the travel to a thousand times it
+        // through a gear shows: from the travel (a record that travels less than one revolution
+        // shows at most one period of its gravity; a shorter period is a ripple, not a weight)
+        // to a thousand times it
         EffectId::Unbalance => {
             let travel = span(&d.ql[a..b]) / d.r;
             let mut g = vec![vec![2.0 * std::f64::consts::PI]];
             if travel > 0.0 {
                 g.extend(
-                    logspace(0.5 * travel, 1000.0 * travel, 40)
+                    logspace(travel, 1000.0 * travel, 40)
                         .into_iter()
                         .map(|p| vec![p]),
                 );

@@ -291,9 +291,106 @@ pub fn cross_validate(ne: &[Normal]) -> Cv {
     }
 }
 
+/// Rows at most used to size a contribution (more are thinned evenly).
+const SIZE_ROWS: usize = 20_000;
+
+/// The rows of `rows` (0/1 `mask` applied when given) a contribution is sized on: at most
+/// [`SIZE_ROWS`], evenly spread.
+pub fn sizing_rows(rows: (usize, usize), mask: Option<&[f64]>) -> Vec<usize> {
+    let kept: Vec<usize> = (rows.0..rows.1)
+        .filter(|i| mask.is_none_or(|m| m.get(*i).is_some_and(|w| *w != 0.0)))
+        .collect();
+    let step = kept.len().div_ceil(SIZE_ROWS).max(1);
+    kept.into_iter().step_by(step).collect()
+}
+
+/// The size of the contribution of columns `cols`, whose coefficients in fit `cv` start at
+/// `first`: its RMS over `rows` (its mean removed when `centred`: a constant carried by
+/// another column), and the standard error of that contribution from the spread of the
+/// leave-one-block-out fits (jackknife over the blocks, RMS over the rows). A contribution
+/// inside a few standard errors of none is one the data cannot pin down.
+pub fn contribution_size(
+    cols: &[&[f64]],
+    cv: &Cv,
+    first: usize,
+    rows: &[usize],
+    centred: bool,
+) -> (f64, f64) {
+    if rows.is_empty() || cv.theta.len() < first + cols.len() {
+        return (0.0, 0.0);
+    }
+    let shape = |t: &DVector<f64>| -> Vec<f64> {
+        let f: Vec<f64> = rows
+            .iter()
+            .map(|&i| {
+                cols.iter()
+                    .enumerate()
+                    .map(|(j, c)| t[first + j] * c[i])
+                    .sum()
+            })
+            .collect();
+        if !centred {
+            return f;
+        }
+        let m = f.iter().sum::<f64>() / f.len() as f64;
+        f.into_iter().map(|x| x - m).collect()
+    };
+    let n = rows.len() as f64;
+    let fit = shape(&cv.theta);
+    let size = (fit.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let k = cv.loo_theta.len();
+    if k < 2 {
+        return (size, 0.0);
+    }
+    let loo: Vec<Vec<f64>> = cv.loo_theta.iter().map(shape).collect();
+    let kf = k as f64;
+    let spread: f64 = (0..rows.len())
+        .map(|i| {
+            let m = loo.iter().map(|f| f[i]).sum::<f64>() / kf;
+            loo.iter().map(|f| (f[i] - m).powi(2)).sum::<f64>()
+        })
+        .sum();
+    (size, ((kf - 1.0) / kf * spread / n).sqrt())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_contribution_is_sized_against_the_spread_of_its_block_wise_fits() {
+        // y = 2 x + a small deterministic noise; z has no part in y
+        let n = 2000;
+        let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.01).sin()).collect();
+        let z: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos()).collect();
+        let mut state = 12345u64;
+        let y: Vec<f64> = x
+            .iter()
+            .map(|v| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                2.0 * v + 0.05 * ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5)
+            })
+            .collect();
+        let cv = cross_validate(&normals(&[&x, &z], &y, &blocks((0, n), 5)));
+        assert_eq!(cv.loo_theta.len(), 5);
+        let rows = sizing_rows((0, n), None);
+        let (size, se) = contribution_size(&[&x], &cv, 0, &rows, false);
+        let rms_x = (x.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        assert!((size / (2.0 * rms_x) - 1.0).abs() < 1e-3, "{size}");
+        assert!(size > 100.0 * se, "{size} +- {se}");
+        let (size_z, se_z) = contribution_size(&[&z], &cv, 1, &rows, false);
+        assert!(size_z < CI_SIGMAS * se_z, "{size_z} +- {se_z}");
+        // centred: a constant column's contribution is no variation at all
+        let one = vec![1.0; n];
+        let cv1 = cross_validate(&normals(&[&one], &y, &blocks((0, n), 5)));
+        assert!(contribution_size(&[&one], &cv1, 0, &rows, true).0 < 1e-12);
+        // masked rows are left out, and no rows give no size
+        let mask: Vec<f64> = (0..n).map(|i| if i < 10 { 1.0 } else { 0.0 }).collect();
+        assert_eq!(sizing_rows((0, n), Some(&mask)).len(), 10);
+        assert_eq!(contribution_size(&[&x], &cv, 0, &[], false), (0.0, 0.0));
+    }
 
     #[test]
     fn blocks_of_rows_hold_equal_numbers_of_informative_rows() {

@@ -2,25 +2,27 @@
 //! where every other effect's misfit is still in the residual: a friction step at a few
 //! reversals beside an unmodelled gravity that changes with the pose is judged against a
 //! residual that is mostly that gravity, and its confidence interval (from the spread of the
-//! block-wise fits) takes in zero, although its cross-validated cut counts.
+//! block-wise fits) takes in zero, although its cross-validated cut reaches the smallest cut
+//! that counts.
 //!
-//! When no candidate is significant and the misfit is not noise, each leading candidate (one
-//! whose cross-validated cut counts) is refitted together with every other one. The partner
-//! must lower the cross-validated error beyond the leader by the channel's smallest cut that
-//! counts, in [`MIN_FOLD_WINS`] of the blocks; the leader, refitted beside it, must then pass
-//! every rule of a candidate (that cut, those blocks, its size outside its own confidence
-//! interval, its nonlinear parameter not at an edge of its search). When the partner passes
-//! them too, beside the leader, both are named; when its own size stays inside its confidence
-//! interval, the leader alone is named and the partner is said to be what the data show but
-//! cannot size. Either way the fit `fit --add` makes of what is named must lower the error
-//! materially.
+//! When no candidate is significant and the misfit is not noise, each of the two leading
+//! single torque-channel effects (by that cut; none whose fit was refused, none at an edge of
+//! its search alone) is refitted beside every other single torque-channel effect of another
+//! class. The partner must lower the cross-validated error beyond the leader by the smallest
+//! cut that counts (a share of the model's error, as any candidate beyond a first one), in
+//! [`MIN_FOLD_WINS`] of the blocks; the leader, refitted beside it, must then pass every rule of
+//! a candidate (that cut, those blocks, its size outside its own confidence interval, its
+//! nonlinear parameter not at an edge of its search). When the partner passes them too, beside
+//! the leader, both are named; when its size stays inside its confidence interval or its
+//! parameter at an edge, the leader alone is named and the partner's evidence says why it is
+//! not. Either way the fit `fit --add` makes of what is named must lower the error materially.
 
-use super::data::AxisData;
 use super::beyond::{beyond_top, Earned, Top, TorqueFit};
+use super::data::AxisData;
 use super::effects::{channel, Channel, EffectId, WbModel};
 use super::refit::{flat, Refit};
 use super::scoring::{Candidate, CI_SIGMAS, MIN_FOLD_WINS};
-use super::verdict::{confirm, Confirmed};
+use super::verdict::{confirm, reasons_start, Confirmed};
 use super::words::{class_of, evidence, fmt, reversals};
 
 /// Leading candidates (by their cut alone) each tried with every other one.
@@ -39,8 +41,8 @@ fn single_effect(c: &Candidate, d: &AxisData) -> Option<EffectId> {
     Some(id)
 }
 
-/// A pair found: the leader and its partner (indices into the candidates), each refitted beyond
-/// the other, the extra cut each gives beyond the other, and whether the partner is named too.
+/// A pair found: the leader and its partner (indices into the candidates), each refitted beside
+/// the other, and what each gives beside the other.
 struct Pair {
     leader: usize,
     partner: usize,
@@ -50,9 +52,12 @@ struct Pair {
     /// standard error.
     leader_share: f64,
     leader_size: Option<(f64, f64)>,
-    /// The partner's cut of the error left beside the leader, %.
+    /// The partner's cut beside the leader: of the error the leader leaves, %, and of the
+    /// model's error, % (the figure a candidate beyond a first one is credited with).
     partner_share: f64,
-    both: bool,
+    partner_extra: f64,
+    /// Why the partner is not named beside the leader (`None`: it is).
+    partner_not: Option<String>,
 }
 
 /// `r` when it earns its significance with a nonlinear parameter that is not doubtful.
@@ -66,6 +71,7 @@ fn earned(r: Earned) -> Option<Earned> {
 /// error of the two refitted together.
 fn best_pair(
     cands: &[Candidate],
+    rejected: &[String],
     model: &WbModel,
     d: &AxisData,
     tf: &TorqueFit<'_>,
@@ -76,7 +82,11 @@ fn best_pair(
     }
     let mut leaders: Vec<usize> = (0..cands.len())
         .filter(|i| {
-            single_effect(&cands[*i], d).is_some() && cands[*i].error_reduction_pct >= tf.min_pct
+            let c = &cands[*i];
+            single_effect(c, d).is_some()
+                && c.error_reduction_pct >= tf.min_pct
+                && !rejected.contains(&c.effect)
+                && !c.evidence.contains(AT_EDGE)
         })
         .collect();
     leaders.sort_by(|a, b| {
@@ -105,8 +115,16 @@ fn best_pair(
             if !r.cuts {
                 continue;
             }
-            let both = r.earns && r.rescored.as_ref().is_some_and(|f| f.doubtful.is_none());
-            let (partner_share, Some(partner_fit)) = (r.share, r.rescored) else {
+            let partner_not = if !r.earns {
+                Some("its size stays inside its own confidence interval".to_string())
+            } else {
+                r.rescored
+                    .as_ref()
+                    .and_then(|f| f.doubtful.clone())
+                    .map(|why| format!("{why}: doubtful"))
+            };
+            let (partner_share, partner_extra) = (r.share, r.extra);
+            let Some(partner_fit) = r.rescored else {
                 continue;
             };
             let mut ptop = Top::of(&cands[*pj]);
@@ -122,7 +140,7 @@ fn best_pair(
                 continue;
             };
             // a pair that names both first, then the lower error
-            let key = (!both, leader_fit.cv.rms);
+            let key = (partner_not.is_some(), leader_fit.cv.rms);
             if best.as_ref().is_none_or(|(b, _)| key < *b) {
                 best = Some((
                     key,
@@ -134,7 +152,8 @@ fn best_pair(
                         leader_share,
                         leader_size,
                         partner_share,
-                        both,
+                        partner_extra,
+                        partner_not,
                     },
                 ));
             }
@@ -143,20 +162,25 @@ fn best_pair(
     best.map(|(_, p)| p)
 }
 
+/// Marks the evidence of an estimate at an edge of its search (see `refit::at_edge`).
+const AT_EDGE: &str = "edge of the range searched";
+
 /// When no candidate is significant alone, the best pair of candidates that hide each other
-/// (see the module's words) is confirmed by its fit and named: the leader carries what
-/// `fit --add` is told to add (both effects, or itself alone when the partner cannot be sized)
-/// and its cut, the partner its cut beyond the leader. A pair whose fit does not lower the
-/// error materially is left out, and the leader says so.
+/// (see the module's words; none of `rejected`, whose fits were refused) is confirmed by its fit
+/// and named: the leader carries what `fit --add` is told to add (both effects, or itself alone
+/// when the partner is not named) and the cut of what is added, the partner its cut beyond the
+/// leader. A pair whose fit does not lower the error materially is left out, and the leader
+/// says so.
 pub(super) fn name_hidden_pair(
     cands: &mut [Candidate],
+    rejected: &[String],
     model: &WbModel,
     d: &AxisData,
     tf: &TorqueFit<'_>,
     e0: f64,
     window_s: f64,
 ) -> Option<Confirmed> {
-    let p = best_pair(cands, model, d, tf, e0)?;
+    let p = best_pair(cands, rejected, model, d, tf, e0)?;
     let (ln, pn) = (
         cands[p.leader].effect.clone(),
         cands[p.partner].effect.clone(),
@@ -172,31 +196,39 @@ pub(super) fn name_hidden_pair(
         })
         .unwrap_or_default();
     let mut trial = cands[p.leader].clone();
-    let words = if p.both {
-        trial.add = vec![p.leader_fit.effect.clone(), p.partner_fit.effect.clone()];
-        format!(
-            "alone, each is hidden by the other's misfit; refitted together they lower the cross-validated error by {joint:.1} %: it cuts what {pn} leaves by {:.1} %, and {pn} what it leaves by {:.1} %, each in at least {MIN_FOLD_WINS} blocks with its size outside its own confidence interval",
-            p.leader_share, p.partner_share
-        )
-    } else {
-        format!(
-            "refitted beside {pn} (which cuts what it leaves by a further {:.1} %, but whose own size these data cannot pin down: inside its confidence interval), it cuts what {pn} leaves by {:.1} % in at least {MIN_FOLD_WINS} blocks, and its size lies outside its own confidence interval{ci}: alone, {pn}'s misfit hid it",
+    let words = match &p.partner_not {
+        None => {
+            trial.add = vec![p.leader_fit.effect.clone(), p.partner_fit.effect.clone()];
+            format!(
+                "alone, each is hidden by the other's misfit; refitted together they lower the cross-validated error by {joint:.1} %: it cuts what {pn} leaves by {:.1} %, and {pn} what it leaves by {:.1} %, each in at least {MIN_FOLD_WINS} blocks with its size outside its own confidence interval",
+                p.leader_share, p.partner_share
+            )
+        }
+        Some(why) => format!(
+            "refitted beside {pn} (which cuts what it leaves by a further {:.1} %, but is not named: {why}), it cuts what {pn} leaves by {:.1} % in at least {MIN_FOLD_WINS} blocks, and its size lies outside its own confidence interval{ci}: alone, {pn}'s misfit hid it",
             p.partner_share, p.leader_share
-        )
+        ),
     };
     let outcome = confirm(&trial, model, d, window_s);
     let l = &mut cands[p.leader];
     let Ok(f) = outcome else {
         let why = outcome.err().unwrap_or_default();
-        l.evidence = format!("{}; {words}, but {why}", l.evidence);
+        let what = if p.partner_not.is_none() {
+            format!("fitting both ({ln} and {pn}) was tried: {why}")
+        } else {
+            why
+        };
+        l.evidence = format!("{}; {words}, but {what}", l.evidence);
         return None;
     };
     l.significant = true;
-    if !p.both {
-        l.evidence = format!("{}; {words}", before_reasons(&l.evidence));
+    let kept = reasons_start(&l.evidence).unwrap_or(l.evidence.len());
+    let before = l.evidence[..kept].trim_end_matches("; ").to_string();
+    if let Some(why) = &p.partner_not {
+        l.evidence = format!("{before}; {words}");
         let q = &mut cands[p.partner];
         q.evidence = format!(
-            "{}; beside {ln} it cuts what {ln} leaves by {:.1} % (not significant: its size stays inside its own confidence interval; {ln} is named beside it)",
+            "{}; beside {ln} it cuts what {ln} leaves by {:.1} % (not significant: {why}; {ln} is named beside it)",
             q.evidence, p.partner_share
         );
         return Some(f);
@@ -213,7 +245,9 @@ pub(super) fn name_hidden_pair(
     l.error_reduction_pct = joint;
     let q = &mut cands[p.partner];
     q.significant = true;
-    q.error_reduction_pct = 100.0 * (e0 - p.partner_fit.cv.rms) / e0;
+    // its cut beyond the leader, as any candidate beyond a first one: the leader, which carries
+    // both, stays first
+    q.error_reduction_pct = p.partner_extra.min(joint);
     q.evidence = format!(
         "{}; beside {ln} it cuts what {ln} leaves by {:.1} %: named together with it (see {ln})",
         evidence(&p.partner_fit.effect, d),
@@ -221,21 +255,4 @@ pub(super) fn name_hidden_pair(
     );
     q.add = vec![p.partner_fit.effect];
     Some(f)
-}
-
-/// Evidence `ev` without the reasons it gave for not being significant (from the first clause
-/// that gives one): what a candidate named beside a partner keeps.
-fn before_reasons(ev: &str) -> &str {
-    let at = [
-        "its size is inside its own confidence interval",
-        "too few reversals",
-        "not significant",
-    ]
-    .iter()
-    .filter_map(|m| ev.find(m))
-    .min();
-    match at {
-        Some(at) => ev[..at].trim_end_matches("; "),
-        None => ev,
-    }
 }

@@ -160,8 +160,8 @@ impl Released {
 pub struct Refit {
     /// The effect, coefficients fitted.
     pub effect: Effect,
-    /// Cross-validation of the joint fit; `theta` and `theta_se` list every base column (0 for a
-    /// held one) followed by the effect's coefficients.
+    /// Cross-validation of the joint fit; `theta`, `theta_se` and each of `loo_theta` list every
+    /// base column (0 for a held one) followed by the effect's coefficients.
     pub cv: Cv,
     /// Indices of the base columns held at their values.
     pub held: Vec<usize>,

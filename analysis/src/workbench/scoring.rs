@@ -10,12 +10,11 @@ use super::base::BaseParam;
 use super::data::AxisData;
 use super::effects::{Effect, WbModel};
 use super::lsq::blocks_of_rows;
-use super::lsq::Cv;
+use super::lsq::{contribution_size, sizing_rows, Cv};
 use super::refit::{cv_cols_masked, moving_mask, Released, FOLDS};
 use super::signal::{mean, rms};
 use feedloop_model::model::AxisKind;
 use feedloop_model::EffectId;
-use nalgebra::DVector;
 
 pub use super::lsq::{material_cut, MIN_REDUCTION_PCT};
 
@@ -215,43 +214,15 @@ pub(super) fn leading_size(e: &Effect, cv: &Cv, nb: usize, d: &AxisData) -> Opti
     Some((amp, se))
 }
 
-/// Rows at most used to size a contribution (a longer fit range is thinned evenly).
-const SIZE_ROWS: usize = 20_000;
-
 /// The RMS over the fit range of the part of effect `e`'s torque that varies with the position
 /// (its sine and cosine columns, their mean removed: a constant is carried by its own column),
-/// fitted by `cv`, and the standard error of that torque from the spread of the
-/// leave-one-block-out fits (jackknife over the blocks, RMS over the rows).
+/// fitted by `cv`, and its standard error ([`contribution_size`]).
 fn varying_torque_size(e: &Effect, cv: &Cv, nb: usize, d: &AxisData) -> Option<(f64, f64)> {
     let cols = e.columns(d);
-    let (a, b) = d.range;
-    let step = (b - a).div_ceil(SIZE_ROWS).max(1);
-    let rows: Vec<usize> = (a..b).step_by(step).collect();
-    if rows.is_empty() || cols.len() < 2 {
+    if cols.len() < 2 {
         return None;
     }
-    let shape = |t: &DVector<f64>| -> Vec<f64> {
-        let f: Vec<f64> = rows
-            .iter()
-            .map(|&i| t[nb] * cols[0][i] + t[nb + 1] * cols[1][i])
-            .collect();
-        let m = mean(&f);
-        f.into_iter().map(|x| x - m).collect()
-    };
-    let n = rows.len() as f64;
-    let fit = shape(&cv.theta);
-    let size = (fit.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-    let k = cv.loo_theta.len();
-    if k < 2 {
-        return Some((size, 0.0));
-    }
-    let loo: Vec<Vec<f64>> = cv.loo_theta.iter().map(shape).collect();
-    let spread: f64 = (0..rows.len())
-        .map(|i| {
-            let m = loo.iter().map(|f| f[i]).sum::<f64>() / k as f64;
-            loo.iter().map(|f| (f[i] - m).powi(2)).sum::<f64>()
-        })
-        .sum::<f64>();
-    let kf = k as f64;
-    Some((size, ((kf - 1.0) / kf * spread / n).sqrt()))
+    let rows = sizing_rows(d.range, None);
+    let refs = [cols[0].as_slice(), cols[1].as_slice()];
+    Some(contribution_size(&refs, cv, nb, &rows, true))
 }

@@ -112,10 +112,11 @@ pub(super) fn confirm(
     }
 }
 
-/// The part of a candidate's evidence that says why it is not significant: from the clause of
-/// the last of the reasons a diagnosis gives (a refused or weak fit, a confidence interval, too
-/// few winning blocks, an estimate at an edge) to the end.
-pub(super) fn why_not_significant(evidence: &str) -> &str {
+/// Where the reasons a candidate's evidence gives for not being significant begin: at the
+/// clause of the first of them (a refused or weak fit, a confidence interval, too few winning
+/// blocks, an estimate at an edge, too few reversals, a mass that is not positive). `None` when
+/// it gives none.
+pub(super) fn reasons_start(evidence: &str) -> Option<usize> {
     let at = [
         "its fit is refused",
         "fitting it ",
@@ -128,9 +129,16 @@ pub(super) fn why_not_significant(evidence: &str) -> &str {
     ]
     .iter()
     .filter_map(|m| evidence.find(m))
-    .min();
-    let Some(at) = at else { return "" };
-    let start = evidence[..at].rfind("; ").map(|i| i + 2).unwrap_or(0);
+    .min()?;
+    Some(evidence[..at].rfind("; ").map(|i| i + 2).unwrap_or(0))
+}
+
+/// The part of a candidate's evidence that says why it is not significant: from the clause of
+/// the first of the reasons a diagnosis gives ([`reasons_start`]) to the end.
+pub(super) fn why_not_significant(evidence: &str) -> &str {
+    let Some(start) = reasons_start(evidence) else {
+        return "";
+    };
     evidence[start..]
         .trim_end_matches(": not significant")
         .trim_end_matches(" (not significant)")
@@ -227,5 +235,24 @@ pub(super) fn verdict(
                 }
             )
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reasons_a_candidate_is_not_significant_are_found_at_the_clause_of_the_first() {
+        let ev = "steps by 2 N m; held x; it lowers the cross-validated error in only 3 of the record's 5 blocks (4 needed): not significant; its size is inside its own confidence interval (+-1 at 3 standard errors): not significant";
+        let at = reasons_start(ev).unwrap();
+        assert_eq!(&ev[..at], "steps by 2 N m; held x; ");
+        assert!(
+            why_not_significant(ev).starts_with("it lowers the cross-validated error in only 3")
+        );
+        let edge = "a lag of 80 ms; its time constant (0.08) is at the upper edge of the range searched (0.001 to 0.08): the best value may lie beyond: doubtful, not significant";
+        assert_eq!(&edge[..reasons_start(edge).unwrap()], "a lag of 80 ms; ");
+        assert_eq!(reasons_start("a step of 2 N m at each reversal"), None);
+        assert_eq!(why_not_significant("a step of 2 N m at each reversal"), "");
     }
 }
