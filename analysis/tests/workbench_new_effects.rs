@@ -7,13 +7,35 @@ use std::path::{Path, PathBuf};
 
 use feedloop_analysis::workbench::{
     data::{load_axis, AxisData, Prep},
-    diagnose::{diagnose, DiagOptions},
+    diagnose::{diagnose, DiagOptions, Diagnosis},
     effects::WbModel,
     fit::fit,
 };
 use feedloop_model::model::ModelFile;
 use feedloop_model::EffectId;
 use feedloop_trace::Trace;
+
+/// A deterministic uniform noise on -0.5 .. 0.5 (xorshift), the same sequence in every run.
+fn uniform_noise() -> impl FnMut() -> f64 {
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    }
+}
+
+/// Whether the dictionary of what no effect explains counts term `id`, and whether the sparse
+/// peer keeps it.
+fn term_counted_and_kept(dg: &Diagnosis, id: &str) -> (bool, bool) {
+    (
+        dg.residual_terms
+            .iter()
+            .any(|t| t.term == id && t.significant),
+        dg.sparse_peer.terms.iter().any(|t| t == id),
+    )
+}
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("feedloop-new-{name}-{}", std::process::id()));
@@ -173,7 +195,6 @@ fn an_unbalanced_rotary_load_is_named_and_fitted() {
 /// dictionary; on a right model no term counts and the sparse peer keeps no term.
 #[test]
 fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
-    use feedloop_analysis::workbench::diagnose::DiagOptions;
     let dir = scratch("dictionary");
     let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
     // a drag of 40 N s^2/m^2 |v| v on a 20 kg mass
@@ -248,7 +269,6 @@ fn a_misfit_outside_the_library_is_described_by_the_terms_it_follows() {
 /// cosine, a delayed torque).
 #[test]
 fn a_drift_is_named_by_the_dictionary_and_is_no_term_of_the_peer() {
-    use feedloop_analysis::workbench::diagnose::DiagOptions;
     let dir = scratch("drift");
     let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
     let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
@@ -256,16 +276,11 @@ fn a_drift_is_named_by_the_dictionary_and_is_no_term_of_the_peer() {
     let (m, d) = setup(&trace, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
     let dg = diagnose(&m, &d, &DiagOptions::default());
     // (the open-loop body wanders, so slow shapes of its position stand beside the time)
-    assert!(
-        dg.residual_terms
-            .iter()
-            .any(|t| t.term == "time" && t.significant),
-        "{:?}",
-        dg.residual_terms
-    );
-    assert!(
-        !dg.sparse_peer.terms.contains(&"time".to_string()),
-        "{:?}",
+    assert_eq!(
+        term_counted_and_kept(&dg, "time"),
+        (true, false),
+        "{:?} {:?}",
+        dg.residual_terms,
         dg.sparse_peer
     );
     std::fs::remove_dir_all(dir).ok();
@@ -279,27 +294,16 @@ fn noise_on_the_recorded_torque_is_not_read_as_a_delay() {
     let dir = scratch("torque-noise");
     let drive = |t: f64| 500.0 * (2.0 * PI * 0.3 * t).sin() + 200.0 * (2.0 * PI * 1.1 * t).sin();
     let trace = record(&dir, 20.0, 12.0, drive, |_, _| 0.0);
-    let mut seed = 0x2545_f491_4f6c_dd1du64;
-    let mut uniform = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-    };
+    let mut uniform = uniform_noise();
     // uniform on +-60 N: an RMS of about 17 N beside the drive's 380 N
     let path = torque_added(&trace, &dir.join("noisy.csv"), |_| 120.0 * uniform(), None);
     let (m, d) = setup(&path, "kind = \"rigid\"\nmass_kg = 20.0\n", &dir);
     let dg = diagnose(&m, &d, &DiagOptions::default());
-    assert!(
-        dg.residual_terms
-            .iter()
-            .all(|t| !(t.term == "delayed_torque" && t.significant)),
-        "{:?}",
-        dg.residual_terms
-    );
-    assert!(
-        !dg.sparse_peer.terms.contains(&"delayed_torque".to_string()),
-        "{:?}",
+    assert_eq!(
+        term_counted_and_kept(&dg, "delayed_torque"),
+        (false, false),
+        "{:?} {:?}",
+        dg.residual_terms,
         dg.sparse_peer
     );
     std::fs::remove_dir_all(dir).ok();
@@ -319,7 +323,7 @@ fn gravity_and_friction_of_a_short_swing_are_both_added() {
     let w = 2.0 * PI * f;
     let mut text = String::from("# feedloop-trace v1\n# period_s=0.004\nt,x.cmd,x.load,x.torque\n");
     // a deterministic, coloured torque noise (the drive's current ripple and quantisation)
-    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut white = uniform_noise();
     let mut coloured = 0.0;
     for k in 0..3_000 {
         let t = k as f64 * 4e-3;
@@ -332,11 +336,7 @@ fn gravity_and_friction_of_a_short_swing_are_both_added() {
         let q = amp * s1 + 0.08 * s3;
         let v = amp * w * c1 + 0.08 * 3.1 * w * c3;
         let a = -amp * w * w * s1 - 0.08 * (3.1 * w).powi(2) * s3;
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        let white = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
-        coloured = 0.9 * coloured + 0.4 * white;
+        coloured = 0.9 * coloured + 0.4 * white();
         let tq = j * u * a + d_v * u * v + fc * v.signum() + c0 - g * (q - zero).sin() + coloured;
         text.push_str(&format!("{t},{},{},{tq}\n", u * q, u * q));
     }

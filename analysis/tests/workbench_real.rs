@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use feedloop_analysis::workbench::{
     data::{load_axis, AxisData, Prep},
-    diagnose::{diagnose, DiagOptions},
+    diagnose::{diagnose, Candidate, DiagOptions, Diagnosis},
     effects::WbModel,
     fit::fit,
     WorkbenchError,
@@ -83,6 +83,14 @@ fn kuka(j: usize, dir: &Path) -> Option<(WbModel, AxisData)> {
     let m = model_init(&tr, &spec, None, &dir.join(format!("j{j}.toml"))).unwrap();
     let d = load_axis(&tr, &m.file, &format!("j{j}"), &Prep::default()).unwrap();
     Some((m, d))
+}
+
+/// The candidate `id` of diagnosis `dg` (every effect is listed: none disappears).
+fn candidate<'a>(dg: &'a Diagnosis, id: &str) -> &'a Candidate {
+    dg.candidates
+        .iter()
+        .find(|c| c.effect == id)
+        .unwrap_or_else(|| panic!("{id} is not listed: {}", dg.verdict))
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -297,11 +305,7 @@ fn a_friction_beside_an_offset_the_model_already_has_is_judged_against_the_model
         .unwrap()
         .model;
     let dg = diagnose(&with_offset, &d, &DiagOptions::default());
-    let coulomb = dg
-        .candidates
-        .iter()
-        .find(|c| c.effect == "coulomb_friction")
-        .unwrap();
+    let coulomb = candidate(&dg, "coulomb_friction");
     assert!(
         coulomb.error_reduction_pct > 5.0,
         "{:.1} %: {}",
@@ -329,11 +333,7 @@ fn a_friction_beside_an_offset_the_model_already_has_is_judged_against_the_model
         "{}",
         dg.verdict
     );
-    let unbalance = dg
-        .candidates
-        .iter()
-        .find(|c| c.effect == "unbalance")
-        .unwrap();
+    let unbalance = candidate(&dg, "unbalance");
     assert!(
         !unbalance.significant
             && unbalance

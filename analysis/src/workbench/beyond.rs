@@ -24,8 +24,6 @@ pub(super) struct TorqueFit<'a> {
 
 /// How a candidate fares beyond the effects of a first one (see [`beyond_top`]).
 pub(super) struct Earned {
-    /// Whether it earns its significance beyond them.
-    pub earns: bool,
     /// Whether its cross-validated cut alone counts (the smallest cut that counts, in
     /// [`MIN_FOLD_WINS`] blocks), whatever its confidence interval.
     pub cuts: bool,
@@ -37,6 +35,33 @@ pub(super) struct Earned {
     pub extra: f64,
     /// Its refit beyond them, when it is a single effect refitted alone.
     pub rescored: Option<Refit>,
+}
+
+impl Earned {
+    /// Whether its size lies inside its own confidence interval (a size that is no number
+    /// does).
+    fn inside_ci(&self) -> bool {
+        self.size
+            .is_some_and(|(c, se)| c.is_nan() || c <= CI_SIGMAS * se)
+    }
+
+    /// Whether it earns its significance beyond the first one's effects: its cut counts and its
+    /// size lies outside its own confidence interval.
+    pub fn earns(&self) -> bool {
+        self.cuts && !self.inside_ci()
+    }
+
+    /// Why, its cut counting, it is still not named: its size inside its own confidence
+    /// interval, or its nonlinear parameter at an edge of its search. `None` when it is named.
+    pub fn held_back(&self) -> Option<String> {
+        if self.inside_ci() {
+            return Some("its size stays inside its own confidence interval".into());
+        }
+        self.rescored
+            .as_ref()
+            .and_then(|f| f.doubtful.as_ref())
+            .map(|why| format!("{why}: doubtful"))
+    }
 }
 
 /// Each of `cands` refitted together with the base parameters and the effects of `top`: it
@@ -80,11 +105,8 @@ pub(super) fn beyond_top(
                     .then(|| leading_size(&r.effect, &r.cv, nb, d))
                     .flatten()
             });
-            let inside_ci = size.is_some_and(|(c, se)| c.is_nan() || c <= CI_SIGMAS * se);
-            let cuts = extra >= tf.min_pct && wins >= MIN_FOLD_WINS;
             Earned {
-                earns: cuts && !inside_ci,
-                cuts,
+                cuts: extra >= tf.min_pct && wins >= MIN_FOLD_WINS,
                 share: 100.0 * (cv_ref.rms - cv.rms) / cv_ref.rms.max(1e-300),
                 size,
                 extra,

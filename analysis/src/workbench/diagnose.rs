@@ -369,7 +369,7 @@ pub(super) fn condition_on_top(
     let results = beyond_top(&top, &refs, model, d, tf, e0);
     let mut included = Vec::new();
     for (i, r) in others.into_iter().zip(results) {
-        if let Some(e) = top.judge(&mut cands[i], r.earns, r.extra, r.rescored, d) {
+        if let Some(e) = top.judge(&mut cands[i], r.earns(), r.extra, r.rescored, d) {
             included.push(e);
         }
     }

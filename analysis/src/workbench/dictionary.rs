@@ -220,13 +220,13 @@ pub fn explain(
                 cut >= min_pct && wins >= min_wins && size > CI_SIGMAS * se,
             )
         };
-        let counted = scored
-            .iter()
-            .map(|(i, cv)| (*i, cut_of(*i, cv)))
-            .position(|(_, (_, counts))| counts);
-        let Some(k) = counted.or((!scored.is_empty()).then_some(0)) else {
+        if scored.is_empty() {
             break;
-        };
+        }
+        let k = scored
+            .iter()
+            .position(|(i, cv)| cut_of(*i, cv).1)
+            .unwrap_or(0);
         let (i, cv) = scored.swap_remove(k);
         let (cut_pct, significant) = cut_of(i, &cv);
         out.push(TermCut {

@@ -22,20 +22,21 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, EffectId, WbModel};
 use super::refit::{flat, Refit};
 use super::scoring::{Candidate, CI_SIGMAS, MIN_FOLD_WINS};
-use super::verdict::{confirm, reasons_start, Confirmed};
+use super::verdict::{confirm, reasons_start, Confirmed, AT_EDGE};
 use super::words::{class_of, evidence, fmt, reversals};
 
 /// Leading candidates (by their cut alone) each tried with every other one.
 const LEADERS: usize = 2;
 
 /// The effect of candidate `c` when it is a single torque-channel effect a pair may hold: a
-/// friction needs at least one reversal (else a constant torque carries it).
-fn single_effect(c: &Candidate, d: &AxisData) -> Option<EffectId> {
+/// friction needs at least one reversal (`turns` in the record; else a constant torque carries
+/// it).
+fn single_effect(c: &Candidate, turns: usize) -> Option<EffectId> {
     if c.is_param || c.channel != "torque" || c.add.len() != 1 {
         return None;
     }
     let id = c.add[0].id;
-    if channel(id) != Channel::Torque || (class_of(id) == "friction" && reversals(d) == 0) {
+    if channel(id) != Channel::Torque || (class_of(id) == "friction" && turns == 0) {
         return None;
     }
     Some(id)
@@ -60,12 +61,6 @@ struct Pair {
     partner_not: Option<String>,
 }
 
-/// `r` when it earns its significance with a nonlinear parameter that is not doubtful.
-fn earned(r: Earned) -> Option<Earned> {
-    let ok = r.earns && r.rescored.as_ref().is_some_and(|f| f.doubtful.is_none());
-    ok.then_some(r)
-}
-
 /// The best pair of candidates that hide each other, when no candidate is significant alone:
 /// one that names both before one that names the leader only, then the lowest cross-validated
 /// error of the two refitted together.
@@ -80,29 +75,28 @@ fn best_pair(
     if cands.iter().any(|c| c.significant) {
         return None;
     }
-    let mut leaders: Vec<usize> = (0..cands.len())
-        .filter(|i| {
-            let c = &cands[*i];
-            single_effect(c, d).is_some()
-                && c.error_reduction_pct >= tf.min_pct
+    let turns = reversals(d);
+    let mut leaders: Vec<(usize, EffectId)> = (0..cands.len())
+        .filter_map(|i| {
+            let c = &cands[i];
+            let id = single_effect(c, turns)?;
+            let leads = c.error_reduction_pct >= tf.min_pct
                 && !rejected.contains(&c.effect)
-                && !c.evidence.contains(AT_EDGE)
+                && !c.evidence.contains(AT_EDGE);
+            leads.then_some((i, id))
         })
         .collect();
     leaders.sort_by(|a, b| {
-        cands[*b]
+        cands[b.0]
             .error_reduction_pct
-            .total_cmp(&cands[*a].error_reduction_pct)
+            .total_cmp(&cands[a.0].error_reduction_pct)
     });
     leaders.truncate(LEADERS);
     let mut best: Option<((bool, f64), Pair)> = None;
-    for li in leaders {
-        let Some(lid) = single_effect(&cands[li], d) else {
-            continue;
-        };
+    for (li, lid) in leaders {
         let partners: Vec<usize> = (0..cands.len())
             .filter(|j| {
-                single_effect(&cands[*j], d)
+                single_effect(&cands[*j], turns)
                     .is_some_and(|id| id != lid && class_of(id) != class_of(lid))
             })
             .collect();
@@ -115,14 +109,7 @@ fn best_pair(
             if !r.cuts {
                 continue;
             }
-            let partner_not = if !r.earns {
-                Some("its size stays inside its own confidence interval".to_string())
-            } else {
-                r.rescored
-                    .as_ref()
-                    .and_then(|f| f.doubtful.clone())
-                    .map(|why| format!("{why}: doubtful"))
-            };
+            let partner_not = r.held_back();
             let (partner_share, partner_extra) = (r.share, r.extra);
             let Some(partner_fit) = r.rescored else {
                 continue;
@@ -130,12 +117,16 @@ fn best_pair(
             let mut ptop = Top::of(&cands[*pj]);
             ptop.add = vec![partner_fit.effect.clone()];
             let back = beyond_top(&ptop, &[&cands[li]], model, d, tf, e0);
+            // the leader, beside the partner, must be named by every rule
             let Some(Earned {
                 rescored: Some(leader_fit),
                 share: leader_share,
                 size: leader_size,
                 ..
-            }) = back.into_iter().next().and_then(earned)
+            }) = back
+                .into_iter()
+                .next()
+                .filter(|b| b.cuts && b.held_back().is_none())
             else {
                 continue;
             };
@@ -161,9 +152,6 @@ fn best_pair(
     }
     best.map(|(_, p)| p)
 }
-
-/// Marks the evidence of an estimate at an edge of its search (see `refit::at_edge`).
-const AT_EDGE: &str = "edge of the range searched";
 
 /// When no candidate is significant alone, the best pair of candidates that hide each other
 /// (see the module's words; none of `rejected`, whose fits were refused) is confirmed by its fit

@@ -112,6 +112,10 @@ pub(super) fn confirm(
     }
 }
 
+/// The words of an estimate at an edge of its search, in a candidate's evidence (see
+/// `refit::at_edge`).
+pub(super) const AT_EDGE: &str = "edge of the range searched";
+
 /// Where the reasons a candidate's evidence gives for not being significant begin: at the
 /// clause of the first of them (a refused or weak fit, a confidence interval, too few winning
 /// blocks, an estimate at an edge, too few reversals, a mass that is not positive). `None` when
@@ -122,7 +126,7 @@ pub(super) fn reasons_start(evidence: &str) -> Option<usize> {
         "fitting it ",
         "inside its own confidence interval",
         "it lowers the cross-validated error in only",
-        "edge of the range searched",
+        AT_EDGE,
         "too few reversals",
         "its fitted mass is not positive",
         "not significant",
