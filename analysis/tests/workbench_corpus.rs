@@ -9,10 +9,12 @@ use std::f64::consts::PI;
 use std::path::Path;
 
 use feedloop_analysis::workbench::{
+    compare::equation_error,
     data::{load_axis, AxisData, Prep},
     diagnose::{diagnose, DiagOptions, Diagnosis},
     effects::WbModel,
     fit::{fit_with, Errors},
+    signal::nrmse_pct,
 };
 use feedloop_control::controller::{AxisContext, AxisSignals, CycleContext, PluginRegistry};
 use feedloop_model::model::ModelFile;
@@ -284,6 +286,44 @@ fn a_trace_without_hidden_effect_gives_no_significant_effect() {
         "no missing effect found; the remaining misfit does not look like noise (whiteness test failed)"
     };
     assert!(dg.verdict.starts_with(wording), "{}", dg.verdict);
+}
+
+/// Equation error (%) of the model `text` on the trace `tr`, and the same without its dry
+/// friction sticking at rest (every sample charged for applied minus needed torque).
+fn equation_nrmse(tr: &Trace, text: &str) -> (f64, f64) {
+    let t: toml::Table = text.parse().unwrap();
+    let m = WbModel::from_parts(model_file(text), t).unwrap();
+    let d = load_axis(tr, &m.file, "x", &Prep::default()).unwrap();
+    let e = equation_error(&m, &d, d.torque.as_ref().unwrap());
+    let (a, b) = d.range;
+    let charged: Vec<f64> = (a..b).map(|k| e.measured[k] - e.model[k]).collect();
+    (e.nrmse_pct, nrmse_pct(&e.measured[a..b], &charged))
+}
+
+/// At rest a dry friction holds whatever torque the loop leaves below its breakaway level (the
+/// command holds still five times, the loop's integrator keeps a torque there): the model that
+/// made the trace, its friction included, closes the torque balance there too, to the floor of
+/// a trace without friction, in each form and on each side.
+#[test]
+fn the_model_that_made_a_trace_with_dry_friction_closes_its_balance_at_rest() {
+    let (floor, _) = equation_nrmse(&simulate(&format!("{}{SENSOR}", base())), &base());
+    for hidden in [
+        "[[effects.coulomb_friction]]\nside = \"load\"\nfc_n = 150.0\n",
+        "[[effects.coulomb_friction]]\nside = \"motor\"\nfc_nm = 0.3\n",
+        "[[effects.stribeck_friction]]\nside = \"load\"\nfc_n = 100.0\nfs_n = 160.0\nvs_m_per_s = 0.005\n",
+        "[effects.directional_friction]\nside = \"load\"\nfc_pos_n = 150.0\nfc_neg_n = 80.0\n",
+    ] {
+        let truth = format!("{}{hidden}", base());
+        let tr = simulate(&format!("{truth}{SENSOR}"));
+        let (with, charged) = equation_nrmse(&tr, &truth);
+        println!("{hidden:?}: {with:.3} % ({charged:.3} % charging every sample at rest), floor {floor:.3} %");
+        assert!(
+            with < 2.0 * floor,
+            "{hidden}: the true model leaves {with} % (floor {floor} %)"
+        );
+        // what sticking takes out is the torque held at rest
+        assert!(charged > 3.0 * floor, "{hidden}: {charged} %");
+    }
 }
 
 #[test]

@@ -711,7 +711,18 @@ fn report(label: &str, ax: &Axis, seed0: u64) {
                     .skip(1)
                     .flat_map(|s| s.added.clone())
                     .collect();
-                println!("    auto: [{}]", added.join(", "));
+                let eq = a
+                    .steps
+                    .last()
+                    .and_then(|s| s.errors.equation_nrmse_pct)
+                    .unwrap_or(f64::NAN);
+                let peer = dg.sparse_peer.equation_nrmse_pct;
+                println!(
+                    "    auto: [{}] eq {eq:.3} %; peer {peer:.3} % with [{}]{}",
+                    added.join(", "),
+                    dg.sparse_peer.terms.join(", "),
+                    if eq > peer { "  PEER LOWER" } else { "" }
+                );
             }
             let ok = verdict == "yes";
             let others: Vec<String> = dg

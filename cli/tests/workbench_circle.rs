@@ -34,8 +34,9 @@ fn auto_hidden(dir: &Path, hidden: &str) -> Value {
     auto_machine(dir, hidden, |m| m.to_string())
 }
 
-/// As [`auto_hidden`], the machine's model also changed by `edit` (the plain model kept).
-fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Value {
+/// Simulates the circle with `hidden` in the X axis' model, the machine's model also changed
+/// by `edit` (the plain model, with the sensor, written as `x0.toml`); the output folder.
+fn sim_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> PathBuf {
     let plain = std::fs::read_to_string(repo("examples/models/xy-x.toml")).unwrap();
     std::fs::write(dir.join("x0.toml"), format!("{plain}\n{SENSOR}")).unwrap();
     let machine = edit(&plain);
@@ -55,6 +56,12 @@ fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Valu
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+/// As [`auto_hidden`], the machine's model also changed by `edit` (the plain model kept).
+fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Value {
+    let out = sim_machine(dir, hidden, edit);
     let o = Command::new(bin())
         .args(["diagnose", "--auto", "--axis", "x", "--json", "--trace"])
         .arg(out.join("trace.csv"))
@@ -104,6 +111,40 @@ fn check(tag: &str, hidden: &str, expect: &[&str]) {
             "{tag}: {key} = {v}, the model's {truth}"
         );
     }
+}
+
+/// The generic peer refits one inertia and one damping through its dictionary's acceleration and
+/// velocity terms, not through the model's motor and load columns: on the circle the two bodies
+/// move together, and a free split of the two inertias fits the scale's noise in sample (to half
+/// the right model's equation error before it regressed on its dictionary alone).
+#[test]
+fn the_generic_peer_finds_nothing_beyond_a_right_model_on_the_circle() {
+    let dir = Scratch::new("workbench_circle", "peer");
+    let out = sim_machine(&dir, "", |m| m.to_string());
+    let json = |args: &[&str]| -> Value {
+        let o = Command::new(bin())
+            .args(args)
+            .args(["--axis", "x", "--json", "--trace"])
+            .arg(out.join("trace.csv"))
+            .arg("--model")
+            .arg(dir.join("x0.toml"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let peer = json(&["diagnose"])["sparse_peer"].clone();
+    let cmp_out = dir.join("cmp");
+    let model = json(&["compare", "--out", cmp_out.to_str().unwrap()])["equation_nrmse_pct"]
+        .as_f64()
+        .unwrap();
+    println!("peer {peer}; the model's equation error {model} %");
+    assert_eq!(peer["terms"], serde_json::json!([]), "{peer}");
+    let p = peer["equation_nrmse_pct"].as_f64().unwrap();
+    assert!(
+        (p / model - 1.0).abs() < 0.01,
+        "peer {p} %, model {model} %"
+    );
 }
 
 #[test]

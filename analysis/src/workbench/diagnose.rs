@@ -297,7 +297,7 @@ pub(super) fn dictionary_of(
             ch.min_pct,
             MIN_FOLD_WINS,
         );
-        let peer = dictionary::sparse_peer(&terms, &ch.base_cols, &ch.res, &ch.y_app, d.range);
+        let peer = dictionary::sparse_peer(&terms, &ch.res, &ch.y_app, d.range);
         (cuts, peer)
     };
     if step == 1 {

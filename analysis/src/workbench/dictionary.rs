@@ -282,21 +282,23 @@ const PEER_LEAVES_OUT: [&str; 1] = ["time"];
 /// contribution is smaller than that is no finding: on a right model, all of them).
 const THRESHOLDS: [f64; 7] = [0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1];
 
-/// [`SparsePeer`] of residual `res` (applied torque `y_app`) on `base` columns (never pruned:
-/// the peer refits the same base parameters as the workbench) and the dictionary `terms`:
+/// [`SparsePeer`] of residual `res` (applied torque `y_app`) on the dictionary `terms` alone:
 /// least squares, then each column whose contribution's RMS is below the threshold times the
-/// applied torque's spread is dropped and the rest refitted, ten times; the threshold with the lowest
-/// blocked cross-validated error wins.
+/// applied torque's spread is dropped and the rest refitted, ten times; the threshold with the
+/// lowest blocked cross-validated error wins. Its velocity and acceleration terms are its refit
+/// of a damping and an inertia, as an engineer's regression has them: one column each, not the
+/// model's motor and load columns, whose difference a record that moves the two bodies together
+/// does not determine (on a circle a free split of the two inertias fits the scale's noise, in
+/// sample, to half the equation error of a right model).
 pub fn sparse_peer(
     terms: &[Term],
-    base: &[&[f64]],
     res: &[f64],
     y_app: &[f64],
     range: (usize, usize),
 ) -> SparsePeer {
     let (a, b) = range;
-    let mut cols: Vec<&[f64]> = base.to_vec();
-    let mut owner: Vec<Option<usize>> = vec![None; base.len()];
+    let mut cols: Vec<&[f64]> = Vec::new();
+    let mut owner: Vec<usize> = Vec::new();
     for (i, t) in terms
         .iter()
         .enumerate()
@@ -304,7 +306,7 @@ pub fn sparse_peer(
     {
         for c in &t.cols {
             cols.push(c);
-            owner.push(Some(i));
+            owner.push(i);
         }
     }
     let scale: Vec<f64> = cols.iter().map(|c| rms(&c[a..b])).collect();
@@ -320,9 +322,7 @@ pub fn sparse_peer(
             let next: Vec<usize> = keep
                 .iter()
                 .enumerate()
-                .filter(|(k, i)| {
-                    owner[**i].is_none() || (th[*k] * scale[**i]).abs() >= lam * spread
-                })
+                .filter(|(k, i)| (th[*k] * scale[**i]).abs() >= lam * spread)
                 .map(|(_, i)| *i)
                 .collect();
             if next.len() == keep.len() {
@@ -349,10 +349,7 @@ pub fn sparse_peer(
             *x -= th[k] * c;
         }
     }
-    let mut names: Vec<String> = keep
-        .iter()
-        .filter_map(|i| owner[*i].map(|t| terms[t].id.clone()))
-        .collect();
+    let mut names: Vec<String> = keep.iter().map(|i| terms[owner[*i]].id.clone()).collect();
     names.dedup();
     SparsePeer {
         terms: names,

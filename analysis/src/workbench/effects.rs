@@ -205,17 +205,14 @@ impl Effect {
     }
 
     fn raw_columns(&self, d: &AxisData) -> Vec<Vec<f64>> {
-        let v = match self.side {
-            Side::Motor => &d.vm,
-            Side::Load => &d.vl,
-        };
+        let v = self.side_velocity(d);
         if d.sub > 1 {
             if let Some(cols) = self.held_columns(d, v) {
                 return cols;
             }
         }
         match self.id {
-            EffectId::ViscousFriction => vec![v.clone()],
+            EffectId::ViscousFriction => vec![v.to_vec()],
             EffectId::CoulombFriction => {
                 let eps = dead_band(d, v);
                 let s: Vec<f64> = v.iter().map(|x| sgn(*x, eps)).collect();
@@ -360,6 +357,31 @@ impl Effect {
             EffectId::ConstantForce | EffectId::Unbalance | EffectId::Cogging
         ) || (self.id == EffectId::CoulombFriction && j == 1);
         signed || now == 0.0 || v * now >= 0.0
+    }
+
+    /// A dry friction's torque at rest, as the torque needed (motor units): any value between
+    /// the level it reaches just below zero velocity and the level just above (the breakaway
+    /// levels of the two directions). `None` for an effect that holds nothing at rest.
+    pub fn rest_band(&self) -> Option<(f64, f64)> {
+        let c = |j: usize| self.coef.get(j).copied().unwrap_or(0.0);
+        let (lo, hi) = match self.id {
+            // columns sign(v), |sign(v)|
+            EffectId::CoulombFriction => (c(1) - c(0), c(1) + c(0)),
+            // columns sign(v), sign(v) exp(-(|v|/vs)^e): the hump is whole at rest
+            EffectId::StribeckFriction => (-(c(0) + c(1)), c(0) + c(1)),
+            // columns [v > eps], -[v < -eps], the slopes (zero at rest)
+            EffectId::DirectionalFriction => (-c(1), c(0)),
+            _ => return None,
+        };
+        Some((lo.min(hi), lo.max(hi)))
+    }
+
+    /// The velocity of the body the effect acts on.
+    pub fn side_velocity<'d>(&self, d: &'d AxisData) -> &'d [f64] {
+        match self.side {
+            Side::Motor => &d.vm,
+            Side::Load => &d.vl,
+        }
     }
 
     /// The contribution `sum coef_i column_i`.
@@ -617,6 +639,41 @@ impl WbModel {
         } else {
             out
         })
+    }
+
+    /// The torque balance's residual `residual` (applied minus needed) with the model's dry
+    /// friction sticking where its body is at rest (inside the friction's dead band): there the
+    /// friction holds whatever torque the rest of the balance leaves, up to its breakaway level
+    /// in each direction, and only what exceeds that level is misfit. A model without dry
+    /// friction leaves the residual as it is.
+    pub fn held_at_rest(&self, d: &AxisData, residual: &mut [f64]) {
+        let n = residual.len().min(d.len());
+        // per row: the sliding contribution to take back, and the band the friction spans
+        let mut rest: Vec<Option<(f64, f64, f64)>> = vec![None; n];
+        for e in self
+            .effects
+            .iter()
+            .filter(|e| channel(e.id) == Channel::Torque)
+        {
+            let Some((lo, hi)) = e.rest_band() else {
+                continue;
+            };
+            let v = e.side_velocity(d);
+            let eps = dead_band(d, v);
+            let c = e.contribution(d);
+            for k in 0..n {
+                if v[k].abs() <= eps {
+                    let (s, l, h) = rest[k].unwrap_or((0.0, 0.0, 0.0));
+                    rest[k] = Some((s + c[k], l + lo, h + hi));
+                }
+            }
+        }
+        for (r, held) in residual.iter_mut().zip(&rest) {
+            if let Some((sliding, lo, hi)) = held {
+                let free = *r + sliding;
+                *r = free - free.clamp(*lo, *hi);
+            }
+        }
     }
 
     /// Torque the model needs for the measured motion (inverse dynamics).
