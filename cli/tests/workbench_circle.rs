@@ -238,3 +238,24 @@ fn a_dry_friction_on_the_circle_is_added_on_the_side_it_acts_on() {
         );
     }
 }
+
+/// A Stribeck friction whose rise spans a third of the circle's top speed: the best Stribeck
+/// velocity lies at the upper edge of the range first searched (30 % of the top speed), so the
+/// search goes on beyond it. The guided loop then ends with the Stribeck friction alone, its
+/// levels and its velocity within 10 % (before, the velocity at the edge made the hump doubtful:
+/// a Coulomb friction and a refit of the two dampings were added instead).
+#[test]
+fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range() {
+    let dir = Scratch::new("workbench_circle", "stribeck");
+    let hidden = "[[effects.stribeck_friction]]\nside = \"load\"\nfc_n = 55.0\nfs_n = 85.0\nvs_m_per_s = 0.011\n";
+    let a = auto_hidden(&dir, hidden);
+    let got = added(&a);
+    println!("added {got:?}; {}", a["verdict"]);
+    assert_eq!(got, ["stribeck_friction"], "{}", a["verdict"]);
+    let t = final_model(&dir);
+    let s = t["effects"]["stribeck_friction"].as_table().unwrap();
+    for (key, truth) in [("fc_n", 55.0), ("fs_n", 85.0), ("vs_m_per_s", 0.011)] {
+        let v = s[key].as_float().unwrap();
+        assert!((v / truth - 1.0).abs() < 0.1, "{key} = {v}, hidden {truth}");
+    }
+}

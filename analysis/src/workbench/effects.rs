@@ -371,7 +371,17 @@ impl Effect {
             EffectId::StribeckFriction => (-(c(0) + c(1)), c(0) + c(1)),
             // columns [v > eps], -[v < -eps], the slopes (zero at rest)
             EffectId::DirectionalFriction => (-c(1), c(0)),
-            _ => return None,
+            EffectId::ViscousFriction
+            | EffectId::ConstantForce
+            | EffectId::Cogging
+            | EffectId::ThirdMass
+            | EffectId::Backlash
+            | EffectId::PitchError
+            | EffectId::Delay
+            | EffectId::CurrentLag
+            | EffectId::TorqueSaturation
+            | EffectId::Unbalance
+            | EffectId::LostMotion => return None,
         };
         Some((lo.min(hi), lo.max(hi)))
     }

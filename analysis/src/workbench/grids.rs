@@ -7,14 +7,82 @@ use super::data::AxisData;
 use super::effects::EffectId;
 use super::signal::{quantile, span};
 
-/// The grid of nonlinear parameters tried for effect `id`.
-pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
+/// The top speed of the load (99th percentile of |vL|, motor units), which the Stribeck
+/// velocities searched are shares of.
+fn top_speed(d: &AxisData) -> f64 {
     let (a, b) = d.range;
-    let vmax = quantile(
+    quantile(
         &d.vl[a..b].iter().map(|x| x.abs()).collect::<Vec<_>>(),
         0.99,
     )
-    .max(1e-12);
+    .max(1e-12)
+}
+
+/// Where the best point of effect `id`'s grid `grid` lay at its upper (`upper`) or lower edge:
+/// the points beyond that edge to search next, the first parameter continued on the grid's own
+/// logarithmic step up to a physical limit, each with the other parameters' variants of the
+/// grid. A Stribeck velocity goes on to the top speed (beyond it a hump is a viscous slope) and
+/// down to a fifty-thousandth of it. Empty for the other effects and when the grid is already
+/// at the limit: their edges are bounds, shapes or the record's own range, and a current lag
+/// longer than the grid's 20 periods is a low-pass that smooths the recorded torque's own
+/// noise (a coloured torque noise is "explained" by a lag of tens of periods), so it stays
+/// doubtful there.
+pub fn widened_grid(id: EffectId, d: &AxisData, grid: &[Vec<f64>], upper: bool) -> Vec<Vec<f64>> {
+    let (lo_cap, hi_cap) = match id {
+        EffectId::StribeckFriction => {
+            let vmax = top_speed(d);
+            (vmax * 2e-5, vmax)
+        }
+        EffectId::CurrentLag
+        | EffectId::Delay
+        | EffectId::ThirdMass
+        | EffectId::Cogging
+        | EffectId::TorqueSaturation
+        | EffectId::PitchError
+        | EffectId::Unbalance
+        | EffectId::LostMotion
+        | EffectId::ViscousFriction
+        | EffectId::CoulombFriction
+        | EffectId::ConstantForce
+        | EffectId::Backlash
+        | EffectId::DirectionalFriction => return vec![],
+    };
+    let mut firsts: Vec<f64> = grid.iter().filter_map(|h| h.first().copied()).collect();
+    firsts.sort_by(f64::total_cmp);
+    firsts.dedup();
+    let (Some(&lo), Some(&hi)) = (firsts.first(), firsts.last()) else {
+        return vec![];
+    };
+    if firsts.len() < 2 || lo <= 0.0 {
+        return vec![];
+    }
+    let step = (hi / lo).powf(1.0 / (firsts.len() - 1) as f64);
+    let edge = if upper { hi } else { lo };
+    let shapes: Vec<Vec<f64>> = grid
+        .iter()
+        .filter(|h| h.first() == Some(&edge))
+        .map(|h| h[1..].to_vec())
+        .collect();
+    let mut out = Vec::new();
+    let mut x = edge;
+    for _ in 0..12 {
+        x = if upper { x * step } else { x / step };
+        if x > hi_cap * (1.0 + 1e-9) || x < lo_cap * (1.0 - 1e-9) {
+            break;
+        }
+        for s in &shapes {
+            let mut h = vec![x];
+            h.extend_from_slice(s);
+            out.push(h);
+        }
+    }
+    out
+}
+
+/// The grid of nonlinear parameters tried for effect `id`.
+pub fn hyper_grid(id: EffectId, d: &AxisData) -> Vec<Vec<f64>> {
+    let (a, b) = d.range;
+    let vmax = top_speed(d);
     let fs = 1.0 / d.dt;
     match id {
         EffectId::StribeckFriction => {

@@ -11,7 +11,7 @@ use feedloop_model::model::AxisKind;
 use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
-use super::grids::{hyper_grid, logspace};
+use super::grids::{hyper_grid, logspace, widened_grid};
 use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv, CI_SIGMAS};
 use super::pinned::held_at_controller_limit;
 use super::side::{other_side, second_side_better, taken};
@@ -259,6 +259,24 @@ fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untes
     }
     let mut best =
         best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))?;
+    // a best point at an edge of the range searched: the search goes on beyond that edge, as
+    // far as the effect's physics allows; what still lies at the new edge is doubtful
+    let mut searched = searched;
+    if at_edge(id, &searched, &best.effect.hyper).is_some() {
+        let upper = searched
+            .iter()
+            .filter_map(|h| h.first())
+            .all(|x| *x <= best.effect.hyper.first().copied().unwrap_or(0.0) * (1.0 + 0.02));
+        let wider = widened_grid(id, d, &searched, upper);
+        if !wider.is_empty() {
+            if let (Some(w), _, _) = scorer.best_on(&wider) {
+                if w.cv.rms < best.cv.rms {
+                    best = w;
+                }
+            }
+            searched.extend(wider);
+        }
+    }
     best.doubtful = at_edge(id, &searched, &best.effect.hyper);
     Ok(best)
 }
