@@ -14,7 +14,7 @@ use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::grids::{hyper_grid, logspace, widened_grid};
 use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv, CI_SIGMAS};
 use super::pinned::held_at_controller_limit;
-use super::side::{other_side, second_side_better, taken};
+use super::side::{other_side, second_simulates_better, taken};
 use super::signal::{golden_section, quantile};
 use feedloop_model::units::sig;
 
@@ -218,7 +218,7 @@ pub fn best_effect(
             match (best_on_side(id, side, p), best_on_side(id, other, p)) {
                 // the side whose model simulates the record better (see [`super::side`]), or the
                 // one that fits
-                (Ok(a), Ok(b)) if second_side_better(&a.effect, &b.effect, model, d) => Ok(b),
+                (Ok(a), Ok(b)) if second_simulates_better(&a.effect, &b.effect, model, d) => Ok(b),
                 (Err(_), Ok(b)) => Ok(b),
                 (first, _) => first,
             }

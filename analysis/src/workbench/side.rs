@@ -34,11 +34,11 @@ pub(super) fn other_side(id: EffectId, model: &WbModel, d: &AxisData, side: Side
     })
 }
 
-/// Whether `model` with friction `second` simulates the record better, window by window, than
-/// with friction `first` (the same effect fitted on the other side): its windowed simulation
-/// error is materially lower ([`material_cut`]), or only it is simulated by the plant (the
-/// simulator refuses the other).
-pub(super) fn second_side_better(
+/// Whether `model` with effect `second` simulates the record better, window by window, than
+/// with effect `first` (the same friction fitted on the other side, or the other form of a
+/// delay): its windowed simulation error is materially lower ([`material_cut`]), or only it is
+/// simulated by the plant (the simulator refuses the other).
+pub(super) fn second_simulates_better(
     first: &Effect,
     second: &Effect,
     model: &WbModel,
