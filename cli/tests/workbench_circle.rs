@@ -62,13 +62,23 @@ fn sim_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> PathB
 /// As [`auto_hidden`], the machine's model also changed by `edit` (the plain model kept).
 fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Value {
     let out = sim_machine(dir, hidden, edit);
+    let auto = dir.join("auto");
+    plain_json(
+        &["diagnose", "--auto", "--out", auto.to_str().unwrap()],
+        dir,
+        &out,
+    )
+}
+
+/// `feedloop ARGS --axis x --json` on the simulated trace in `out` with the plain model of
+/// `dir` (`x0.toml`): its JSON.
+fn plain_json(args: &[&str], dir: &Path, out: &Path) -> Value {
     let o = Command::new(bin())
-        .args(["diagnose", "--auto", "--axis", "x", "--json", "--trace"])
+        .args(args)
+        .args(["--axis", "x", "--json", "--trace"])
         .arg(out.join("trace.csv"))
         .arg("--model")
         .arg(dir.join("x0.toml"))
-        .arg("--out")
-        .arg(dir.join("auto"))
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -121,18 +131,7 @@ fn check(tag: &str, hidden: &str, expect: &[&str]) {
 fn the_generic_peer_finds_nothing_beyond_a_right_model_on_the_circle() {
     let dir = Scratch::new("workbench_circle", "peer");
     let out = sim_machine(&dir, "", |m| m.to_string());
-    let json = |args: &[&str]| -> Value {
-        let o = Command::new(bin())
-            .args(args)
-            .args(["--axis", "x", "--json", "--trace"])
-            .arg(out.join("trace.csv"))
-            .arg("--model")
-            .arg(dir.join("x0.toml"))
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        serde_json::from_slice(&o.stdout).unwrap()
-    };
+    let json = |args: &[&str]| plain_json(args, &dir, &out);
     let peer = json(&["diagnose"])["sparse_peer"].clone();
     let cmp_out = dir.join("cmp");
     let model = json(&["compare", "--out", cmp_out.to_str().unwrap()])["equation_nrmse_pct"]

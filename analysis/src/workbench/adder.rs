@@ -205,9 +205,7 @@ fn residual(model: &WbModel, d: &AxisData, y: &[f64]) -> Vec<f64> {
     let _ = y;
     let y_app = model.applied(d).unwrap_or_default();
     let n = model.torque_needed(d);
-    let mut r: Vec<f64> = y_app.iter().zip(&n).map(|(a, b)| a - b).collect();
-    model.held_at_rest(d, &mut r);
-    r
+    model.balance_residual(d, &y_app, &n)
 }
 
 /// The error of a fit that needs column `A.column` of the axis, which `d` lacks, for

@@ -17,7 +17,7 @@ pub struct EquationError {
     /// Torque the model needs for the measured motion.
     pub model: Vec<f64>,
     /// `measured - model`, where the model's dry friction sticks at rest: only what exceeds its
-    /// breakaway level ([`WbModel::held_at_rest`]).
+    /// breakaway level ([`WbModel::balance_residual`]).
     pub residual: Vec<f64>,
     /// NRMSE over the fit range, %.
     pub nrmse_pct: f64,
@@ -31,8 +31,7 @@ pub struct EquationError {
 pub fn equation_error(model: &WbModel, d: &AxisData, y: &[f64]) -> EquationError {
     let measured = model.applied(d).unwrap_or_else(|| y.to_vec());
     let m = model.torque_needed(d);
-    let mut residual: Vec<f64> = measured.iter().zip(&m).map(|(a, b)| a - b).collect();
-    model.held_at_rest(d, &mut residual);
+    let residual = model.balance_residual(d, &measured, &m);
     let (a, b) = d.range;
     EquationError {
         nrmse_pct: nrmse_pct(&measured[a..b], &residual[a..b]),

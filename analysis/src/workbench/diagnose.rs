@@ -251,7 +251,6 @@ pub(super) fn mark_indistinguishable(cands: &mut [Candidate]) {
 /// record better) loses its significance and the selection is made again beyond the next one
 /// (at most [`MAX_CONFIRM`] times). The candidates, the confirmed fit, and the candidates
 /// passed over with why.
-#[allow(clippy::type_complexity)]
 fn select_and_confirm(
     ranked: Vec<Candidate>,
     model: &WbModel,

@@ -651,12 +651,21 @@ impl WbModel {
         })
     }
 
+    /// The torque balance's residual, `applied` minus `needed` (the model's
+    /// [`WbModel::torque_needed`]), with the model's dry friction sticking at rest
+    /// ([`WbModel::held_at_rest`]): the residual `compare` reports and `diagnose` scores.
+    pub fn balance_residual(&self, d: &AxisData, applied: &[f64], needed: &[f64]) -> Vec<f64> {
+        let mut r: Vec<f64> = applied.iter().zip(needed).map(|(a, b)| a - b).collect();
+        self.held_at_rest(d, &mut r);
+        r
+    }
+
     /// The torque balance's residual `residual` (applied minus needed) with the model's dry
     /// friction sticking where its body is at rest (inside the friction's dead band): there the
     /// friction holds whatever torque the rest of the balance leaves, up to its breakaway level
     /// in each direction, and only what exceeds that level is misfit. A model without dry
     /// friction leaves the residual as it is.
-    pub fn held_at_rest(&self, d: &AxisData, residual: &mut [f64]) {
+    fn held_at_rest(&self, d: &AxisData, residual: &mut [f64]) {
         let n = residual.len().min(d.len());
         // per row: the sliding contribution to take back, and the band the friction spans
         let mut rest: Vec<Option<(f64, f64, f64)>> = vec![None; n];

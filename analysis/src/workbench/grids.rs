@@ -18,8 +18,8 @@ fn top_speed(d: &AxisData) -> f64 {
     .max(1e-12)
 }
 
-/// Where the best point of effect `id`'s grid `grid` lay at its upper (`upper`) or lower edge:
-/// the points beyond that edge to search next, the first parameter continued on the grid's own
+/// Where the best point `best` (its first parameter) of effect `id`'s grid `grid` lay at the
+/// grid's upper or lower edge (within 2 %): the points beyond that edge to search next, the first parameter continued on the grid's own
 /// logarithmic step up to a physical limit, each with the other parameters' variants of the
 /// grid. A Stribeck velocity goes on to the top speed (beyond it a hump is a viscous slope) and
 /// down to a fifty-thousandth of it. Empty for the other effects and when the grid is already
@@ -27,7 +27,7 @@ fn top_speed(d: &AxisData) -> f64 {
 /// longer than the grid's 20 periods is a low-pass that smooths the recorded torque's own
 /// noise (a coloured torque noise is "explained" by a lag of tens of periods), so it stays
 /// doubtful there.
-pub fn widened_grid(id: EffectId, d: &AxisData, grid: &[Vec<f64>], upper: bool) -> Vec<Vec<f64>> {
+pub fn widened_grid(id: EffectId, d: &AxisData, grid: &[Vec<f64>], best: f64) -> Vec<Vec<f64>> {
     let (lo_cap, hi_cap) = match id {
         EffectId::StribeckFriction => {
             let vmax = top_speed(d);
@@ -57,6 +57,10 @@ pub fn widened_grid(id: EffectId, d: &AxisData, grid: &[Vec<f64>], upper: bool) 
         return vec![];
     }
     let step = (hi / lo).powf(1.0 / (firsts.len() - 1) as f64);
+    let upper = best >= hi / 1.02;
+    if !upper && best > lo * 1.02 {
+        return vec![];
+    }
     let edge = if upper { hi } else { lo };
     let shapes: Vec<Vec<f64>> = grid
         .iter()

@@ -262,12 +262,11 @@ fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untes
     // a best point at an edge of the range searched: the search goes on beyond that edge, as
     // far as the effect's physics allows; what still lies at the new edge is doubtful
     let mut searched = searched;
-    if at_edge(id, &searched, &best.effect.hyper).is_some() {
-        let upper = searched
-            .iter()
-            .filter_map(|h| h.first())
-            .all(|x| *x <= best.effect.hyper.first().copied().unwrap_or(0.0) * (1.0 + 0.02));
-        let wider = widened_grid(id, d, &searched, upper);
+    if let (Some(_), Some(&first)) = (
+        at_edge(id, &searched, &best.effect.hyper),
+        best.effect.hyper.first(),
+    ) {
+        let wider = widened_grid(id, d, &searched, first);
         if !wider.is_empty() {
             if let (Some(w), _, _) = scorer.best_on(&wider) {
                 if w.cv.rms < best.cv.rms {

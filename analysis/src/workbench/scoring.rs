@@ -140,9 +140,7 @@ impl<'d> TorqueChannel<'d> {
         );
         let y_app = model.applied(d).expect("checked above");
         let needed = model.torque_needed(d);
-        let mut res: Vec<f64> = y_app.iter().zip(&needed).map(|(a, b)| a - b).collect();
-        // the residual the equation error charges: the model's dry friction sticks at rest
-        model.held_at_rest(d, &mut res);
+        let res = model.balance_residual(d, &y_app, &needed);
         let mask = moving_mask(d);
         let bl = blocks_of_rows(d.range, FOLDS, mask.as_deref());
         // with one position column, motor and load columns coincide: keep one of each pair
