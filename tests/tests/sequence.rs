@@ -159,32 +159,7 @@ fn the_scheduler_counts_duplicated_out_of_order_and_missing_samples() {
     let tag = instance_tag(&instance);
     let stop = Arc::new(AtomicBool::new(false));
 
-    let sched_job = job.clone();
-    let sched_inst = instance.clone();
-    let sched_stop = stop.clone();
-    let scheduler = std::thread::spawn(move || {
-        let job = sched_job;
-        let mut cycle = ControlCycle::new(&job, &Builtins).unwrap();
-        cycle.set_cycles(CYCLES);
-        let ep = scheduler_endpoint(&sched_inst, WaitKind::Block, Duration::ZERO).unwrap();
-        let cfg = SchedulerConfig {
-            instance: sched_inst,
-            mode: Mode::Lockstep,
-            peer_timeout_s: 10.0,
-            stale_after_s: 1.0,
-            cycle_hook: None,
-        };
-        run_scheduler(
-            &cfg,
-            &mut cycle,
-            job.axes.len(),
-            &ep,
-            &dir.join("scheduler.log"),
-            &sched_stop,
-            None,
-        )
-        .unwrap()
-    });
+    let scheduler = spawn_lockstep_scheduler(&job, &instance, CYCLES, &dir, &stop);
 
     let ep = plant_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
     // Handshake, as the plant does it.
@@ -245,4 +220,93 @@ fn the_scheduler_counts_duplicated_out_of_order_and_missing_samples() {
     assert_eq!(out.missing, count(|k| k % 10 == 3), "{out:?}");
     assert_eq!(out.duplicated, count(|k| k % 10 == 4), "{out:?}");
     assert_eq!(out.out_of_order, count(|k| k % 10 == 7), "{out:?}");
+}
+
+/// The real scheduler loop of `job` in lockstep on `instance`, in a thread, for `cycles` cycles.
+fn spawn_lockstep_scheduler(
+    job: &Job,
+    instance: &str,
+    cycles: u64,
+    dir: &std::path::Path,
+    stop: &Arc<AtomicBool>,
+) -> std::thread::JoinHandle<feedloop_runtime::scheduler::SchedulerOutcome> {
+    let (job, instance, log, stop) = (
+        job.clone(),
+        instance.to_string(),
+        dir.join("scheduler.log"),
+        stop.clone(),
+    );
+    std::thread::spawn(move || {
+        let mut cycle = ControlCycle::new(&job, &Builtins).unwrap();
+        cycle.set_cycles(cycles);
+        let ep = scheduler_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
+        let cfg = SchedulerConfig {
+            instance,
+            mode: Mode::Lockstep,
+            peer_timeout_s: 10.0,
+            stale_after_s: 1.0,
+            cycle_hook: None,
+        };
+        run_scheduler(&cfg, &mut cycle, job.axes.len(), &ep, &log, &stop, None).unwrap()
+    })
+}
+
+/// A plant whose hello was repeated before the scheduler answered (a busy machine: the plant
+/// says hello every 2 ms until it hears back) finds the repeat queued right before its cycle-0
+/// sample. Both carry number 0; the sample must still be answered, not dropped as a duplicate
+/// of the hello (the plant would then wait out its timeout and stop with the scheduler lost).
+#[test]
+fn a_repeated_hello_queued_before_the_first_sample_does_not_swallow_it() {
+    let _g = feedloop_tests::process_lock();
+    let dir = scratch("seq_hello");
+    let job = job();
+    let n = job.axes.len() as u32;
+    let instance = format!("seqh{}", std::process::id());
+    let tag = instance_tag(&instance);
+    let stop = Arc::new(AtomicBool::new(false));
+    let cycles = 5;
+    let scheduler = spawn_lockstep_scheduler(&job, &instance, cycles, &dir, &stop);
+
+    let ep = plant_endpoint(&instance, WaitKind::Block, Duration::ZERO).unwrap();
+    let give_up = now_ns() + 20_000_000_000;
+    while !ep.peer_connected() {
+        assert!(now_ns() < give_up, "the scheduler never connected");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut hello = SensorSample::empty(n, tag);
+    hello.flags = FLAG_HELLO;
+    let sample = |k: u64| {
+        let mut s = SensorSample::empty(n, tag);
+        s.seq = k;
+        s.plant_time_s = k as f64 * job.period_s;
+        if k + 1 == cycles {
+            s.flags = FLAG_END;
+        }
+        s
+    };
+    // back to back, so that the repeat and the sample wait in the queue together
+    ep.send(hello).unwrap();
+    ep.send(hello).unwrap();
+    ep.send(sample(0)).unwrap();
+    let mut answers = Vec::new();
+    for k in 0..cycles {
+        if k > 0 {
+            ep.send(sample(k)).unwrap();
+        }
+        let c = loop {
+            match ep.receive_until(now_ns() + 3_000_000_000).unwrap() {
+                WaitOutcome::Got(c) if c.flags & FLAG_HELLO != 0 => continue,
+                WaitOutcome::Got(c) => break c,
+                WaitOutcome::TimedOut => {
+                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                    panic!("no answer to sample {k} (answered: {answers:?})")
+                }
+            }
+        };
+        answers.push(c.seq);
+    }
+    let out = scheduler.join().unwrap();
+    assert_eq!(answers, (0..cycles).collect::<Vec<_>>());
+    assert_eq!(out.end, SchedulerEnd::Completed, "{out:?}");
+    assert_eq!(out.duplicated, 0, "{out:?}");
 }

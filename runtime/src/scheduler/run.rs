@@ -225,6 +225,15 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
                     break;
                 }
             };
+            // A hello (the first, or a repeat the plant sent while this process was slow to
+            // answer) is answered before any catch-up: held there, it would be screened against
+            // the cycle-0 sample behind it, which carries the same number, and drop it.
+            if self.s.flags & FLAG_HELLO != 0 {
+                self.check_hello()?;
+                self.with.ep.send(self.hello)?;
+                self.started = true;
+                continue;
+            }
             // the sample is held: the computation (and the catch-up, and the control plane's
             // look) starts now
             let c0 = now_ns();
@@ -236,12 +245,6 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
             } else {
                 0
             };
-            if self.s.flags & FLAG_HELLO != 0 {
-                self.check_hello()?;
-                self.with.ep.send(self.hello)?;
-                self.started = true;
-                continue;
-            }
             if !self.started {
                 // A plant that is already cycling (we restarted?): refuse rather than guess.
                 continue;
