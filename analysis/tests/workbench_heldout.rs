@@ -623,7 +623,12 @@ fn report(label: &str, ax: &Axis, seed0: u64) {
     let mut total = 0;
     // traces without a hidden effect (right model, input after the controller) that got one
     let mut false_claims = Vec::new();
+    // HELDOUT_KIND=TEXT: only the cases whose kind contains TEXT (one case's study)
+    let only = std::env::var("HELDOUT_KIND").unwrap_or_default();
     for (ci, c) in cases().iter().enumerate() {
+        if !c.kind.contains(only.as_str()) {
+            continue;
+        }
         for (nl, nv) in [("low", LOW_NOISE), ("high", HIGH_NOISE)] {
             let seed = seed0 + ci as u64 % 2;
             let name = format!("case{ci:02}-{nl}");

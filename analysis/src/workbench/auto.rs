@@ -68,7 +68,7 @@ pub fn auto(
             break;
         }
         let res = fit_step(&m, d, &top, &last, window_s);
-        let res = match res {
+        let mut res = match res {
             Ok(r) => r,
             Err(e) => {
                 last.verdict = format!(
@@ -99,26 +99,9 @@ pub fn auto(
             break;
         }
         let added = if top.is_param {
-            // the parameters the refit moved (of those freed with the candidate, the one the
-            // data cannot tell from the other may have been held)
-            let moved: Vec<String> = m
-                .base
-                .iter()
-                .filter(|(k, v)| res.model.base_value(*k) != *v)
-                .map(|(k, _)| format!("refit {}", k.key()))
-                .collect();
-            if moved.is_empty() {
-                vec![format!("refit {}", top.effect)]
-            } else {
-                moved
-            }
-        } else if !res.replaced.is_empty() {
-            res.added
-                .iter()
-                .map(|a| format!("{a} (replaces {})", res.replaced.join(", ")))
-                .collect()
+            moved_params(&m, &res, &top)
         } else {
-            res.added.clone()
+            added_effects(&mut res, model, d, window_s)
         };
         m = res.model;
         steps.push(Step {
@@ -132,6 +115,91 @@ pub fn auto(
         model: m,
         last,
     })
+}
+
+/// What a step that refitted base parameters added: the parameters the refit moved (of those
+/// freed with the candidate, the one the data cannot tell from the other may have been held).
+fn moved_params(m: &WbModel, res: &FitResult, top: &Candidate) -> Vec<String> {
+    let moved: Vec<String> = m
+        .base
+        .iter()
+        .filter(|(k, v)| res.model.base_value(*k) != *v)
+        .map(|(k, _)| format!("refit {}", k.key()))
+        .collect();
+    if moved.is_empty() {
+        vec![format!("refit {}", top.effect)]
+    } else {
+        moved
+    }
+}
+
+/// What a step that added effects added, with what they replace; a constant force the loop
+/// added before is folded into a directional friction beside it here (see
+/// [`fold_constant_into_directional`]; kept unless the fold simulates the record materially
+/// worse).
+fn added_effects(res: &mut FitResult, start: &WbModel, d: &AxisData, window_s: f64) -> Vec<String> {
+    let mut replaced = res.replaced.clone();
+    let mut folded = res.model.clone();
+    if fold_constant_into_directional(&mut folded, start) {
+        let errors = Errors::of(&folded, d, window_s);
+        // judged on the windowed simulation, which sticks at rest and at reversals as the
+        // plant does: the equation error's dead band around a reversal charges the two forms
+        // a little differently (a constant beside the friction fills it), not the motion
+        let judged = |e: &Errors| e.window_sim_nrmse_pct.or(e.equation_nrmse_pct);
+        if let (Some(kept), Some(f)) = (judged(&res.after), judged(&errors)) {
+            if !material_cut(f, kept) {
+                replaced.push(EffectId::ConstantForce.id().to_string());
+                res.model = folded;
+                res.after = errors;
+            }
+        }
+    }
+    if replaced.is_empty() {
+        res.added.clone()
+    } else {
+        let r = replaced.join(", ");
+        res.added
+            .iter()
+            .map(|a| format!("{a} (replaces {r})"))
+            .collect()
+    }
+}
+
+/// Folds a constant force the loop added (not in the starting model `start`) into a directional
+/// friction beside it: while moving the constant adds to one direction's level and takes from
+/// the other's, and at rest it shifts the band the friction holds by as much, so the two are one
+/// torque balance and the directional friction alone says it with fewer parameters (a constant
+/// found beside a symmetric Coulomb friction is how the loop first sees unequal levels). Done
+/// only when both levels stay levels (not negative); `true` when folded.
+fn fold_constant_into_directional(m: &mut WbModel, start: &WbModel) -> bool {
+    let has = |w: &WbModel, id: EffectId| w.effects.iter().any(|e| e.id == id);
+    if has(start, EffectId::ConstantForce) || has(start, EffectId::DirectionalFriction) {
+        return false;
+    }
+    let Some(k) = m
+        .effects
+        .iter()
+        .find(|e| e.id == EffectId::ConstantForce)
+        .map(|e| e.coef[0])
+    else {
+        return false;
+    };
+    let Some(df) = m
+        .effects
+        .iter_mut()
+        .find(|e| e.id == EffectId::DirectionalFriction)
+    else {
+        return false;
+    };
+    // columns [v > eps] and -[v < -eps]: moving forward c0 + k, backward -(c1 - k)
+    let (pos, neg) = (df.coef[0] + k, df.coef[1] - k);
+    if pos < 0.0 || neg < 0.0 {
+        return false;
+    }
+    df.coef[0] = pos;
+    df.coef[1] = neg;
+    m.effects.retain(|e| e.id != EffectId::ConstantForce);
+    true
 }
 
 /// The fit of one step: a base parameter refitted (with those the diagnosis cannot tell from

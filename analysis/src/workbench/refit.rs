@@ -12,9 +12,11 @@ use super::base::{BaseClass, BaseParam};
 use super::data::AxisData;
 use super::effects::{channel, Channel, Effect, EffectId, Side, WbModel};
 use super::grids::{hyper_grid, logspace, widened_grid};
-use super::lsq::{blocks, blocks_of_rows, cross_validate, normals_masked, Cv, CI_SIGMAS};
+use super::lsq::{
+    blocks, blocks_of_rows, cross_validate, material_cut, normals_masked, Cv, CI_SIGMAS,
+};
 use super::pinned::held_at_controller_limit;
-use super::side::{other_side, second_simulates_better, taken};
+use super::side::{other_side, simulation_prefers, taken};
 use super::signal::{golden_section, quantile};
 use feedloop_model::units::sig;
 
@@ -216,9 +218,15 @@ pub fn best_effect(
         (None, false, true) => best_on_side(id, side, p),
         (None, true, true) | (None, false, false) => {
             match (best_on_side(id, side, p), best_on_side(id, other, p)) {
-                // the side whose model simulates the record better (see [`super::side`]), or the
-                // one that fits
-                (Ok(a), Ok(b)) if second_simulates_better(&a.effect, &b.effect, model, d) => Ok(b),
+                // the side whose model simulates the record better (see [`super::side`]); where
+                // neither does (a play between motor and load rings alike with both), the side
+                // whose torque balance fits materially better (the play makes the load reverse
+                // later, which the balance sees); else the default side
+                (Ok(a), Ok(b)) => {
+                    let second = simulation_prefers(&a.effect, &b.effect, model, d)
+                        .unwrap_or_else(|| material_cut(a.cv.rms, b.cv.rms));
+                    Ok(if second { b } else { a })
+                }
                 (Err(_), Ok(b)) => Ok(b),
                 (first, _) => first,
             }

@@ -44,6 +44,18 @@ pub(super) fn second_simulates_better(
     model: &WbModel,
     d: &AxisData,
 ) -> bool {
+    simulation_prefers(first, second, model, d) == Some(true)
+}
+
+/// Which of `model` with effect `first` and with effect `second` simulates the record better,
+/// window by window: `Some(true)` the second, `Some(false)` the first (its windowed simulation
+/// error materially lower, or only it simulated by the plant), `None` when neither does.
+pub(super) fn simulation_prefers(
+    first: &Effect,
+    second: &Effect,
+    model: &WbModel,
+    d: &AxisData,
+) -> Option<bool> {
     let windowed = |e: &Effect| -> Option<f64> {
         let mut with = model.clone();
         with.effects.push(e.clone());
@@ -51,8 +63,10 @@ pub(super) fn second_simulates_better(
         w.on_plant().then(|| w.headline_nrmse_pct()).flatten()
     };
     match (windowed(first), windowed(second)) {
-        (Some(ea), Some(eb)) => material_cut(ea, eb),
-        (None, Some(_)) => true,
-        _ => false,
+        (Some(ea), Some(eb)) if material_cut(ea, eb) => Some(true),
+        (Some(ea), Some(eb)) if material_cut(eb, ea) => Some(false),
+        (None, Some(_)) => Some(true),
+        (Some(_), None) => Some(false),
+        _ => None,
     }
 }

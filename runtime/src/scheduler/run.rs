@@ -225,9 +225,8 @@ impl<'a, 'c> SchedLoop<'a, 'c> {
                     break;
                 }
             };
-            // A hello (the first, or a repeat the plant sent while this process was slow to
-            // answer) is answered before any catch-up: held there, it would be screened against
-            // the cycle-0 sample behind it, which carries the same number, and drop it.
+            // a hello (or a repeat sent while we were slow) is answered before any catch-up,
+            // which would screen the cycle-0 sample behind it (the same number 0) and drop it
             if self.s.flags & FLAG_HELLO != 0 {
                 self.check_hello()?;
                 self.with.ep.send(self.hello)?;
