@@ -107,18 +107,33 @@ fn final_param(dir: &Path, key: &str) -> f64 {
     final_model(dir)[key].as_float().unwrap()
 }
 
+/// [`auto_hidden`], asserting that the guided loop added exactly `expect`: its JSON.
+fn auto_adds(dir: &Path, hidden: &str, expect: &[&str]) -> Value {
+    let a = auto_hidden(dir, hidden);
+    let got = added(&a);
+    println!("added {got:?}; {}", a["verdict"]);
+    assert_eq!(got, expect, "{}", a["verdict"]);
+    a
+}
+
+/// Asserts that `v` lies within `tol` (relative) of `truth` (the hidden or the model's value).
+fn near(what: &str, v: f64, truth: f64, tol: f64) {
+    assert!(
+        (v / truth - 1.0).abs() < tol,
+        "{what} = {v}, expected {truth}"
+    );
+}
+
 fn check(tag: &str, hidden: &str, expect: &[&str]) {
     let dir = Scratch::new("workbench_circle", tag);
-    let a = auto_hidden(&dir, hidden);
-    let got = added(&a);
-    println!("{tag}: added {got:?}; {}", a["verdict"]);
-    assert_eq!(got, expect, "{tag}: the guided loop added {got:?}");
+    auto_adds(&dir, hidden, expect);
     // the two inertias stay where they were: the record cannot split them
     for (key, truth) in [("jm_kgm2", 2.0e-3), ("jl_kgm2", 3.0e-3)] {
-        let v = final_param(&dir, key);
-        assert!(
-            (v / truth - 1.0).abs() < 0.02,
-            "{tag}: {key} = {v}, the model's {truth}"
+        near(
+            &format!("{tag}: {key}"),
+            final_param(&dir, key),
+            truth,
+            0.02,
         );
     }
 }
@@ -179,11 +194,7 @@ fn a_heavier_table_on_the_circle_is_refitted_as_the_load_inertia_alone() {
     // the step names what it moved: the motor's inertia is held, the load's takes the change
     assert_eq!(got, ["refit jl_kgm2"]);
     for (key, truth) in [("jm_kgm2", 2.0e-3), ("jl_kgm2", 3.6e-3)] {
-        let v = final_param(&dir, key);
-        assert!(
-            (v / truth - 1.0).abs() < 0.02,
-            "{key} = {v}, the machine's {truth}"
-        );
+        near(key, final_param(&dir, key), truth, 0.02);
     }
 }
 
@@ -225,16 +236,10 @@ fn a_dry_friction_on_the_circle_is_added_on_the_side_it_acts_on() {
         ),
     ] {
         let dir = Scratch::new("workbench_circle", tag);
-        let a = auto_hidden(&dir, hidden);
-        let got = added(&a);
-        println!("{tag}: added {got:?}; {}", a["verdict"]);
-        assert_eq!(got, ["coulomb_friction"], "{tag}");
+        auto_adds(&dir, hidden, &["coulomb_friction"]);
         let (s, level) = friction_side(&dir);
         assert_eq!(s, side, "{tag}: friction put on the {s} side");
-        assert!(
-            (level / truth - 1.0).abs() < 0.02,
-            "{tag}: level {level}, hidden {truth}"
-        );
+        near(&format!("{tag}: level"), level, truth, 0.02);
     }
 }
 
@@ -247,15 +252,11 @@ fn a_dry_friction_on_the_circle_is_added_on_the_side_it_acts_on() {
 fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range() {
     let dir = Scratch::new("workbench_circle", "stribeck");
     let hidden = "[[effects.stribeck_friction]]\nside = \"load\"\nfc_n = 55.0\nfs_n = 85.0\nvs_m_per_s = 0.011\n";
-    let a = auto_hidden(&dir, hidden);
-    let got = added(&a);
-    println!("added {got:?}; {}", a["verdict"]);
-    assert_eq!(got, ["stribeck_friction"], "{}", a["verdict"]);
+    auto_adds(&dir, hidden, &["stribeck_friction"]);
     let t = final_model(&dir);
     let s = t["effects"]["stribeck_friction"].as_table().unwrap();
     for (key, truth) in [("fc_n", 55.0), ("fs_n", 85.0), ("vs_m_per_s", 0.011)] {
-        let v = s[key].as_float().unwrap();
-        assert!((v / truth - 1.0).abs() < 0.1, "{key} = {v}, hidden {truth}");
+        near(key, s[key].as_float().unwrap(), truth, 0.1);
     }
 }
 
@@ -265,10 +266,7 @@ fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range
 #[test]
 fn a_dead_time_on_the_circle_is_named_a_delay_not_a_lag() {
     let dir = Scratch::new("workbench_circle", "delay");
-    let a = auto_hidden(&dir, "[effects.delay]\ndelay_cycles = 5\n");
-    let got = added(&a);
-    println!("added {got:?}; {}", a["verdict"]);
-    assert_eq!(got, ["delay"], "{}", a["verdict"]);
+    auto_adds(&dir, "[effects.delay]\ndelay_cycles = 5\n", &["delay"]);
     let t = final_model(&dir);
     let n = t["effects"]["delay"]["delay_cycles"].as_integer().unwrap();
     assert_eq!(n, 5);
@@ -292,8 +290,7 @@ fn a_directional_friction_on_the_circle_ends_alone_with_the_constant_folded_into
     assert_eq!(names, ["directional_friction"], "{}", a["verdict"]);
     let f = effects["directional_friction"].as_table().unwrap();
     for (key, truth) in [("fc_pos_nm", 0.26), ("fc_neg_nm", 0.13)] {
-        let v = f[key].as_float().unwrap();
-        assert!((v / truth - 1.0).abs() < 0.1, "{key} = {v}, hidden {truth}");
+        near(key, f[key].as_float().unwrap(), truth, 0.1);
     }
     // the slopes carry the model's two dampings (1e-3 and 2e-3 N m s/rad) the fit freed
     let (pos, neg) = (
@@ -315,18 +312,12 @@ fn a_directional_friction_on_the_circle_ends_alone_with_the_constant_folded_into
 fn a_motor_friction_beside_a_play_is_put_on_the_motor_by_the_torque_balance() {
     let dir = Scratch::new("workbench_circle", "friction_play");
     let hidden = "[effects.coulomb_friction]\nside = \"motor\"\nfc_nm = 0.12\n\n[effects.backlash]\ngap_m = 1.5e-5\n";
-    let a = auto_hidden(&dir, hidden);
-    let got = added(&a);
-    println!("added {got:?}; {}", a["verdict"]);
-    assert_eq!(got, ["coulomb_friction", "backlash"], "{}", a["verdict"]);
+    auto_adds(&dir, hidden, &["coulomb_friction", "backlash"]);
     let (side, level) = friction_side(&dir);
     assert_eq!(side, "motor");
-    assert!(
-        (level / 0.12 - 1.0).abs() < 0.05,
-        "level {level}, hidden 0.12"
-    );
+    near("level", level, 0.12, 0.05);
     let gap = final_model(&dir)["effects"]["backlash"]["gap_m"]
         .as_float()
         .unwrap();
-    assert!((gap / 1.5e-5 - 1.0).abs() < 0.1, "gap {gap}, hidden 1.5e-5");
+    near("gap", gap, 1.5e-5, 0.1);
 }

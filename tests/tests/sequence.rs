@@ -180,27 +180,12 @@ fn the_scheduler_counts_duplicated_out_of_order_and_missing_samples() {
     std::thread::sleep(Duration::from_millis(2));
     ep.drain().unwrap();
 
-    let sample = |k: u64| {
-        let mut s = SensorSample::empty(n as u32, tag);
-        s.seq = k;
-        s.plant_time_s = k as f64 * job.period_s;
-        if k + 1 == CYCLES {
-            s.flags = FLAG_END;
-        }
-        s
-    };
+    let sample = |k: u64| numbered_sample(n as u32, tag, k, CYCLES, job.period_s);
     let mut answers = Vec::new();
     let mut k = 0u64;
     while k < CYCLES {
         ep.send(sample(k)).unwrap();
-        let c = loop {
-            match ep.receive_until(now_ns() + 5_000_000_000).unwrap() {
-                WaitOutcome::Got(c) if c.flags & FLAG_HELLO != 0 => continue,
-                WaitOutcome::Got(c) => break c,
-                WaitOutcome::TimedOut => panic!("no answer to sample {k}"),
-            }
-        };
-        answers.push(c.seq);
+        answers.push(next_answer(&ep, k, &stop, &answers));
         match k % 10 {
             2 => k += 1,
             4 => ep.send(sample(k)).unwrap(),
@@ -220,6 +205,38 @@ fn the_scheduler_counts_duplicated_out_of_order_and_missing_samples() {
     assert_eq!(out.missing, count(|k| k % 10 == 3), "{out:?}");
     assert_eq!(out.duplicated, count(|k| k % 10 == 4), "{out:?}");
     assert_eq!(out.out_of_order, count(|k| k % 10 == 7), "{out:?}");
+}
+
+/// The plant's sample number `k` of a run of `cycles` (the last one carries the end flag).
+fn numbered_sample(n: u32, tag: u64, k: u64, cycles: u64, period_s: f64) -> SensorSample {
+    let mut s = SensorSample::empty(n, tag);
+    s.seq = k;
+    s.plant_time_s = k as f64 * period_s;
+    if k + 1 == cycles {
+        s.flags = FLAG_END;
+    }
+    s
+}
+
+/// The number of the next command the scheduler sends (hello replies skipped); without one
+/// within 5 s the scheduler is stopped and the test fails, naming sample `k` and the `answers`
+/// so far.
+fn next_answer(
+    ep: &feedloop_runtime::shared::ipc::PlantEndpoint,
+    k: u64,
+    stop: &AtomicBool,
+    answers: &[u64],
+) -> u64 {
+    loop {
+        match ep.receive_until(now_ns() + 5_000_000_000).unwrap() {
+            WaitOutcome::Got(c) if c.flags & FLAG_HELLO != 0 => continue,
+            WaitOutcome::Got(c) => return c.seq,
+            WaitOutcome::TimedOut => {
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                panic!("no answer to sample {k} (answered: {answers:?})")
+            }
+        }
+    }
 }
 
 /// The real scheduler loop of `job` in lockstep on `instance`, in a thread, for `cycles` cycles.
@@ -275,15 +292,7 @@ fn a_repeated_hello_queued_before_the_first_sample_does_not_swallow_it() {
     }
     let mut hello = SensorSample::empty(n, tag);
     hello.flags = FLAG_HELLO;
-    let sample = |k: u64| {
-        let mut s = SensorSample::empty(n, tag);
-        s.seq = k;
-        s.plant_time_s = k as f64 * job.period_s;
-        if k + 1 == cycles {
-            s.flags = FLAG_END;
-        }
-        s
-    };
+    let sample = |k: u64| numbered_sample(n, tag, k, cycles, job.period_s);
     // back to back, so that the repeat and the sample wait in the queue together
     ep.send(hello).unwrap();
     ep.send(hello).unwrap();
@@ -293,17 +302,7 @@ fn a_repeated_hello_queued_before_the_first_sample_does_not_swallow_it() {
         if k > 0 {
             ep.send(sample(k)).unwrap();
         }
-        let c = loop {
-            match ep.receive_until(now_ns() + 3_000_000_000).unwrap() {
-                WaitOutcome::Got(c) if c.flags & FLAG_HELLO != 0 => continue,
-                WaitOutcome::Got(c) => break c,
-                WaitOutcome::TimedOut => {
-                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-                    panic!("no answer to sample {k} (answered: {answers:?})")
-                }
-            }
-        };
-        answers.push(c.seq);
+        answers.push(next_answer(&ep, k, &stop, &answers));
     }
     let out = scheduler.join().unwrap();
     assert_eq!(answers, (0..cycles).collect::<Vec<_>>());

@@ -139,8 +139,7 @@ fn moved_params(m: &WbModel, res: &FitResult, top: &Candidate) -> Vec<String> {
 /// worse).
 fn added_effects(res: &mut FitResult, start: &WbModel, d: &AxisData, window_s: f64) -> Vec<String> {
     let mut replaced = res.replaced.clone();
-    let mut folded = res.model.clone();
-    if fold_constant_into_directional(&mut folded, start) {
+    if let Some(folded) = fold_constant_into_directional(&res.model, start) {
         let errors = Errors::of(&folded, d, window_s);
         // judged on the windowed simulation, which sticks at rest and at reversals as the
         // plant does: the equation error's dead band around a reversal charges the two forms
@@ -170,36 +169,28 @@ fn added_effects(res: &mut FitResult, start: &WbModel, d: &AxisData, window_s: f
 /// the other's, and at rest it shifts the band the friction holds by as much, so the two are one
 /// torque balance and the directional friction alone says it with fewer parameters (a constant
 /// found beside a symmetric Coulomb friction is how the loop first sees unequal levels). Done
-/// only when both levels stay levels (not negative); `true` when folded.
-fn fold_constant_into_directional(m: &mut WbModel, start: &WbModel) -> bool {
+/// only when both levels stay levels (not negative): the model folded, or `None`.
+fn fold_constant_into_directional(m: &WbModel, start: &WbModel) -> Option<WbModel> {
     let has = |w: &WbModel, id: EffectId| w.effects.iter().any(|e| e.id == id);
     if has(start, EffectId::ConstantForce) || has(start, EffectId::DirectionalFriction) {
-        return false;
+        return None;
     }
-    let Some(k) = m
-        .effects
-        .iter()
-        .find(|e| e.id == EffectId::ConstantForce)
-        .map(|e| e.coef[0])
-    else {
-        return false;
-    };
-    let Some(df) = m
-        .effects
-        .iter_mut()
-        .find(|e| e.id == EffectId::DirectionalFriction)
-    else {
-        return false;
-    };
+    let find = |id: EffectId| m.effects.iter().position(|e| e.id == id);
+    let (c, f) = (
+        find(EffectId::ConstantForce)?,
+        find(EffectId::DirectionalFriction)?,
+    );
+    let k = m.effects[c].coef[0];
     // columns [v > eps] and -[v < -eps]: moving forward c0 + k, backward -(c1 - k)
-    let (pos, neg) = (df.coef[0] + k, df.coef[1] - k);
+    let (pos, neg) = (m.effects[f].coef[0] + k, m.effects[f].coef[1] - k);
     if pos < 0.0 || neg < 0.0 {
-        return false;
+        return None;
     }
-    df.coef[0] = pos;
-    df.coef[1] = neg;
-    m.effects.retain(|e| e.id != EffectId::ConstantForce);
-    true
+    let mut folded = m.clone();
+    folded.effects[f].coef[0] = pos;
+    folded.effects[f].coef[1] = neg;
+    folded.effects.remove(c);
+    Some(folded)
 }
 
 /// The fit of one step: a base parameter refitted (with those the diagnosis cannot tell from

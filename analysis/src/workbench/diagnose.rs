@@ -35,7 +35,7 @@ pub use super::scoring::{
     material_cut, Candidate, CI_SIGMAS, DEFLECTION_FLOOR_M, MATERIAL_FRACTION, MIN_FOLD_WINS,
     MIN_REDUCTION_PCT,
 };
-use super::side::second_simulates_better;
+use super::side::simulation_prefers;
 use super::signal::autocorrelation;
 pub use super::verdict::Confirmed;
 use super::verdict::*;
@@ -118,8 +118,8 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
         bl: &ch.bl,
         mask: ch.mask.as_deref(),
     };
-    let (cands, fitted, rejected) = select_and_confirm(cands, model, d, &tf, ch.e0, opts.window_s);
-    let mut cands = cands;
+    let (mut cands, fitted, rejected) =
+        select_and_confirm(cands, model, d, &tf, ch.e0, opts.window_s);
     let (white, ac) = residual_whiteness(d, &ch);
     // a misfit that is not noise, with no candidate significant alone: two that hide each
     // other (both named, or the leader alone; none whose fit was refused above)
@@ -325,7 +325,7 @@ fn classmate_simulates_better(
     if rival.error_reduction_pct < alone.error_reduction_pct - MIN_REDUCTION_PCT {
         return None;
     }
-    second_simulates_better(&top.add[0], &rival.add[0], model, d).then(|| {
+    (simulation_prefers(&top.add[0], &rival.add[0], model, d) == Some(true)).then(|| {
         format!(
             "{} delays the torque as well (alone it cuts {:.1} %, this one {:.1} %) and the model with it simulates the record better, window by window: it is named instead",
             rival.effect, rival.error_reduction_pct, alone.error_reduction_pct

@@ -238,7 +238,7 @@ pub fn best_effect(
 fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untestable> {
     let (model, d) = (p.model, p.d);
     let mut grid = search_grid(id, model, d)?;
-    let searched = grid.clone();
+    let mut searched = grid.clone();
     if let Some(h) = presearch_decimated(id, side, &p, grid.len()) {
         grid = vec![h];
     }
@@ -269,7 +269,6 @@ fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untes
         best.ok_or_else(|| reason.unwrap_or_else(|| "no variant could be fitted".into()))?;
     // a best point at an edge of the range searched: the search goes on beyond that edge, as
     // far as the effect's physics allows; what still lies at the new edge is doubtful
-    let mut searched = searched;
     if let (Some(_), Some(&first)) = (
         at_edge(id, &searched, &best.effect.hyper),
         best.effect.hyper.first(),

@@ -34,22 +34,10 @@ pub(super) fn other_side(id: EffectId, model: &WbModel, d: &AxisData, side: Side
     })
 }
 
-/// Whether `model` with effect `second` simulates the record better, window by window, than
-/// with effect `first` (the same friction fitted on the other side, or the other form of a
-/// delay): its windowed simulation error is materially lower ([`material_cut`]), or only it is
-/// simulated by the plant (the simulator refuses the other).
-pub(super) fn second_simulates_better(
-    first: &Effect,
-    second: &Effect,
-    model: &WbModel,
-    d: &AxisData,
-) -> bool {
-    simulation_prefers(first, second, model, d) == Some(true)
-}
-
-/// Which of `model` with effect `first` and with effect `second` simulates the record better,
-/// window by window: `Some(true)` the second, `Some(false)` the first (its windowed simulation
-/// error materially lower, or only it simulated by the plant), `None` when neither does.
+/// Which of `model` with effect `first` and with effect `second` (the same friction fitted on
+/// either side, or the two forms of a delay) simulates the record better, window by window:
+/// `Some(true)` the second, `Some(false)` the first (its windowed simulation error materially
+/// lower ([`material_cut`]), or only it simulated by the plant), `None` when neither does.
 pub(super) fn simulation_prefers(
     first: &Effect,
     second: &Effect,
