@@ -623,7 +623,8 @@ fn report(label: &str, ax: &Axis, seed0: u64) {
     let mut total = 0;
     // traces without a hidden effect (right model, input after the controller) that got one
     let mut false_claims = Vec::new();
-    // HELDOUT_KIND=TEXT: only the cases whose kind contains TEXT (one case's study)
+    // HELDOUT_KIND=TEXT: only the cases whose kind contains TEXT (one case's study);
+    // HELDOUT_KEEP=DIR keeps their traces and models
     let only = std::env::var("HELDOUT_KIND").unwrap_or_default();
     for (ci, c) in cases().iter().enumerate() {
         if !c.kind.contains(only.as_str()) {
@@ -640,6 +641,13 @@ fn report(label: &str, ax: &Axis, seed0: u64) {
             let (trace, model, run) =
                 generate(&dir, &name, &ax, &c.hidden, &noise(nv, seed), &mv).unwrap();
             let tgen = t0.elapsed().as_secs_f64();
+            // HELDOUT_KEEP=DIR: each case's trace and model copied into DIR (for the command line)
+            if let Ok(keep) = std::env::var("HELDOUT_KEEP") {
+                let keep = std::path::Path::new(&keep);
+                std::fs::create_dir_all(keep).unwrap();
+                std::fs::copy(&trace, keep.join(format!("{name}.csv"))).unwrap();
+                std::fs::copy(&model, keep.join(format!("{name}.toml"))).unwrap();
+            }
             let tr = Trace::read(&trace).unwrap();
             let m = WbModel::load(&model).unwrap();
             let d = load_axis(&tr, &m.file, "x", &Prep::default()).unwrap();

@@ -350,6 +350,29 @@ fn a_one_period_drive_delay_with_friction_gives_both_classes_and_nothing_else() 
     );
 }
 
+/// A strong friction beside the delay: once the friction is in the model, the delay's refit
+/// is scored against the same balance residual as the model (the friction holding the torque
+/// at rest); against the raw one it raised the cross-validated error and the loop stopped
+/// with the friction alone at five times the error of the true model.
+#[test]
+fn a_one_period_drive_delay_beside_a_strong_friction_is_added_after_it() {
+    let h = Hidden {
+        delay_cycles: 1,
+        friction: Some(Friction {
+            fc_n: 120.0,
+            v_eps_m_per_s: 5e-5,
+        }),
+        ..Hidden::default()
+    };
+    check(
+        "delay+strong-friction",
+        h,
+        noise(0.01, 17),
+        true,
+        &["friction", "delay"],
+    );
+}
+
 fn pulses() -> Pulses {
     Pulses {
         amplitude_nm: 1.2,

@@ -413,7 +413,10 @@ impl Scorer<'_> {
                 let t = with
                     .applied(d)
                     .ok_or_else(|| format!("needs the recorded torque `{}.torque`", d.axis))?;
-                Some(t.iter().zip(needed).map(|(a, b)| a - b).collect())
+                // the balance's residual as the channel's own (the model's dry friction sticking
+                // at rest), so that the cut is measured against the same target as the
+                // reference refit and the equation error `fit` reports
+                Some(with.balance_residual(d, &t, needed))
             }
             None => None,
         };
