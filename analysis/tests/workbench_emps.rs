@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use feedloop_analysis::workbench::{
+    auto::auto,
     compare::compare,
     data::{load_axis, Prep},
     diagnose::{diagnose, DiagOptions},
@@ -203,4 +204,36 @@ fn emps_pulses_declared_bring_the_closed_loop_simulation_within_2x_of_the_estima
     // the record holds the pulses at their own scale (1.4 % above the nominal 5 V)
     let g = c.controller.as_ref().unwrap().added_gain.unwrap();
     assert!((g - 1.014).abs() < 0.005, "{g}");
+}
+
+/// At 22.36 s the controller asks for about -381 N while a +176 N pulse is on: the record holds
+/// their sum, -205 N, inside the +-351.5 N output limit (the benchmark's +-10 V clamp the sum,
+/// not the controller's output before the pulse). With the limit on the controller's output the
+/// channel saw 12 ms of -22 N there and named a second added input, which stopped the guided
+/// loop on a record whose input is declared.
+#[test]
+fn emps_pulses_declared_leave_the_controller_law_whole_with_the_limit_on_the_sum() {
+    let Some((m, _)) = setup() else { return };
+    let Some(d) = pulses_record(Some("x.pulses")) else {
+        return;
+    };
+    let c = compare(&m, &d, 0.05);
+    let cc = c.controller.as_ref().unwrap();
+    println!(
+        "controller channel: {:.3} % NRMSE, {:.3} N RMS, noise {:.3} N",
+        cc.nrmse_pct, cc.rms, cc.noise_rms
+    );
+    assert!(!cc.fails(), "{:.3} %", cc.nrmse_pct);
+    let a = auto(&m, &d, 0.05, 4).unwrap();
+    let added: Vec<String> = a.steps.iter().flat_map(|s| s.added.clone()).collect();
+    assert!(
+        added.iter().any(|e| e.contains("friction")),
+        "{added:?}: {}",
+        a.last.verdict
+    );
+    assert!(
+        !a.last.verdict.contains("added_input"),
+        "{}",
+        a.last.verdict
+    );
 }

@@ -150,23 +150,59 @@ fn laws_tried(law_p: Law, limit: Option<f64>, anti_windup: Option<AntiWindup>) -
     laws
 }
 
-/// Of the laws `laws`, the one (with its velocity estimate and discretisation, see
+/// The law `law_p` with its output limit moved after a declared added input: a drive or an
+/// output stage (a DAC's +-10 V) that clamps the sum of the controller's output and the
+/// injected signal, not the controller's output before it. `None` without an added input or
+/// without a finite limit. Returned with the limit that then bounds the sum.
+fn clamp_on_sum(law_p: &Law, add: Option<&[f64]>, limit: Option<f64>) -> Option<(Law, f64)> {
+    (add.is_some() && law_p.lim.is_finite()).then(|| {
+        let on_sum = Law {
+            lim: f64::INFINITY,
+            ..*law_p
+        };
+        (on_sum, limit.map_or(law_p.lim, |l| l.min(law_p.lim)))
+    })
+}
+
+/// A law as the record is read with it (see [`best_of`]).
+struct LawRead {
+    /// The law.
+    law: Law,
+    /// Its velocity estimate.
+    velocity: &'static str,
+    /// Its discretisation.
+    disc: Discretisation,
+    /// Its output.
+    out: Vec<f64>,
+    /// The limit its output (with the added input) is read through.
+    limit: Option<f64>,
+}
+
+/// Of the laws `laws` (each also with its limit on the sum with the added input, see
+/// [`clamp_on_sum`]), the one (with its velocity estimate and discretisation, see
 /// [`best_law`]) whose output, through the drive's `limit` where the record `rec` sits at it,
-/// reads the record best over the fit range; and that output.
+/// reads the record best over the fit range.
 fn best_of(
     laws: &[Law],
     d: &AxisData,
     rec: &[f64],
     add: Option<&[f64]>,
     limit: Option<f64>,
-) -> Option<(Law, &'static str, Discretisation, Vec<f64>)> {
+) -> Option<LawRead> {
     let x = d.load_in_motor_units();
     let q = d.motor_raw.as_deref().unwrap_or(&x);
     let (fa, fb) = d.range;
-    let mut best: Option<(f64, Law, &'static str, Discretisation, Vec<f64>)> = None;
-    for lw in laws {
-        let Some((velocity, disc, law)) = best_law(
-            lw,
+    let tried: Vec<(Law, Option<f64>)> = laws
+        .iter()
+        .flat_map(|lw| {
+            std::iter::once((*lw, limit))
+                .chain(clamp_on_sum(lw, add, limit).map(|(on_sum, l)| (on_sum, Some(l))))
+        })
+        .collect();
+    let mut best: Option<(f64, LawRead)> = None;
+    for (lw, limit) in tried {
+        let Some((velocity, disc, out)) = best_law(
+            &lw,
             &d.cmd,
             &x,
             q,
@@ -177,13 +213,20 @@ fn best_of(
         ) else {
             continue;
         };
-        let p = predict(&law, add, rec, limit);
+        let p = predict(&out, add, rec, limit);
         let score = rms(&(fa..fb).map(|k| rec[k] - p[k]).collect::<Vec<f64>>());
         if best.as_ref().is_none_or(|b| score < b.0 * (1.0 - 1e-9)) {
-            best = Some((score, *lw, velocity, disc, law));
+            let read = LawRead {
+                law: lw,
+                velocity,
+                disc,
+                out,
+                limit,
+            };
+            best = Some((score, read));
         }
     }
-    best.map(|(_, lw, v, disc, law)| (lw, v, disc, law))
+    best.map(|(_, read)| read)
 }
 
 impl ControllerChannel {
@@ -207,20 +250,21 @@ impl ControllerChannel {
         let add = channel_add(d);
         let laws = laws_tried(law_p, limit, anti_windup);
         let mut chosen = law_p;
-        let (rec, velocity, discretisation, law) = match &d.held_law {
+        let (rec, velocity, discretisation, law, limit) = match &d.held_law {
             // a long trace: the law was evaluated at the recording's rate when it was read
             Some(h) if h.law_of == law_p => (
                 h.recorded.clone(),
                 h.velocity,
                 h.discretisation,
                 h.law.clone(),
+                limit,
             ),
             Some(_) => return None,
             None => {
                 let rec = d.torque_raw.clone()?;
-                let (lw, velocity, discretisation, law) = best_of(&laws, d, &rec, add, limit)?;
-                chosen = lw;
-                (rec, velocity, discretisation, law)
+                let read = best_of(&laws, d, &rec, add, limit)?;
+                chosen = read.law;
+                (rec, read.velocity, read.disc, read.out, read.limit)
             }
         };
         let (a, b) = (2.min(rec.len()), rec.len());
