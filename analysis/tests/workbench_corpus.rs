@@ -448,6 +448,31 @@ fn a_wrong_load_damping_is_named_as_a_damping_parameter() {
     );
 }
 
+/// A model damping too high is fitted by a negative viscous friction, which no axis has: that
+/// candidate is not significant and says why; the damping parameter carries the name, at a
+/// value that stays physical.
+#[test]
+fn a_damping_too_high_is_no_negative_viscous_friction() {
+    let nominal = base().replace("dl_nms_per_rad = 2.0e-3", "dl_nms_per_rad = 1.2e-2");
+    let (_, _, dg) = run("", &nominal);
+    let visc = dg
+        .candidates
+        .iter()
+        .find(|c| c.effect == "viscous_friction")
+        .unwrap();
+    assert!(visc.params.values().all(|c| *c < 0.0), "{:?}", visc.params);
+    assert!(!visc.significant, "{}", visc.evidence);
+    assert!(visc.evidence.contains("not physical"), "{}", visc.evidence);
+    let top = dg.candidates.iter().find(|c| c.significant).unwrap();
+    assert!(top.is_param && top.class == "damping", "{}", dg.verdict);
+    assert!(top.params.values().all(|v| *v >= 0.0), "{:?}", top.params);
+    assert!(
+        !dg.verdict.contains("--add viscous_friction"),
+        "{}",
+        dg.verdict
+    );
+}
+
 #[test]
 fn dry_friction_with_a_long_hunting_hold_is_still_named_friction() {
     // the varied command, then 10 s of hold: with dry friction on motor and table and a noisy

@@ -20,6 +20,12 @@ use super::words::{class_of, constant_force_words, evidence, fmt, reversals};
 use feedloop_model::model::AxisKind;
 use feedloop_plant::effects::EffectParams;
 
+/// Why a fit that cuts enough is still not significant: it wins in too few of the
+/// cross-validation's blocks.
+fn few_wins(wins: usize) -> String {
+    format!("it lowers the cross-validated error in only {wins} of the record's {FOLDS} blocks ({MIN_FOLD_WINS} needed): not significant")
+}
+
 /// One candidate per base parameter, refitted alone.
 pub(super) fn base_parameter_candidates(
     model: &WbModel,
@@ -38,26 +44,35 @@ pub(super) fn base_parameter_candidates(
         let mut params = BTreeMap::new();
         params.insert(k.to_string(), old + delta);
         let contribution: Vec<f64> = decimate(col, a, b).iter().map(|x| x * delta).collect();
-        // a change inside its own confidence interval is not a wrong value
+        // a change inside its own confidence interval is not a wrong value, and an inertia, a
+        // damping or a stiffness below zero is no value at all
         let se = cv.theta_se[0];
         let outside = delta.abs() > CI_SIGMAS * se;
+        let physical = old + delta >= 0.0;
+        let change = if old != 0.0 {
+            format!("{:+.1} %", 100.0 * delta / old)
+        } else {
+            "the model has none".to_string()
+        };
+        let mut why = String::new();
+        if !outside {
+            why = ": inside its interval, not significant".into();
+        } else if !physical {
+            why = "; a negative value is not physical: not significant".into();
+        } else if red >= ch.min_pct && wins < MIN_FOLD_WINS {
+            why = format!("; {}", few_wins(wins));
+        }
         cands.push(Candidate {
             effect: k.to_string(),
             is_param: true,
             class: k.class().id().to_string(),
-            significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && outside,
+            significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && outside && physical,
             error_reduction_pct: red.clamp(-100.0, 100.0),
             evidence: format!(
-                "refitting {k} alone moves it from {} to {} ({:+.1} %, +-{} at {CI_SIGMAS} standard errors{})",
+                "refitting {k} alone moves it from {} to {} ({change}, +-{} at {CI_SIGMAS} standard errors){why}",
                 fmt(old),
                 fmt(old + delta),
-                if old != 0.0 {
-                    100.0 * delta / old
-                } else {
-                    f64::INFINITY
-                },
                 fmt(CI_SIGMAS * se),
-                if outside { "" } else { ": inside its interval, not significant" }
             ),
             params,
             same_as: vec![],
@@ -359,13 +374,22 @@ pub(super) fn viscous_candidate(d: &AxisData, ch: &TorqueChannel<'_>) -> Candida
     let red = 100.0 * (ch.e0 - cv.rms) / ch.e0;
     let wins = fold_wins(&cv, &ch.cv0.fold_mse);
     let params = flat(&e.to_table(d.kind, d.r));
+    // a viscous friction below zero would feed energy into the motion: what it fits is a
+    // model damping too high, which the damping parameters' own candidates name
+    let physical = e.coef[0] >= 0.0;
+    let mut ev = evidence(&e, d);
+    if !physical {
+        ev = format!("{ev}; a negative viscous friction is not physical (the model's damping is too high: see its damping parameters): not significant");
+    } else if red >= ch.min_pct && wins < MIN_FOLD_WINS {
+        ev = format!("{ev}; {}", few_wins(wins));
+    }
     Candidate {
         effect: id.to_string(),
         is_param: false,
         class: "damping".into(),
-        significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS,
+        significant: red >= ch.min_pct && wins >= MIN_FOLD_WINS && physical,
         error_reduction_pct: red.clamp(-100.0, 100.0),
-        evidence: evidence(&e, d),
+        evidence: ev,
         params,
         same_as: vec![],
         contribution: decimate(&e.contribution(d), a, b),
@@ -526,9 +550,7 @@ pub(super) fn scored_candidate(
     let wins = fold_wins(&cv, &reference.cvb.fold_mse);
     let mut significant = extra >= reference.min_pct && wins >= MIN_FOLD_WINS;
     if extra >= reference.min_pct && wins < MIN_FOLD_WINS {
-        ev = format!(
-            "{ev}; it lowers the cross-validated error in only {wins} of the record's {FOLDS} blocks ({MIN_FOLD_WINS} needed): not significant"
-        );
+        ev = format!("{ev}; {}", few_wins(wins));
     }
     let mut extra = extra;
     // its leading coefficient must lie outside its own confidence interval around zero
