@@ -581,6 +581,12 @@ pub(super) fn scored_candidate(
         significant = false;
         ev = format!("{ev}; {why}: doubtful, not significant");
     }
+    if significant && id == EffectId::TorqueSaturation {
+        if let Some(why) = tracks_beyond_limit(d, e.hyper[0]) {
+            significant = false;
+            ev = format!("{ev}; {why}: not significant");
+        }
+    }
     if id == EffectId::ThirdMass && !positive_mass(&e) {
         significant = false;
         ev = format!("{ev}; {NEGATIVE_MASS}: not significant");
@@ -606,6 +612,56 @@ pub(super) fn scored_candidate(
         add,
         contribution: decimate(&contribution, a, b),
         channel: "torque",
+    })
+}
+
+/// Why a drive clamp at `limit` on the recorded torque is no clamp: where the recorded torque
+/// lies beyond the limit, the position the loop closes on follows its command no worse than
+/// elsewhere (RMS following error no larger). A drive clamped there gives less torque than its loop asks and
+/// falls behind; a record that keeps its track while its torque sits beyond a supposed limit
+/// shows a load the model lacks (a gravity that changes with the pose), not a clamp. `None`
+/// when the clamp is not contradicted so, or the record has no command or too few samples on
+/// either side.
+fn tracks_beyond_limit(d: &AxisData, limit: f64) -> Option<String> {
+    let (a, b) = d.range;
+    let rec = d.torque_raw.as_deref().or(d.torque.as_deref())?;
+    if d.cmd.len() < b || rec.len() < b {
+        return None;
+    }
+    // the position the loop closes on: of the load and the motor position, the one that
+    // follows the command more closely over the record
+    let load = d.load_in_motor_units();
+    let sq = |x: &[f64]| (a..b).map(|k| (d.cmd[k] - x[k]).powi(2)).sum::<f64>();
+    let x = match d.motor_raw.as_deref() {
+        Some(m) if m.len() >= b && sq(m) < sq(&load) => m,
+        _ => load.as_slice(),
+    };
+    let (mut beyond, mut within) = ((0.0, 0usize), (0.0, 0usize));
+    for k in a..b {
+        let e = (d.cmd[k] - x[k]).powi(2);
+        let side = if rec[k].abs() > limit {
+            &mut beyond
+        } else {
+            &mut within
+        };
+        side.0 += e;
+        side.1 += 1;
+    }
+    let enough = (b - a) / 50;
+    if beyond.1 < enough.max(10) || within.1 < enough.max(10) {
+        return None;
+    }
+    let (eb, ew) = (
+        (beyond.0 / beyond.1 as f64).sqrt(),
+        (within.0 / within.1 as f64).sqrt(),
+    );
+    (eb <= ew).then(|| {
+        format!(
+            "where the recorded torque lies beyond it ({:.0} % of the samples) the position follows its command as closely as elsewhere (RMS following error {} against {}, motor units): a clamped drive would fall behind",
+            100.0 * beyond.1 as f64 / (b - a) as f64,
+            fmt(eb),
+            fmt(ew)
+        )
     })
 }
 
