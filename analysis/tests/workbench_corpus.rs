@@ -460,7 +460,11 @@ fn a_damping_too_high_is_no_negative_viscous_friction() {
         .iter()
         .find(|c| c.effect == "viscous_friction")
         .unwrap();
-    assert!(visc.params.values().all(|c| *c < 0.0), "{:?}", visc.params);
+    assert!(
+        !visc.params.is_empty() && visc.params.values().all(|c| *c < 0.0),
+        "{:?}",
+        visc.params
+    );
     assert!(!visc.significant, "{}", visc.evidence);
     assert!(visc.evidence.contains("not physical"), "{}", visc.evidence);
     let top = dg.candidates.iter().find(|c| c.significant).unwrap();

@@ -7,6 +7,7 @@ use super::effects::{channel, Channel, Effect, WbModel};
 use super::lsq::Cv;
 use super::refit::{best_effect, cv_cols_masked, flat, Refit};
 use super::scoring::*;
+use super::verdict::vetoed;
 use super::words::evidence;
 
 /// What the torque channel's candidates are scored with: the base columns, the residual, the
@@ -159,6 +160,11 @@ impl Top {
         d: &AxisData,
     ) -> Option<String> {
         let top_name = &self.name;
+        if vetoed(&c.evidence) {
+            // out of its physical range or contradicted by the motion: it stays as it was
+            c.significant = false;
+            return None;
+        }
         if earns {
             if let Some(Refit { effect: e, .. }) = rescored {
                 c.params = flat(&e.to_table(d.kind, d.r));
@@ -207,11 +213,12 @@ struct Beyond<'a> {
 }
 
 impl Beyond<'_> {
-    /// The torque residual of `m`: its applied torque less the torque needed (the channel's
-    /// residual without a recorded torque).
+    /// The torque residual of `m`: its applied torque less the torque needed, its dry friction
+    /// holding the torque at rest, as the channel's (the channel's residual without a recorded
+    /// torque).
     fn target_of(&self, m: &WbModel) -> Vec<f64> {
         match m.applied(self.d) {
-            Some(t) => t.iter().zip(self.needed).map(|(a, b)| a - b).collect(),
+            Some(t) => m.balance_residual(self.d, &t, self.needed),
             None => self.tf.res.to_vec(),
         }
     }

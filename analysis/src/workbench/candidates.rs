@@ -5,6 +5,7 @@
 
 use std::collections::BTreeMap;
 
+use super::base::BaseClass;
 use super::data::AxisData;
 use super::effects::{
     channel, constant_force_value, round_sig, Channel, Effect, EffectId, WbModel,
@@ -48,7 +49,12 @@ pub(super) fn base_parameter_candidates(
         // damping or a stiffness below zero is no value at all
         let se = cv.theta_se[0];
         let outside = delta.abs() > CI_SIGMAS * se;
-        let physical = old + delta >= 0.0;
+        let new = old + delta;
+        let physical = if k.class() == BaseClass::Inertia {
+            new > 0.0
+        } else {
+            new >= 0.0
+        };
         let change = if old != 0.0 {
             format!("{:+.1} %", 100.0 * delta / old)
         } else {
@@ -58,7 +64,7 @@ pub(super) fn base_parameter_candidates(
         if !outside {
             why = ": inside its interval, not significant".into();
         } else if !physical {
-            why = "; a negative value is not physical: not significant".into();
+            why = "; a value at or below zero is not physical: not significant".into();
         } else if red >= ch.min_pct && wins < MIN_FOLD_WINS {
             why = format!("; {}", few_wins(wins));
         }
@@ -616,12 +622,13 @@ pub(super) fn scored_candidate(
 }
 
 /// Why a drive clamp at `limit` on the recorded torque is no clamp: where the recorded torque
-/// lies beyond the limit, the position the loop closes on follows its command no worse than
-/// elsewhere (RMS following error no larger). A drive clamped there gives less torque than its loop asks and
-/// falls behind; a record that keeps its track while its torque sits beyond a supposed limit
-/// shows a load the model lacks (a gravity that changes with the pose), not a clamp. `None`
-/// when the clamp is not contradicted so, or the record has no command or too few samples on
-/// either side.
+/// lies beyond the limit, the following error of the position the loop closes on (command less
+/// position) spreads no wider about its mean than elsewhere. A drive clamped there gives less
+/// torque than its loop asks and falls behind, further the longer the clamp binds; a record
+/// that keeps its track while its torque sits beyond a supposed limit shows a load the model
+/// lacks (a gravity that changes with the pose), not a clamp. The spread about the mean, not
+/// the RMS: an offset between command and encoder says nothing about a clamp. `None` when the
+/// clamp is not contradicted so, or too few samples lie on either side.
 fn tracks_beyond_limit(d: &AxisData, limit: f64) -> Option<String> {
     let (a, b) = d.range;
     let rec = d.torque_raw.as_deref().or(d.torque.as_deref())?;
@@ -631,34 +638,27 @@ fn tracks_beyond_limit(d: &AxisData, limit: f64) -> Option<String> {
     // the position the loop closes on: of the load and the motor position, the one that
     // follows the command more closely over the record
     let load = d.load_in_motor_units();
-    let sq = |x: &[f64]| (a..b).map(|k| (d.cmd[k] - x[k]).powi(2)).sum::<f64>();
+    let spread = |x: &[f64], rows: &mut dyn Iterator<Item = usize>| {
+        let e: Vec<f64> = rows.map(|k| d.cmd[k] - x[k]).collect();
+        let n = e.len().max(1) as f64;
+        let mean = e.iter().sum::<f64>() / n;
+        ((e.iter().map(|v| (v - mean).powi(2)).sum::<f64>()) / n).sqrt()
+    };
     let x = match d.motor_raw.as_deref() {
-        Some(m) if m.len() >= b && sq(m) < sq(&load) => m,
+        Some(m) if m.len() >= b && spread(m, &mut (a..b)) < spread(&load, &mut (a..b)) => m,
         _ => load.as_slice(),
     };
-    let (mut beyond, mut within) = ((0.0, 0usize), (0.0, 0usize));
-    for k in a..b {
-        let e = (d.cmd[k] - x[k]).powi(2);
-        let side = if rec[k].abs() > limit {
-            &mut beyond
-        } else {
-            &mut within
-        };
-        side.0 += e;
-        side.1 += 1;
-    }
-    let enough = (b - a) / 50;
-    if beyond.1 < enough.max(10) || within.1 < enough.max(10) {
+    let beyond = (a..b).filter(|&k| rec[k].abs() > limit).count();
+    let enough = ((b - a) / 50).max(10);
+    if beyond < enough || (b - a) - beyond < enough {
         return None;
     }
-    let (eb, ew) = (
-        (beyond.0 / beyond.1 as f64).sqrt(),
-        (within.0 / within.1 as f64).sqrt(),
-    );
+    let eb = spread(x, &mut (a..b).filter(|&k| rec[k].abs() > limit));
+    let ew = spread(x, &mut (a..b).filter(|&k| rec[k].abs() <= limit));
     (eb <= ew).then(|| {
         format!(
-            "where the recorded torque lies beyond it ({:.0} % of the samples) the position follows its command as closely as elsewhere (RMS following error {} against {}, motor units): a clamped drive would fall behind",
-            100.0 * beyond.1 as f64 / (b - a) as f64,
+            "where the recorded torque lies beyond it ({:.0} % of the samples) the position follows its command as closely as elsewhere (following error spread {} against {}, motor units): a clamped drive would fall behind",
+            100.0 * beyond as f64 / (b - a) as f64,
             fmt(eb),
             fmt(ew)
         )

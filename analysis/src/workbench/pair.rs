@@ -22,7 +22,7 @@ use super::data::AxisData;
 use super::effects::{channel, Channel, EffectId, WbModel};
 use super::refit::{flat, Refit};
 use super::scoring::{Candidate, CI_SIGMAS, MIN_FOLD_WINS};
-use super::verdict::{confirm, reasons_start, Confirmed, AT_EDGE};
+use super::verdict::{confirm, reasons_start, vetoed, Confirmed, AT_EDGE};
 use super::words::{class_of, evidence, fmt, reversals};
 
 /// Leading candidates (by their cut alone) each tried with every other one.
@@ -82,7 +82,8 @@ fn best_pair(
             let id = single_effect(c, turns)?;
             let leads = c.error_reduction_pct >= tf.min_pct
                 && !rejected.contains(&c.effect)
-                && !c.evidence.contains(AT_EDGE);
+                && !c.evidence.contains(AT_EDGE)
+                && !vetoed(&c.evidence);
             leads.then_some((i, id))
         })
         .collect();

@@ -116,6 +116,16 @@ pub(super) fn confirm(
 /// `refit::at_edge`).
 pub(super) const AT_EDGE: &str = "edge of the range searched";
 
+/// The words of a candidate whose fit leaves its physical range or contradicts the motion (a
+/// negative damping or inertia, a clamp the motion does not show): no later refit beyond
+/// another candidate or in a pair makes it significant.
+const VETOES: [&str; 2] = ["is not physical", "a clamped drive would fall behind"];
+
+/// Whether a candidate's evidence carries a veto ([`VETOES`]).
+pub(super) fn vetoed(evidence: &str) -> bool {
+    VETOES.iter().any(|v| evidence.contains(v))
+}
+
 /// Where the reasons a candidate's evidence gives for not being significant begin: at the
 /// clause of the first of them (a refused or weak fit, a confidence interval, too few winning
 /// blocks, an estimate at an edge, too few reversals, a mass that is not positive). `None` when
