@@ -333,21 +333,21 @@ fn a_strongly_excited_mass_behind_the_table_is_named_a_mode() {
 
 #[test]
 fn a_one_period_drive_delay_with_friction_gives_both_classes_and_nothing_else() {
+    delay_beside_friction("delay+friction", 50.0, 1e-4, noise(0.02, 91));
+}
+
+/// A 1-cycle drive delay beside a tanh friction of `fc_n` (transition `v_eps`): the guided loop
+/// ends with both classes ([`check`]).
+fn delay_beside_friction(name: &str, fc_n: f64, v_eps_m_per_s: f64, nz: Noise) {
     let h = Hidden {
         delay_cycles: 1,
         friction: Some(Friction {
-            fc_n: 50.0,
-            v_eps_m_per_s: 1e-4,
+            fc_n,
+            v_eps_m_per_s,
         }),
         ..Hidden::default()
     };
-    check(
-        "delay+friction",
-        h,
-        noise(0.02, 91),
-        true,
-        &["friction", "delay"],
-    );
+    check(name, h, nz, true, &["friction", "delay"]);
 }
 
 /// A strong friction beside the delay: once the friction is in the model, the delay's refit
@@ -356,21 +356,7 @@ fn a_one_period_drive_delay_with_friction_gives_both_classes_and_nothing_else() 
 /// with the friction alone at five times the error of the true model.
 #[test]
 fn a_one_period_drive_delay_beside_a_strong_friction_is_added_after_it() {
-    let h = Hidden {
-        delay_cycles: 1,
-        friction: Some(Friction {
-            fc_n: 120.0,
-            v_eps_m_per_s: 5e-5,
-        }),
-        ..Hidden::default()
-    };
-    check(
-        "delay+strong-friction",
-        h,
-        noise(0.01, 17),
-        true,
-        &["friction", "delay"],
-    );
+    delay_beside_friction("delay+strong-friction", 120.0, 5e-5, noise(0.01, 17));
 }
 
 fn pulses() -> Pulses {

@@ -16,7 +16,7 @@ use super::refit::{
     held_words, inertias_now, Refit, Released, Untestable, FOLDS,
 };
 use super::scoring::*;
-use super::signal::rms;
+use super::signal::{rms, std_dev};
 use super::words::{class_of, constant_force_words, evidence, fmt, reversals};
 use feedloop_model::model::AxisKind;
 use feedloop_plant::effects::EffectParams;
@@ -42,14 +42,14 @@ pub(super) fn base_parameter_candidates(
         let wins = fold_wins(&cv, &ch.cv0.fold_mse);
         let delta = cv.theta[0];
         let old = model.base_value(*k);
+        let new = old + delta;
         let mut params = BTreeMap::new();
-        params.insert(k.to_string(), old + delta);
+        params.insert(k.to_string(), new);
         let contribution: Vec<f64> = decimate(col, a, b).iter().map(|x| x * delta).collect();
         // a change inside its own confidence interval is not a wrong value, and an inertia, a
         // damping or a stiffness below zero is no value at all
         let se = cv.theta_se[0];
         let outside = delta.abs() > CI_SIGMAS * se;
-        let new = old + delta;
         let physical = if k.class() == BaseClass::Inertia {
             new > 0.0
         } else {
@@ -77,7 +77,7 @@ pub(super) fn base_parameter_candidates(
             evidence: format!(
                 "refitting {k} alone moves it from {} to {} ({change}, +-{} at {CI_SIGMAS} standard errors){why}",
                 fmt(old),
-                fmt(old + delta),
+                fmt(new),
                 fmt(CI_SIGMAS * se),
             ),
             params,
@@ -639,10 +639,7 @@ fn tracks_beyond_limit(d: &AxisData, limit: f64) -> Option<String> {
     // follows the command more closely over the record
     let load = d.load_in_motor_units();
     let spread = |x: &[f64], rows: &mut dyn Iterator<Item = usize>| {
-        let e: Vec<f64> = rows.map(|k| d.cmd[k] - x[k]).collect();
-        let n = e.len().max(1) as f64;
-        let mean = e.iter().sum::<f64>() / n;
-        ((e.iter().map(|v| (v - mean).powi(2)).sum::<f64>()) / n).sqrt()
+        std_dev(&rows.map(|k| d.cmd[k] - x[k]).collect::<Vec<f64>>())
     };
     let x = match d.motor_raw.as_deref() {
         Some(m) if m.len() >= b && spread(m, &mut (a..b)) < spread(&load, &mut (a..b)) => m,

@@ -153,11 +153,13 @@ fn laws_tried(law_p: Law, limit: Option<f64>, anti_windup: Option<AntiWindup>) -
 /// The law `law_p` with its output limit moved after a declared added input: a drive or an
 /// output stage (a DAC's +-10 V) that clamps the sum of the controller's output and the
 /// injected signal, not the controller's output before it. `None` without an added input or
-/// without a finite limit. Returned with the limit that then bounds the sum.
+/// without a finite limit. Returned with the limit that then bounds the sum. A law that never
+/// clamps has no anti-windup form: the variants of the clamped laws map to one law here.
 fn clamp_on_sum(law_p: &Law, add: Option<&[f64]>, limit: Option<f64>) -> Option<(Law, f64)> {
     (add.is_some() && law_p.lim.is_finite()).then(|| {
         let on_sum = Law {
             lim: f64::INFINITY,
+            anti_windup: AntiWindup::Held,
             ..*law_p
         };
         (on_sum, limit.map_or(law_p.lim, |l| l.min(law_p.lim)))
@@ -192,13 +194,15 @@ fn best_of(
     let x = d.load_in_motor_units();
     let q = d.motor_raw.as_deref().unwrap_or(&x);
     let (fa, fb) = d.range;
-    let tried: Vec<(Law, Option<f64>)> = laws
-        .iter()
-        .flat_map(|lw| {
-            std::iter::once((*lw, limit))
-                .chain(clamp_on_sum(lw, add, limit).map(|(on_sum, l)| (on_sum, Some(l))))
-        })
-        .collect();
+    let mut tried: Vec<(Law, Option<f64>)> = Vec::new();
+    for lw in laws {
+        let on_sum = clamp_on_sum(lw, add, limit).map(|(on_sum, l)| (on_sum, Some(l)));
+        for t in std::iter::once((*lw, limit)).chain(on_sum) {
+            if !tried.contains(&t) {
+                tried.push(t);
+            }
+        }
+    }
     let mut best: Option<(f64, LawRead)> = None;
     for (lw, limit) in tried {
         let Some((velocity, disc, out)) = best_law(
