@@ -28,6 +28,7 @@ use super::controller_candidates::*;
 use super::data::AxisData;
 use super::dictionary::{self, SparsePeer, TermCut};
 use super::effects::{Effect, EffectId, WbModel};
+use super::gap_sizing::{score_floating_gap, WINDOW_SIZED};
 use super::pair::name_hidden_pair;
 use super::refit::{flat, inertias_now, Released};
 use super::scoring::*;
@@ -102,6 +103,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
     let ch = TorqueChannel::new(model, d, &rel);
     let mut cands = base_parameter_candidates(model, d, &ch);
     let untested = effect_candidates(model, d, &ch, &mut cands);
+    score_floating_gap(&mut cands, model, d, opts.window_s);
     let cc = ControllerChannel::new(model, d);
     if let Some(cc) = &cc {
         controller_candidates(model, d, cc, &mut cands);
@@ -198,11 +200,15 @@ fn resize_candidate(cands: &mut [Candidate], e: Effect, d: &AxisData) {
     };
     let before = c.add.iter().find(|a| a.id == e.id).map(|a| evidence(a, d));
     c.params = flat(&e.to_table(d.kind, d.r));
-    c.evidence = format!(
-        "{}; sized on the windowed simulation, which integrates the gap (the deflection's least squares: {})",
-        evidence(&e, d),
-        before.unwrap_or_default()
-    );
+    c.evidence = match c.evidence.find(WINDOW_SIZED) {
+        // scored on the windowed simulation already: the fit's size, the same account
+        Some(at) => format!("{}{}", evidence(&e, d), &c.evidence[at..]),
+        None => format!(
+            "{}{WINDOW_SIZED} (the deflection's least squares: {})",
+            evidence(&e, d),
+            before.unwrap_or_default()
+        ),
+    };
     c.add = vec![e];
 }
 
