@@ -481,14 +481,21 @@ pub(super) fn mode_candidate(
         fmt(wide_hz),
         wide.error_reduction_pct
     );
+    // and cut what the torque balance counts: below it the wide band's structure is the
+    // numerics of the derivatives (the true model of a clamped drive leaves it too)
+    let material = red >= ch.min_pct;
     if !physical {
         ev = format!("{ev}; on the torque channel {NEGATIVE_MASS}: not significant");
+    } else if !material && red < MIN_REDUCTION_PCT {
+        ev = format!(
+            "{ev}; on the torque channel it lowers the cross-validated error by only {red:.1} %: not significant"
+        );
     }
     Ok(Candidate {
         effect: id.to_string(),
         is_param: false,
         class: class_of(id).into(),
-        significant: physical,
+        significant: physical && material,
         // a mode that the data single out ranks before the inertia refit it also explains
         error_reduction_pct: if physical { red } else { ch.cut_pct(&cv) }.clamp(-100.0, 100.0),
         evidence: ev,

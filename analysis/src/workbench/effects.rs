@@ -537,6 +537,16 @@ pub struct WbModel {
     pub replaced_side: Option<Side>,
 }
 
+/// The torque-path effects in the drive's order.
+const TORQUE_PATH: [EffectId; 3] = [
+    EffectId::Delay,
+    EffectId::TorqueSaturation,
+    EffectId::CurrentLag,
+];
+
+/// The torque-path effects that act on each held command, before the half-sample alignment.
+const HELD_PATH: [EffectId; 2] = [EffectId::Delay, EffectId::TorqueSaturation];
+
 impl WbModel {
     /// This model without the effect that effect `id` contains (see [`WbModel::superseded_by`]),
     /// the side of a dry friction taken out kept in [`WbModel::replaced_side`]; and that
@@ -612,21 +622,22 @@ impl WbModel {
     ///
     /// A command recorded at sample k is held over the following period (zero-order hold), so
     /// the torque acting around sample k (where the central differences are centred) is the mean
-    /// of commands k-1 and k: that half-sample alignment comes first.
+    /// of the commands acting over periods k-1 and k. The drive delays and clamps each command it
+    /// holds, so the delay and the clamp act on the recorded commands before that half-sample
+    /// alignment (a clamp does not commute with the mean: aligning first put half a period of
+    /// torque beyond the limit at every entry into the clamp and every exit, where a mode then
+    /// fitted); the lag, linear and time-invariant, acts after it as before.
     pub fn applied_torque(&self, y: &[f64], dt: f64) -> Vec<f64> {
-        let aligned: Vec<f64> = (0..y.len()).map(|k| zoh_mid(y, k)).collect();
-        self.path_effects(aligned, dt, 1)
+        let held = self.path_effects(y.to_vec(), dt, 1, &HELD_PATH);
+        let aligned: Vec<f64> = (0..held.len()).map(|k| zoh_mid(&held, k)).collect();
+        self.path_effects(aligned, dt, 1, &[EffectId::CurrentLag])
     }
 
-    /// The torque-path effects on the aligned torque `out`, in the drive's order: delay,
-    /// saturation, lag (`sub`: see [`Effect::applied_torque_held`]).
-    fn path_effects(&self, mut out: Vec<f64>, dt: f64, sub: usize) -> Vec<f64> {
-        for id in [
-            EffectId::Delay,
-            EffectId::TorqueSaturation,
-            EffectId::CurrentLag,
-        ] {
-            for e in self.effects.iter().filter(|e| e.id == id) {
+    /// The torque-path effects among `ids` on the torque `out`, in the drive's order (`ids`
+    /// lists them in it: delay, saturation, lag; `sub`: see [`Effect::applied_torque_held`]).
+    fn path_effects(&self, mut out: Vec<f64>, dt: f64, sub: usize, ids: &[EffectId]) -> Vec<f64> {
+        for id in ids {
+            for e in self.effects.iter().filter(|e| e.id == *id) {
                 out = e.applied_torque_held(&out, dt, sub);
             }
         }
@@ -640,7 +651,7 @@ impl WbModel {
         let raw = d.torque_raw.as_ref()?;
         // an axis held in block means holds the torque already aligned (see `load_axis_held`)
         let out = if d.sub > 1 {
-            self.path_effects(raw.clone(), d.dt, d.sub)
+            self.path_effects(raw.clone(), d.dt, d.sub, &TORQUE_PATH)
         } else {
             self.applied_torque(raw, d.dt)
         };
