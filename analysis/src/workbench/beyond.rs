@@ -160,6 +160,8 @@ impl Top {
         d: &AxisData,
     ) -> Option<String> {
         let top_name = &self.name;
+        // a refit that more than doubles the error reads -100 %, as every candidate's cut
+        let extra = extra.clamp(-100.0, 100.0);
         if vetoed(&c.evidence) {
             // out of its physical range or contradicted by the motion: it stays as it was
             c.significant = false;

@@ -196,7 +196,8 @@ fn condition_deflection(
         let cols: Vec<Vec<f64>> = c.add.iter().flat_map(|e| e.columns(d)).collect();
         let refs: Vec<&[f64]> = cols.iter().map(|x| x.as_slice()).collect();
         let cv = cv_cols(&base, &refs, rd, bl);
-        let extra = 100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300);
+        let extra =
+            (100.0 * (reference.rms - cv.rms) / reference.rms.max(1e-300)).clamp(-100.0, 100.0);
         if extra < MIN_REDUCTION_PCT || fold_wins(&cv, &reference.fold_mse) < MIN_FOLD_WINS {
             c.significant = false;
             c.evidence = format!(
@@ -223,7 +224,7 @@ pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
         .iter_mut()
         .filter(|c| c.effect == EffectId::DirectionalFriction.id())
     {
-        let extra = c.error_reduction_pct - coulomb;
+        let extra = (c.error_reduction_pct - coulomb).clamp(-100.0, 100.0);
         c.error_reduction_pct = extra;
         if extra < min_pct {
             c.significant = false;
@@ -249,7 +250,7 @@ pub(super) fn refine_of_coulomb(cands: &mut [Candidate], min_pct: f64) {
         .iter_mut()
         .filter(|c| c.effect == EffectId::StribeckFriction.id() && c.significant)
     {
-        let extra = c.error_reduction_pct - coulomb;
+        let extra = (c.error_reduction_pct - coulomb).clamp(-100.0, 100.0);
         if extra < min_pct {
             // credited, as directional friction is, with what it adds: it ranks below
             c.error_reduction_pct = extra;
@@ -581,7 +582,7 @@ pub(super) fn scored_candidate(
         // constant force, or the constant force alone is the name (gravity on an inclined axis)
         let one = vec![1.0; d.len()];
         let cv_off = cv_cols_masked(&ch.base_cols, &[&one], &ch.res, &ch.bl, mk);
-        let beyond = 100.0 * (cv_off.rms - cv.rms) / ch.e0;
+        let beyond = (100.0 * (cv_off.rms - cv.rms) / ch.e0).clamp(-100.0, 100.0);
         if beyond < ch.min_pct || fold_wins(&cv, &cv_off.fold_mse) < MIN_FOLD_WINS {
             significant = false;
             extra = beyond;

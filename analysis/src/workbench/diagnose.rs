@@ -38,6 +38,7 @@ pub use super::scoring::{
 };
 use super::side::simulation_prefers;
 use super::signal::autocorrelation;
+use super::standstill::standstill_friction;
 pub use super::verdict::Confirmed;
 use super::verdict::*;
 use super::words::evidence;
@@ -104,6 +105,7 @@ pub fn diagnose(model: &WbModel, d: &AxisData, opts: &DiagOptions) -> Diagnosis 
     let mut cands = base_parameter_candidates(model, d, &ch);
     let untested = effect_candidates(model, d, &ch, &mut cands);
     score_floating_gap(&mut cands, model, d, opts.window_s);
+    standstill_friction(&mut cands, model, d, ch.mask.as_deref());
     let cc = ControllerChannel::new(model, d);
     if let Some(cc) = &cc {
         controller_candidates(model, d, cc, &mut cands);

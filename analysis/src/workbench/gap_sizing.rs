@@ -203,5 +203,5 @@ fn window_cut(without: &WindowSim, with: &WindowSim, d: &AxisData) -> Option<(f6
         .zip(&m0)
         .filter(|(x, r)| **x < **r * 0.999)
         .count();
-    Some((100.0 * (e0 - e1) / e0, wins))
+    Some(((100.0 * (e0 - e1) / e0).clamp(-100.0, 100.0), wins))
 }

@@ -37,6 +37,7 @@ pub mod report;
 mod scoring;
 mod side;
 pub mod signal;
+mod standstill;
 mod verdict;
 pub mod window;
 pub mod words;
