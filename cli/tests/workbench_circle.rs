@@ -353,6 +353,9 @@ fn a_gap_the_table_floats_across_is_named_and_sized_on_the_windowed_simulation()
         truth,
         0.1,
     );
+    // named by the windowed simulation, not by the deflection's least squares
+    let why = first["evidence"].as_str().unwrap();
+    assert!(why.contains("the load floats across the gap"), "{why}");
     let auto = dir.join("auto");
     let a = plain_json(
         &["diagnose", "--auto", "--out", auto.to_str().unwrap()],

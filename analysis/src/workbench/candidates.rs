@@ -483,7 +483,9 @@ pub(super) fn mode_candidate(
         wide.error_reduction_pct
     );
     // and cut what the torque balance counts: below it the wide band's structure is the
-    // numerics of the derivatives (the true model of a clamped drive leaves it too)
+    // numerics of the derivatives (the true model of a clamped drive leaves it too). The whole
+    // cut counts, as in its score: a mode the wide band singles out explains the inertia refit's
+    // part too (a strongly excited mass behind the table cuts little beyond that refit alone)
     let material = red >= ch.min_pct;
     if !physical {
         ev = format!("{ev}; on the torque channel {NEGATIVE_MASS}: not significant");

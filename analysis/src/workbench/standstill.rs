@@ -14,7 +14,7 @@
 use super::data::AxisData;
 use super::effects::{Effect, EffectId, WbModel};
 use super::refit::flat;
-use super::scoring::Candidate;
+use super::scoring::{decimate, Candidate};
 use super::signal::{quantile, rms};
 use super::words::{evidence, fmt, reversals};
 
@@ -24,6 +24,11 @@ use super::words::{evidence, fmt, reversals};
 /// the constant torque's miss at its full size.
 const HOLD_RATIO: f64 = 0.5;
 
+/// The constant torque's miss at rest must also exceed its miss while moving this many times: a
+/// drive that holds the constant torque leaves it missing at rest by the noise only, which the
+/// friction (taking whatever lies within its level) always absorbs.
+const REST_OVER_MOVING: f64 = 3.0;
+
 /// Fewest standstill rows, and fewest per thousand rows of the record, that can tell the two.
 const MIN_REST_ROWS: usize = 50;
 const MIN_REST_PER_MILLE: usize = 20;
@@ -31,7 +36,7 @@ const MIN_REST_PER_MILLE: usize = 20;
 /// On a record without a reversal (`d`), with the standstill rows those outside `moving` (the
 /// candidates' mask): when `constant_force` is significant and `coulomb_friction` with the
 /// same torque while moving (a friction opposing the motion) explains the standstills where the
-/// constant torque does not ([`HOLD_RATIO`]), the friction takes the constant torque's score
+/// constant torque does not ([`HOLD_RATIO`], [`REST_OVER_MOVING`]), the friction takes the constant torque's score
 /// and significance, and the constant torque loses it; both say why.
 pub(super) fn standstill_friction(
     cands: &mut [Candidate],
@@ -66,18 +71,21 @@ pub(super) fn standstill_friction(
     let Some(friction) = friction_like(&cands[jf].add[0], &constant, d, moving) else {
         return;
     };
-    let at_rest = |e: &Effect| -> Option<f64> {
+    let on: Vec<usize> = (a..b).filter(|k| moving[*k] != 0.0).collect();
+    // the RMS of the balance residual of the model with `e`, at rest and while moving
+    let misses = |e: &Effect| -> Option<(f64, f64)> {
         let mut m = model.clone();
         m.effects.push(e.clone());
         let applied = m.applied(d)?;
         let needed = m.torque_needed(d);
         let r = m.balance_residual(d, &applied, &needed);
-        Some(rms(&rest.iter().map(|k| r[*k]).collect::<Vec<_>>()))
+        let of = |rows: &[usize]| rms(&rows.iter().map(|k| r[*k]).collect::<Vec<_>>());
+        Some((of(&rest), of(&on)))
     };
-    let (Some(rc), Some(rf)) = (at_rest(&constant), at_rest(&friction)) else {
+    let (Some((rc, moving_c)), Some((rf, _))) = (misses(&constant), misses(&friction)) else {
         return;
     };
-    if rf.is_nan() || rc.is_nan() || rf >= HOLD_RATIO * rc {
+    if rf.is_nan() || rc.is_nan() || rf >= HOLD_RATIO * rc || rc <= REST_OVER_MOVING * moving_c {
         return;
     }
     let share = 100.0 * rest.len() as f64 / (b - a) as f64;
@@ -86,6 +94,7 @@ pub(super) fn standstill_friction(
     f.significant = true;
     f.error_reduction_pct = score;
     f.params = flat(&friction.to_table(d.kind, d.r));
+    f.contribution = decimate(&friction.contribution(d), a, b);
     f.evidence = format!(
         "{}; at standstill ({share:.0} % of the record) the drive does not hold a constant torque: the torque balance at rest misses by {} with constant_force, by {} with this friction, which sticks there: a friction, not a constant torque (the axis moves one way only, so its level is the torque it takes while moving)",
         evidence(&friction, d),
