@@ -68,11 +68,17 @@ fn sim_job(dir: &Path, job: &str, hidden: &str, edit: impl Fn(&str) -> String) -
 /// As [`auto_hidden`], the machine's model also changed by `edit` (the plain model kept).
 fn auto_machine(dir: &Path, hidden: &str, edit: impl Fn(&str) -> String) -> Value {
     let out = sim_machine(dir, hidden, edit);
+    auto_on(dir, &out)
+}
+
+/// `diagnose --auto --out DIR/auto` on the simulated trace in `out` with the plain model of
+/// `dir`: its JSON.
+fn auto_on(dir: &Path, out: &Path) -> Value {
     let auto = dir.join("auto");
     plain_json(
         &["diagnose", "--auto", "--out", auto.to_str().unwrap()],
         dir,
-        &out,
+        out,
     )
 }
 
@@ -356,12 +362,7 @@ fn a_gap_the_table_floats_across_is_named_and_sized_on_the_windowed_simulation()
     // named by the windowed simulation, not by the deflection's least squares
     let why = first["evidence"].as_str().unwrap();
     assert!(why.contains("the load floats across the gap"), "{why}");
-    let auto = dir.join("auto");
-    let a = plain_json(
-        &["diagnose", "--auto", "--out", auto.to_str().unwrap()],
-        &dir,
-        &out,
-    );
+    let a = auto_on(&dir, &out);
     assert_eq!(added(&a), ["backlash"], "{}", a["verdict"]);
     let steps = a["steps"].as_array().unwrap();
     let w = |s: &Value| s["window_sim_nrmse_pct"].as_f64().unwrap();
@@ -388,12 +389,7 @@ fn a_clamped_drive_on_the_single_axis_move_is_the_clamp_alone() {
         "[effects.torque_saturation]\nlimit_nm = 3.4\n",
         |m| m.to_string(),
     );
-    let auto = dir.join("auto");
-    let a = plain_json(
-        &["diagnose", "--auto", "--out", auto.to_str().unwrap()],
-        &dir,
-        &out,
-    );
+    let a = auto_on(&dir, &out);
     assert_eq!(added(&a), ["torque_saturation"], "{}", a["verdict"]);
     let limit = final_model(&dir)["effects"]["torque_saturation"]["limit_nm"]
         .as_float()

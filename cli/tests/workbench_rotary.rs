@@ -38,11 +38,16 @@ fn diagnose_hidden(dir: &Path, hidden: &str) -> Value {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    diagnose_with(dir, &dir.join("c0.toml"))
+}
+
+/// `diagnose --axis c --json` of the trace simulated in `dir` with the model file `model`.
+fn diagnose_with(dir: &Path, model: &Path) -> Value {
     let o = Command::new(bin())
         .args(["diagnose", "--axis", "c", "--json", "--trace"])
-        .arg(out.join("trace.csv"))
+        .arg(dir.join("out").join("trace.csv"))
         .arg("--model")
-        .arg(dir.join("c0.toml"))
+        .arg(model)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -110,15 +115,7 @@ fn a_friction_on_an_axis_turning_one_way_is_told_from_a_constant_torque_at_stand
         let with = dir.join("c1.toml");
         let cf = format!("{plain}\n[effects.constant_force]\ntorque_nm = {level}\n");
         std::fs::write(&with, cf).unwrap();
-        let o = Command::new(bin())
-            .args(["diagnose", "--axis", "c", "--json", "--trace"])
-            .arg(dir.join("out").join("trace.csv"))
-            .arg("--model")
-            .arg(&with)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        assert_cuts_readable(&serde_json::from_slice(&o.stdout).unwrap());
+        assert_cuts_readable(&diagnose_with(&dir, &with));
         assert!(
             constant["evidence"]
                 .as_str()

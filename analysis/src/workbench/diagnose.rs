@@ -200,7 +200,6 @@ fn resize_candidate(cands: &mut [Candidate], e: Effect, d: &AxisData) {
     else {
         return;
     };
-    let before = c.add.iter().find(|a| a.id == e.id).map(|a| evidence(a, d));
     c.params = flat(&e.to_table(d.kind, d.r));
     c.evidence = match c.evidence.find(WINDOW_SIZED) {
         // scored on the windowed simulation already: the fit's size, the same account
@@ -208,7 +207,11 @@ fn resize_candidate(cands: &mut [Candidate], e: Effect, d: &AxisData) {
         None => format!(
             "{}{WINDOW_SIZED} (the deflection's least squares: {})",
             evidence(&e, d),
-            before.unwrap_or_default()
+            c.add
+                .iter()
+                .find(|a| a.id == e.id)
+                .map(|a| evidence(a, d))
+                .unwrap_or_default()
         ),
     };
     c.add = vec![e];

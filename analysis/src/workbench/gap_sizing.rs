@@ -17,7 +17,9 @@ use super::data::AxisData;
 use super::effects::{EffectId, WbModel};
 use super::lsq::{blocks, MIN_REDUCTION_PCT};
 use super::refit::{deflection, flat, FOLDS};
-use super::scoring::{decimate, load_to_motor, Candidate, DEFLECTION_FLOOR_M, MIN_FOLD_WINS};
+use super::scoring::{
+    blocks_lower, decimate, load_to_motor, Candidate, DEFLECTION_FLOOR_M, MIN_FOLD_WINS,
+};
 use super::signal::{golden_section, quantile};
 use super::window::{windowed_only, WindowSim};
 use super::words::evidence;
@@ -206,10 +208,6 @@ fn window_cut(without: &WindowSim, with: &WindowSim, d: &AxisData) -> Option<(f6
         block_mse(&without.residual, &bl),
         block_mse(&with.residual, &bl),
     );
-    let wins = m1
-        .iter()
-        .zip(&m0)
-        .filter(|(x, r)| **x < **r * 0.999)
-        .count();
+    let wins = blocks_lower(&m1, &m0);
     Some(((100.0 * (e0 - e1) / e0).clamp(-100.0, 100.0), wins))
 }

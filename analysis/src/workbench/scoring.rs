@@ -87,8 +87,12 @@ pub(super) fn corr(a: &[f64], b: &[f64]) -> f64 {
 }
 
 pub(super) fn fold_wins(a: &Cv, reference: &[f64]) -> usize {
-    a.fold_mse
-        .iter()
+    blocks_lower(&a.fold_mse, reference)
+}
+
+/// The blocks in which the mean square `mse` lies below `reference` (by more than 0.1 %).
+pub(super) fn blocks_lower(mse: &[f64], reference: &[f64]) -> usize {
+    mse.iter()
         .zip(reference)
         .filter(|(x, r)| **x < **r * 0.999)
         .count()
