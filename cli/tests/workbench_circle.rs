@@ -272,6 +272,46 @@ fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range
     }
 }
 
+/// A Stribeck velocity and a lost motion's transition travel lie between the points of their
+/// grids: the refit refines them between the best point's neighbours, as it does a time
+/// constant. Before, the grid's step alone sized a Stribeck velocity of 1 rad/s at 0.912 rad/s
+/// (its breakaway level 3 % high) and a transition of 10 um at 17.1 um.
+#[test]
+fn a_stribeck_velocity_and_a_lost_motion_transition_between_grid_points_are_sized_closely() {
+    let dir = Scratch::new("workbench_circle", "stribeck-refined");
+    let hidden = "[effects.stribeck_friction]\nfc_nm = 0.1\nfs_nm = 0.2\nvs_rad_per_s = 1.0\n";
+    auto_adds(&dir, hidden, &["stribeck_friction"]);
+    let t = final_model(&dir);
+    let s = t["effects"]["stribeck_friction"].as_table().unwrap();
+    for (key, truth, tol) in [
+        ("fc_nm", 0.1, 0.01),
+        ("fs_nm", 0.2, 0.01),
+        ("vs_rad_per_s", 1.0, 0.03),
+    ] {
+        near(key, s[key].as_float().unwrap(), truth, tol);
+    }
+    let dir = Scratch::new("workbench_circle", "lost-refined");
+    auto_adds(
+        &dir,
+        "[effects.lost_motion]\nlost_motion_m = 1.0e-5\n",
+        &["lost_motion"],
+    );
+    let t = final_model(&dir);
+    let l = t["effects"]["lost_motion"].as_table().unwrap();
+    near(
+        "lost_motion_m",
+        l["lost_motion_m"].as_float().unwrap(),
+        1.0e-5,
+        0.01,
+    );
+    near(
+        "transition_m",
+        l["transition_m"].as_float().unwrap(),
+        1.0e-5,
+        0.1,
+    );
+}
+
 /// A dead time of five periods on the circle: a first-order lag cuts the torque balance about as
 /// much (95.9 % against 95.2 %), but the model with it simulates the record far worse; the
 /// guided loop names the dead time, with its length (before, the lag was named).
