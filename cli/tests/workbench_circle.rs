@@ -150,6 +150,23 @@ fn check(tag: &str, hidden: &str, expect: &[&str]) {
     }
 }
 
+/// Hides `hidden` on the circle (scratch folder `tag`), asserts that the guided loop adds
+/// `effect` alone, and that each of its `(key, truth, tol)` in the final model lies within `tol`
+/// (relative) of `truth`.
+fn adds_alone_sized(tag: &str, hidden: &str, effect: &str, sizes: &[(&str, f64, f64)]) {
+    let dir = Scratch::new("workbench_circle", tag);
+    auto_adds(&dir, hidden, &[effect]);
+    let t = final_model(&dir);
+    let e = t["effects"][effect].as_table().unwrap();
+    for (key, truth, tol) in sizes {
+        let got = e
+            .get(*key)
+            .and_then(|v| v.as_float())
+            .unwrap_or_else(|| panic!("{tag}: {effect} has no `{key}`: {e:?}"));
+        near(&format!("{tag}: {key}"), got, *truth, *tol);
+    }
+}
+
 /// The generic peer refits one inertia and one damping through its dictionary's acceleration and
 /// velocity terms, not through the model's motor and load columns: on the circle the two bodies
 /// move together, and a free split of the two inertias fits the scale's noise in sample (to half
@@ -262,14 +279,17 @@ fn a_dry_friction_on_the_circle_is_added_on_the_side_it_acts_on() {
 /// a Coulomb friction and a refit of the two dampings were added instead).
 #[test]
 fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range() {
-    let dir = Scratch::new("workbench_circle", "stribeck");
     let hidden = "[[effects.stribeck_friction]]\nside = \"load\"\nfc_n = 55.0\nfs_n = 85.0\nvs_m_per_s = 0.011\n";
-    auto_adds(&dir, hidden, &["stribeck_friction"]);
-    let t = final_model(&dir);
-    let s = t["effects"]["stribeck_friction"].as_table().unwrap();
-    for (key, truth) in [("fc_n", 55.0), ("fs_n", 85.0), ("vs_m_per_s", 0.011)] {
-        near(key, s[key].as_float().unwrap(), truth, 0.1);
-    }
+    adds_alone_sized(
+        "stribeck",
+        hidden,
+        "stribeck_friction",
+        &[
+            ("fc_n", 55.0, 0.1),
+            ("fs_n", 85.0, 0.1),
+            ("vs_m_per_s", 0.011, 0.1),
+        ],
+    );
 }
 
 /// A Stribeck velocity and a lost motion's transition travel lie between the points of their
@@ -278,37 +298,25 @@ fn a_stribeck_rise_over_a_third_of_the_top_speed_is_found_beyond_the_first_range
 /// (its breakaway level 3 % high) and a transition of 10 um at 17.1 um.
 #[test]
 fn a_stribeck_velocity_and_a_lost_motion_transition_between_grid_points_are_sized_closely() {
-    let dir = Scratch::new("workbench_circle", "stribeck-refined");
     let hidden = "[effects.stribeck_friction]\nfc_nm = 0.1\nfs_nm = 0.2\nvs_rad_per_s = 1.0\n";
-    auto_adds(&dir, hidden, &["stribeck_friction"]);
-    let t = final_model(&dir);
-    let s = t["effects"]["stribeck_friction"].as_table().unwrap();
-    for (key, truth, tol) in [
-        ("fc_nm", 0.1, 0.01),
-        ("fs_nm", 0.2, 0.01),
-        ("vs_rad_per_s", 1.0, 0.03),
-    ] {
-        near(key, s[key].as_float().unwrap(), truth, tol);
-    }
-    let dir = Scratch::new("workbench_circle", "lost-refined");
-    auto_adds(
-        &dir,
+    adds_alone_sized(
+        "stribeck-refined",
+        hidden,
+        "stribeck_friction",
+        &[
+            ("fc_nm", 0.1, 0.01),
+            ("fs_nm", 0.2, 0.01),
+            ("vs_rad_per_s", 1.0, 0.03),
+        ],
+    );
+    adds_alone_sized(
+        "lost-refined",
         "[effects.lost_motion]\nlost_motion_m = 1.0e-5\n",
-        &["lost_motion"],
-    );
-    let t = final_model(&dir);
-    let l = t["effects"]["lost_motion"].as_table().unwrap();
-    near(
-        "lost_motion_m",
-        l["lost_motion_m"].as_float().unwrap(),
-        1.0e-5,
-        0.01,
-    );
-    near(
-        "transition_m",
-        l["transition_m"].as_float().unwrap(),
-        1.0e-5,
-        0.1,
+        "lost_motion",
+        &[
+            ("lost_motion_m", 1.0e-5, 0.01),
+            ("transition_m", 1.0e-5, 0.1),
+        ],
     );
 }
 

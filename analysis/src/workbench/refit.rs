@@ -255,9 +255,8 @@ fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untes
     // a continuous parameter (a time constant, a limit, a mode's frequency, a Stribeck velocity,
     // a lost motion's transition): refined between the grid's neighbours of the best point (the
     // grid's step alone sized a Stribeck velocity of 1 rad/s at 0.912 rad/s)
-    for &dim in refined_parameters(id) {
-        let Some(b) = best.as_ref() else { break };
-        if let Some(r) = scorer.refine(&grid, &b.effect.hyper, dim) {
+    if let Some(b) = best.as_ref().filter(|_| refines_first(id)) {
+        if let Some(r) = scorer.refine(&grid, &b.effect.hyper) {
             if r.cv.rms < b.cv.rms {
                 best = Some(r);
             }
@@ -285,19 +284,20 @@ fn best_on_side(id: EffectId, side: Side, p: Problem<'_>) -> Result<Refit, Untes
     Ok(best)
 }
 
-/// The indices of effect `id`'s nonlinear parameters that vary continuously and are refined
-/// after the grid: a time constant, a limit, a mode's frequency, a Stribeck velocity, a lost
-/// motion's transition. The others are integers (a delay, a cogging's periods per revolution),
-/// shapes (a Stribeck exponent), classes (a mode's damping ratio: lightly damped, or a
-/// broad-band correction from 0.3 on, which a refined value would blur), the record's own (a
-/// backlash's dead band, a pitch's lead) or searched over a span (an unbalance's period).
-fn refined_parameters(id: EffectId) -> &'static [usize] {
+/// Whether effect `id`'s first nonlinear parameter varies continuously and is refined after
+/// the grid: a time constant, a limit, a mode's frequency, a Stribeck velocity, a lost motion's
+/// transition. The others are integers (a delay, a cogging's periods per revolution), the
+/// record's own (a backlash's dead band, a pitch's lead) or searched over a span (an
+/// unbalance's period). The second parameters stay on their grids: a Stribeck exponent is a
+/// shape, a mode's damping ratio a class (lightly damped, or a broad-band correction from 0.3
+/// on, which a refined value would blur).
+fn refines_first(id: EffectId) -> bool {
     match id {
         EffectId::CurrentLag
         | EffectId::TorqueSaturation
         | EffectId::StribeckFriction
-        | EffectId::LostMotion => &[0],
-        EffectId::ThirdMass => &[0],
+        | EffectId::LostMotion
+        | EffectId::ThirdMass => true,
         EffectId::Delay
         | EffectId::Cogging
         | EffectId::PitchError
@@ -306,7 +306,7 @@ fn refined_parameters(id: EffectId) -> &'static [usize] {
         | EffectId::ViscousFriction
         | EffectId::CoulombFriction
         | EffectId::ConstantForce
-        | EffectId::DirectionalFriction => &[],
+        | EffectId::DirectionalFriction => false,
     }
 }
 
@@ -523,15 +523,15 @@ impl Scorer<'_> {
         (best, reason)
     }
 
-    /// The refit at the minimum of a golden-section search on the logarithm of parameter `dim`
-    /// between the grid's values next to the point `best` (its other parameters held): `None`
-    /// when the grid has no other positive value of that parameter.
-    fn refine(&self, grid: &[Vec<f64>], best: &[f64], dim: usize) -> Option<Refit> {
-        let x0 = *best.get(dim)?;
+    /// The refit at the minimum of a golden-section search on the logarithm of the first
+    /// parameter between the grid's values next to the point `best` (its other parameters
+    /// held): `None` when the grid has no other positive value of it.
+    fn refine(&self, grid: &[Vec<f64>], best: &[f64]) -> Option<Refit> {
+        let x0 = *best.first()?;
         if x0 <= 0.0 {
             return None;
         }
-        let values = || grid.iter().filter_map(|h| h.get(dim).copied());
+        let values = || grid.iter().filter_map(|h| h.first().copied());
         let lo = values()
             .filter(|v| *v > 0.0 && *v < x0)
             .reduce(f64::max)
@@ -542,7 +542,7 @@ impl Scorer<'_> {
         }
         let at = |x: f64| {
             let mut h = best.to_vec();
-            h[dim] = x;
+            h[0] = x;
             h
         };
         let score = |x: f64| {
